@@ -1,0 +1,66 @@
+"""Engine ``threejs``: HTML + three.js (r160 UMD global ``THREE`` or r187 ES module ``three``)
+with ``CANNON`` (cannon.js 0.6.2) or ``cannon-es``, run in headless Chromium in virtual time."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from visphy_core.engine import Program
+from visphy_core.hookspecs import hookimpl
+from visphy_core.scene import Scene
+from visphy_plugins.engines.browser_base import BrowserEngine
+
+TEMPLATES = Path(__file__).with_name("templates")
+
+INSTRUCTIONS_2D = """
+Write a single self-contained HTML file. The page provides the global `THREE` (three.js r160) and
+the global `CANNON` (cannon.js 0.6.2 API); do not load any library from the network. Use an
+orthographic camera looking at the x-y plane, one canvas the size of the video, rigid bodies that
+match the first frame's layout, and initial velocities or impulses consistent with the later frame.
+Step a physics simulation with a fixed time step inside a requestAnimationFrame loop, and call
+`setupRecording(renderer.domElement, durationMs)` once to record a finite clip.
+""".strip()
+
+INSTRUCTIONS_3D = """
+Write a single self-contained HTML file. The page provides the global `THREE` (three.js r160) and
+the global `CANNON` (cannon.js 0.6.2 API); do not load any library from the network. Use a fixed
+perspective camera matching the view in the images, a rigid-body simulation stepped with a fixed
+time step inside a requestAnimationFrame loop, and call `setupRecording(renderer.domElement,
+durationMs)` once to record a finite clip.
+""".strip()
+
+
+class ThreeJsEngine(BrowserEngine):
+    name = "threejs"
+    version = "1"
+    supports_3d = True
+    preload = ("three.min.js", "cannon.min.js")
+
+    def instructions(self, dim: str) -> str:
+        return INSTRUCTIONS_3D if dim == "3d" else INSTRUCTIONS_2D
+
+    def program_from_spec(self, scene: Scene) -> Program:
+        spec, traj = scene.spec, scene.trajectory
+        if spec is None or traj is None:
+            raise ValueError(f"{scene.scene_id}: the reference program needs the scene's spec and "
+                             "trajectory (generated benchmarks have both)")
+        if scene.dim != "2d":
+            raise NotImplementedError(f"{scene.scene_id}: 3D reference programs are not built yet")
+        order = {str(body_id): i for i, body_id in enumerate(traj["body_ids"])}
+        payload = {
+            "width": scene.clip.width, "height": scene.clip.height, "fps": scene.clip.fps,
+            "n_frames": scene.clip.n_frames,
+            "bodies": [{"id": b["id"], "color_rgb": b["color_rgb"], "shape": b["shape"]}
+                       for b in spec["bodies"]],
+            "frame_poses": [[[round(float(v), 6) for v in frame[order[b["id"]]]]
+                             for b in spec["bodies"]] for frame in traj["frame_poses"]],
+        }
+        html = (TEMPLATES / "threejs_replay_2d.html").read_text()
+        html = html.replace("__SCENE_JSON__", json.dumps(payload, separators=(",", ":")))
+        return Program(language=self.language, source=html, spec=spec)
+
+
+@hookimpl
+def visphy_register_engines(register):
+    register("threejs", ThreeJsEngine)

@@ -1,0 +1,73 @@
+"""Pixel metrics on aligned frame pairs: PSNR and SSIM (weight-free, numpy/scipy).
+
+SSIM follows Wang et al. 2004 (11-tap Gaussian window, σ = 1.5, K1 = 0.01, K2 = 0.03, L = 255,
+borders of the filter radius cropped), computed on the luma Y (BT.601) and on R, G and B, and
+averaged over those four channels (MISSION §6: "mean over Y and R,G,B").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import gaussian_filter
+
+from visphy_core.hookspecs import hookimpl
+from visphy_core.metrics import HIGHER, Metric, MetricInput
+
+PSNR_CAP_DB = 100.0  # identical frames: report the cap instead of infinity
+_SIGMA, _RADIUS = 1.5, 5
+_C1, _C2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
+
+
+def psnr_frame(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    if mse <= 255.0**2 * 10 ** (-PSNR_CAP_DB / 10):
+        return PSNR_CAP_DB
+    return 10.0 * np.log10(255.0**2 / mse)
+
+
+def _blur(x: np.ndarray) -> np.ndarray:
+    return gaussian_filter(x, _SIGMA, truncate=_RADIUS / _SIGMA, mode="reflect")
+
+
+def ssim_channel(x: np.ndarray, y: np.ndarray) -> float:
+    mx, my = _blur(x), _blur(y)
+    sxx = _blur(x * x) - mx * mx
+    syy = _blur(y * y) - my * my
+    sxy = _blur(x * y) - mx * my
+    smap = ((2 * mx * my + _C1) * (2 * sxy + _C2)) / ((mx * mx + my * my + _C1) * (sxx + syy + _C2))
+    r = _RADIUS
+    return float(smap[r:-r, r:-r].mean())
+
+
+def _channels(frame: np.ndarray) -> list[np.ndarray]:
+    f = frame.astype(np.float64)
+    luma = 0.299 * f[..., 0] + 0.587 * f[..., 1] + 0.114 * f[..., 2]
+    return [luma, f[..., 0], f[..., 1], f[..., 2]]
+
+
+def ssim_frame(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.mean([ssim_channel(x, y) for x, y in zip(_channels(a), _channels(b))]))
+
+
+class PSNR(Metric):
+    name = "psnr"
+    direction = HIGHER
+    score_range = (0.0, PSNR_CAP_DB)
+
+    def compute(self, inp: MetricInput) -> float:
+        return float(np.mean([psnr_frame(a, b) for a, b in zip(inp.reference, inp.generated)]))
+
+
+class SSIM(Metric):
+    name = "ssim"
+    direction = HIGHER
+    score_range = (-1.0, 1.0)
+
+    def compute(self, inp: MetricInput) -> float:
+        return float(np.mean([ssim_frame(a, b) for a, b in zip(inp.reference, inp.generated)]))
+
+
+@hookimpl
+def visphy_register_metrics(register):
+    register(PSNR())
+    register(SSIM())

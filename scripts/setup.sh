@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# Install everything visphy needs on a Debian machine with Python 3.11:
+#   system packages (Chromium, fonts, Node.js/npm), a virtual environment in .venv with visphy
+#   and its extras, and the vendored JavaScript libraries (npm ci into visphy's asset cache).
+# Usage: scripts/setup.sh [extra[,extra...]]     e.g. scripts/setup.sh test
+set -euo pipefail
+cd "$(dirname "$0")/.."
+EXTRAS="${1:-}"
+PY="${PYTHON:-python3.11}"
+command -v "$PY" >/dev/null 2>&1 || PY=python3
+
+SUDO=""
+[ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null 2>&1 && SUDO="sudo"
+need_apt=()
+command -v chromium >/dev/null 2>&1 || need_apt+=(chromium)
+command -v npm >/dev/null 2>&1 || need_apt+=(nodejs npm)
+[ -e /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ] || need_apt+=(fonts-dejavu-core)
+if [ "${#need_apt[@]}" -gt 0 ]; then
+  echo "[setup] apt-get install ${need_apt[*]}"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${need_apt[@]}" >/dev/null
+fi
+
+if [ ! -x .venv/bin/python ]; then
+  echo "[setup] creating .venv with $PY"
+  "$PY" -m venv .venv
+fi
+spec="."
+[ -n "$EXTRAS" ] && spec=".[$EXTRAS]"
+echo "[setup] pip install -e '$spec'"
+.venv/bin/python -m pip install -q --disable-pip-version-check -e "$spec"
+.venv/bin/python -m visphy_core setup

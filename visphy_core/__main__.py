@@ -1,0 +1,8 @@
+"""`python -m visphy_core <hydra overrides>` or `python -m visphy_core plugins|setup|build-dataset`."""
+
+import sys
+
+from visphy_core.cli import main
+
+if __name__ == "__main__":
+    sys.exit(main())

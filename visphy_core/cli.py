@@ -1,0 +1,94 @@
+"""Command line: ``python -m visphy_core [subcommand | hydra overrides]``.
+
+Subcommands:
+  plugins        list installed plugins and what each registers (also: --plugins)
+  setup          install the vendored JavaScript libraries (npm ci into the asset cache)
+  build-dataset  build a generated dataset: build-dataset [name] [--data-dir DIR]
+Anything else is a Hydra run: ``python -m visphy_core engine=threejs model=oracle dataset=mini``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from visphy_core.config_check import ConfigError, check_overrides
+
+
+def cmd_plugins(argv: list[str]) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from visphy_core.plugins import describe_plugins
+
+    table = Table(title="visphy plugins")
+    for col in ("plugin", "distribution", "registers", "hooks"):
+        table.add_column(col)
+    for info in describe_plugins():
+        regs = "; ".join(f"{kind}: {', '.join(sorted(names))}"
+                         for kind, names in sorted(info.registers.items()))
+        table.add_row(info.name, f"{info.distribution} {info.version}", regs or "—",
+                      ", ".join(h.removeprefix("visphy_") for h in info.hooks))
+    Console(width=160).print(table)
+    return 0
+
+
+def cmd_setup(argv: list[str]) -> int:
+    from visphy_plugins.engines.js_assets import install_assets
+
+    path = install_assets()
+    print(f"browser engine libraries ready in {path}")
+    return 0
+
+
+def cmd_build_dataset(argv: list[str]) -> int:
+    from pathlib import Path
+
+    from visphy_core.bench.build import build_dataset
+
+    parser = argparse.ArgumentParser(prog="visphy build-dataset")
+    parser.add_argument("name", nargs="?", default="mini")
+    parser.add_argument("--data-dir", default="visphy-out/data")
+    args = parser.parse_args(argv)
+    root = build_dataset(args.name, Path(args.data_dir))
+    print(f"dataset {args.name!r} written to {root}")
+    return 0
+
+
+SUBCOMMANDS = {"plugins": cmd_plugins, "setup": cmd_setup, "build-dataset": cmd_build_dataset}
+
+
+def run_hydra(argv: list[str]) -> int:
+    import hydra
+    from hydra.core.global_hydra import GlobalHydra
+
+    from visphy_core.plugins import get_registry
+
+    get_registry()  # plugins store their structured configs before Hydra composes
+    if not any(a in ("--help", "-h", "--hydra-help", "--info", "--cfg", "-c") or
+               a.startswith("--info") for a in argv):
+        try:
+            check_overrides([a for a in argv if not a.startswith("-")])
+        except ConfigError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+    GlobalHydra.instance().clear()
+
+    @hydra.main(version_base="1.3", config_path="pkg://visphy_conf", config_name="config")
+    def _main(cfg) -> None:
+        from visphy_core.run import run_experiment
+
+        run_experiment(cfg)
+
+    sys.argv = [sys.argv[0]] + argv
+    _main()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in SUBCOMMANDS:
+        return SUBCOMMANDS[argv[0]](argv[1:])
+    if "--plugins" in argv:
+        return cmd_plugins([])
+    return run_hydra(argv)

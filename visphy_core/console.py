@@ -1,0 +1,91 @@
+"""What a person sees in the terminal: a progress bar over scenes and the final summary table."""
+
+from __future__ import annotations
+
+import sys
+from contextlib import contextmanager
+from typing import Callable, Iterator
+
+from rich.console import Console
+from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
+                           TimeElapsedColumn, TimeRemainingColumn)
+from rich.table import Table
+
+console = Console(stderr=False, highlight=False)
+
+
+@contextmanager
+def scene_progress(total: int, enabled: bool = True) -> Iterator[Callable[[str], None]]:
+    """Yields ``advance(scene_id)``: call it when a scene starts."""
+    if not enabled:
+        yield lambda _scene_id: None
+        return
+    progress = Progress(TextColumn("[bold]scenes"), BarColumn(), MofNCompleteColumn(),
+                        TextColumn("{task.description}"), TimeElapsedColumn(),
+                        TimeRemainingColumn(), console=Console(file=sys.stderr),
+                        transient=False)
+    started = {"n": 0}
+    with progress:
+        task = progress.add_task("", total=total)
+
+        def advance(scene_id: str) -> None:
+            if started["n"]:
+                progress.advance(task)
+            started["n"] += 1
+            progress.update(task, description=scene_id)
+
+        yield advance
+        if started["n"]:
+            progress.advance(task)
+        progress.update(task, description="done")
+
+
+def _fmt(value) -> str:
+    if value is None:
+        return "—"
+    return f"{value:.4f}" if abs(value) < 10 else f"{value:.2f}"
+
+
+def print_summary(summary: dict, results: list) -> None:
+    """Per-scene table, then metric means with their denominators, then failures and cache."""
+    metric_names = list(summary["metrics"])
+    table = Table(title=f"visphy · {summary['model']} × {summary['engine']} · "
+                        f"{summary['dataset']} ({summary['n_scenes']} scenes)")
+    table.add_column("scene")
+    table.add_column("status")
+    for name in metric_names:
+        arrow = "↑" if summary["metrics"][name]["direction"] == "higher" else "↓"
+        table.add_column(f"{name} {arrow}", justify="right")
+    table.add_column("render", justify="right")
+    for r in results:
+        status = ("ok" if r.model_success and r.attempts == 1 else
+                  "repaired" if r.model_success else
+                  f"fallback ({r.failure_class})" if r.fallback else f"failed ({r.failure_class})")
+        render = "cached" if r.render_cached else (
+            f"{r.render_wall_s:.2f}s" if r.render_wall_s is not None else "—")
+        table.add_row(r.scene_id, status, *[_fmt(r.scores.get(n)) for n in metric_names], render)
+    console.print(table)
+
+    means = Table(title="means (model successes | all scenes incl. fallbacks)")
+    means.add_column("metric")
+    means.add_column("model successes", justify="right")
+    means.add_column("with fallbacks", justify="right")
+    for name, m in summary["metrics"].items():
+        if m["unavailable"]:
+            means.add_row(name, f"unavailable: {m['unavailable']}", "")
+            continue
+        means.add_row(name, f"{_fmt(m['mean_model_success'])} (n={m['n_model_success']})",
+                      f"{_fmt(m['mean_with_fallbacks'])} (n={m['n_with_fallbacks']})")
+    console.print(means)
+    n = summary["n_scenes"]
+    console.print(
+        f"model success {summary['model_success']}/{n} · system success "
+        f"{summary['system_success']}/{n} · fallbacks {summary['fallbacks']} · repaired "
+        f"{summary['repaired']}" + (f" · failures {summary['failures']}" if summary["failures"]
+                                     else ""))
+    cache = summary["cache"]
+    render = cache.get("render", {"hits": 0, "misses": 0})
+    console.print(f"cache: renders {render['hits']} hit / {render['misses']} rendered · "
+                  f"replies {cache.get('response', {}).get('hits', 0)} hit · "
+                  f"scores {cache.get('score', {}).get('hits', 0)} hit")
+    console.print(f"run directory: {summary['run_dir']}")

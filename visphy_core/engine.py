@@ -1,0 +1,152 @@
+"""The render contract every engine plugin meets, and the failure classes it reports.
+
+An engine turns a model's reply into a `Program`, checks it, and runs it to exactly the frames the
+reference clip has (same fps, frame count and size), in virtual time. Engines never raise for a
+bad program: a bad program is a `RenderResult` with a failure class, so the run goes on.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from abc import ABC, abstractmethod
+from dataclasses import asdict, dataclass, field
+from enum import Enum
+from typing import Any
+
+import numpy as np
+
+from visphy_core.scene import Scene
+
+
+class FailureClass(str, Enum):
+    """Why a scene produced no usable clip (MISSION §2)."""
+
+    NO_CODE = "no_code"
+    TRUNCATED = "truncated"
+    WRONG_LANGUAGE = "wrong_language"
+    SYNTAX_ERROR = "syntax_error"
+    RUNTIME_ERROR = "runtime_error"
+    TIMEOUT = "timeout"
+    BLANK_OUTPUT = "blank_output"
+    STATIC_OUTPUT = "static_output"
+    SANDBOX_VIOLATION = "sandbox_violation"
+    INFRA_ERROR = "infra_error"
+    MODEL_ERROR = "model_error"
+
+
+class ProgramRejected(Exception):
+    """Extraction or validation refused a reply; carries the failure class."""
+
+    def __init__(self, failure: FailureClass, message: str):
+        super().__init__(message)
+        self.failure = failure
+
+
+@dataclass(frozen=True)
+class Program:
+    """One executable program as the engine will run it (before the trusted template is added)."""
+
+    language: str
+    source: str
+    spec: dict | None = None  # the reply's JSON scene specification S, when it had one
+
+    @property
+    def digest(self) -> str:
+        return hashlib.sha256(f"{self.language}\n{self.source}".encode()).hexdigest()
+
+
+@dataclass(frozen=True)
+class RenderContract:
+    """The reference clip's shape: what the render must produce, frame for frame."""
+
+    fps: float
+    n_frames: int
+    width: int
+    height: int
+    dim: str = "2d"
+    timeout_s: float = 60.0
+    seed: int = 0
+
+    @classmethod
+    def for_scene(cls, scene: Scene, timeout_s: float = 60.0, seed: int = 0) -> "RenderContract":
+        c = scene.clip
+        return cls(fps=c.fps, n_frames=c.n_frames, width=c.width, height=c.height, dim=scene.dim,
+                   timeout_s=timeout_s, seed=seed)
+
+    def frame_times_ms(self) -> list[float]:
+        """Virtual capture times: frame k at k / fps seconds (frame 0 at t = 0)."""
+        return [1000.0 * k / self.fps for k in range(self.n_frames)]
+
+    def key(self) -> str:
+        """Cache key part: everything that changes the frames (the time limit does not)."""
+        d = asdict(self)
+        d.pop("timeout_s")
+        return json.dumps(d, sort_keys=True)
+
+
+@dataclass
+class RenderResult:
+    """Frames (N×H×W×3 uint8) or a failure, plus the evidence needed to explain it."""
+
+    frames: np.ndarray | None
+    failure: FailureClass | None = None
+    error: str | None = None
+    logs: list[str] = field(default_factory=list)
+    blocked_requests: list[str] = field(default_factory=list)
+    wall_s: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        return self.failure is None and self.frames is not None
+
+
+class Engine(ABC):
+    """Base class for engine plugins (see `plugins/engines/threejs.py`)."""
+
+    name: str = ""
+    language: str = ""   # fence language the prompt asks for: "html" or "python"
+    version: str = "0"   # bump when rendering changes: part of every cache key
+    supports_3d: bool = False
+
+    def __init__(self, cfg: Any = None):
+        self.cfg = cfg
+
+    def instructions(self, dim: str) -> str:
+        """Engine-specific part of the prompt for a 2D or 3D scene."""
+        return ""
+
+    @abstractmethod
+    def extract(self, text: str) -> Program:
+        """Program from a model reply; raises `ProgramRejected` (no_code, truncated, ...)."""
+
+    @abstractmethod
+    def validate(self, program: Program) -> None:
+        """Static checks before running; raises `ProgramRejected`."""
+
+    @abstractmethod
+    def render(self, program: Program, contract: RenderContract) -> RenderResult:
+        """Run the program in the sandbox and capture exactly ``contract.n_frames`` frames."""
+
+    @abstractmethod
+    def program_from_spec(self, scene: Scene) -> Program:
+        """A trusted reference program for a ground-truth scene (oracle, fallback, conformance)."""
+
+    def close(self) -> None:
+        """Release pooled resources (browsers, child processes)."""
+
+    def cache_identity(self) -> str:
+        return f"{self.name}@{self.version}"
+
+
+def classify_frames(frames: np.ndarray) -> FailureClass | None:
+    """blank_output when every frame is one flat colour; static_output when nothing ever moves.
+
+    A blank clip is a failure (there is nothing to score); a static clip is still scored, the
+    pipeline records the class as a flag so "no motion when motion was expected" stays visible.
+    """
+    if np.all(frames == frames[0, 0, 0]):
+        return FailureClass.BLANK_OUTPUT
+    if len(frames) > 1 and all(np.array_equal(frames[0], f) for f in frames[1:]):
+        return FailureClass.STATIC_OUTPUT
+    return None

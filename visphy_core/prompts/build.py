@@ -1,0 +1,85 @@
+"""Assemble the prompt a model sees for one scene, and the repair prompt after a failure.
+
+Modes (config ``prompt``): paper-faithful (no timing information, the default), ``timed``
+(states fps, clip length and the time between the two frames), with or without the detection
+context, and forecast-only (only the first frame).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from string import Template
+
+import numpy as np
+
+from visphy_core.model import ImageInput
+from visphy_core.scene import Scene
+
+_DIR = Path(__file__).parent
+
+
+def _template(name: str) -> Template:
+    return Template((_DIR / f"{name}.txt").read_text())
+
+
+@dataclass(frozen=True)
+class PromptSettings:
+    frames: tuple[int, ...] = (1, 10)  # 1-based key frames given to the model
+    detection: bool = True
+    forecast_only: bool = False
+    timed: bool = False
+
+    @classmethod
+    def from_cfg(cls, cfg) -> "PromptSettings":
+        return cls(frames=tuple(int(f) for f in cfg.frames), detection=bool(cfg.detection),
+                   forecast_only=bool(cfg.forecast_only), timed=bool(cfg.timed))
+
+
+def png_bytes(frame: np.ndarray) -> bytes:
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(frame).save(buf, format="PNG", optimize=False)
+    return buf.getvalue()
+
+
+def build_prompt(scene: Scene, engine_instructions: str, language: str,
+                 settings: PromptSettings) -> tuple[str, list[ImageInput]]:
+    """Prompt text and key-frame images for one scene."""
+    frames = settings.frames[:1] if settings.forecast_only else settings.frames
+    images = [ImageInput(f"frame_{i:02d}", png_bytes(scene.key_frame(i))) for i in frames]
+    if len(frames) == 1:
+        sentence = (f"Image 1 is the first frame (frame {frames[0]}). Predict how the scene "
+                    "evolves from it.")
+    else:
+        sentence = (f"Image 1 is frame {frames[0]} and image 2 is a later frame (frame "
+                    f"{frames[1]}) of the same video.")
+    if settings.timed:
+        fps, n = scene.clip.fps, scene.clip.n_frames
+        later = frames[1] if len(frames) > 1 else frames[0]
+        sentence += "\n" + _template("timing").substitute(
+            fps=f"{fps:g}", n_frames=n, duration_s=f"{n / fps:g}", first_index=frames[0],
+            later_index=later, gap_s=f"{(later - frames[0]) / fps:g}")
+    detection_block = ""
+    if settings.detection and scene.detection is not None:
+        detection_block = _template("detection").substitute(
+            detection_json=json.dumps(scene.detection, indent=1))
+    text = _template("default").substitute(
+        frames_sentence=sentence, language=language, engine_instructions=engine_instructions,
+        detection_block=detection_block)
+    return text, images
+
+
+def build_repair_prompt(original: str, language: str, failed_program: str,
+                        failure_class: str, error_summary: str, max_program_chars: int = 20000
+                        ) -> str:
+    """The original prompt plus the failing program and a concise error summary."""
+    program = failed_program
+    if len(program) > max_program_chars:
+        program = program[:max_program_chars] + "\n/* … truncated … */"
+    return original + _template("repair").substitute(
+        language=language, failed_program=program, failure_class=failure_class,
+        error_summary=error_summary.strip() or "(no error text)")

@@ -1,0 +1,146 @@
+// visphy virtual clock: injected before any page script so the program never sees real time.
+// requestAnimationFrame, performance.now, Date, setTimeout/setInterval, requestIdleCallback and
+// Math.random are replaced; the host advances time with __visphy.advanceTo(ms) and reads frames
+// with __visphy.capture(). Same program + same config => same sequence of callbacks => same frames.
+(() => {
+  const CONFIG = window.__VISPHY_CONFIG__ || {};
+  const TICK_MS = CONFIG.tickMs || 1000 / 60;
+  const EPOCH_MS = CONFIG.epochMs || 1700000000000;
+  let now = 0;            // virtual milliseconds since page start
+  let tickIndex = 0;      // number of animation ticks already run
+  let nextId = 1;
+  const timers = new Map(); // id -> {due, seq, fn, args, interval}
+  let timerSeq = 0;
+  let rafQueue = new Map();  // id -> callback
+  const errors = [];
+  const logs = [];
+
+  // Seeded PRNG (mulberry32) so Math.random is reproducible.
+  let seed = (CONFIG.seed >>> 0) || 12345;
+  Math.random = function () {
+    seed = (seed + 0x6D2B79F5) >>> 0;
+    let t = seed;
+    t = Math.imul(t ^ (t >>> 15), t | 1);
+    t ^= t + Math.imul(t ^ (t >>> 7), t | 61);
+    return ((t ^ (t >>> 14)) >>> 0) / 4294967296;
+  };
+
+  const perf = window.performance;
+  Object.defineProperty(perf, 'now', { value: () => now, configurable: true });
+  const RealDate = Date;
+  function VDate(...args) {
+    if (!(this instanceof VDate)) return new RealDate(EPOCH_MS + now).toString();
+    return args.length ? new RealDate(...args) : new RealDate(EPOCH_MS + now);
+  }
+  VDate.prototype = RealDate.prototype;
+  VDate.now = () => EPOCH_MS + Math.floor(now);
+  VDate.UTC = RealDate.UTC;
+  VDate.parse = RealDate.parse;
+  window.Date = VDate;
+
+  function addTimer(fn, ms, args, interval) {
+    const id = nextId++;
+    const delay = Math.max(0, Number(ms) || 0);
+    timers.set(id, { due: now + delay, seq: timerSeq++, fn, args, interval: interval ? Math.max(delay, 1) : 0 });
+    return id;
+  }
+  window.setTimeout = (fn, ms, ...args) => addTimer(fn, ms, args, false);
+  window.setInterval = (fn, ms, ...args) => addTimer(fn, ms, args, true);
+  window.clearTimeout = window.clearInterval = (id) => { timers.delete(id); };
+  window.requestAnimationFrame = (cb) => { const id = nextId++; rafQueue.set(id, cb); return id; };
+  window.cancelAnimationFrame = (id) => { rafQueue.delete(id); };
+  window.requestIdleCallback = (cb) => addTimer(() => cb({ didTimeout: false, timeRemaining: () => 0 }), 0, [], false);
+  window.cancelIdleCallback = window.clearTimeout;
+
+  function report(where, e) {
+    const msg = (e && e.stack) ? String(e.stack) : String(e);
+    errors.push(`${where} at t=${now.toFixed(1)}ms: ${msg}`.slice(0, 2000));
+  }
+  window.addEventListener('error', (ev) => report('uncaught error', ev.error || ev.message));
+  window.addEventListener('unhandledrejection', (ev) => report('unhandled rejection', ev.reason));
+
+  function runTimersUntil(t) {
+    for (;;) {
+      let best = null, bestId = null;
+      for (const [id, tm] of timers) {
+        if (tm.due <= t && (best === null || tm.due < best.due || (tm.due === best.due && tm.seq < best.seq))) {
+          best = tm; bestId = id;
+        }
+      }
+      if (best === null) return;
+      now = Math.max(now, best.due);
+      if (best.interval) { best.due += best.interval; best.seq = timerSeq++; } else { timers.delete(bestId); }
+      try { typeof best.fn === 'function' ? best.fn(...best.args) : (0, eval)(String(best.fn)); }
+      catch (e) { report('timer', e); }
+    }
+  }
+
+  function runAnimationFrame() {
+    const queue = rafQueue; rafQueue = new Map();
+    for (const cb of queue.values()) {
+      try { cb(now); } catch (e) { report('requestAnimationFrame', e); }
+    }
+  }
+
+  // Advance virtual time to `target` ms, running timers and one animation tick per TICK_MS.
+  function advanceTo(target) {
+    while ((tickIndex + 1) * TICK_MS <= target + 1e-9) {
+      tickIndex += 1;
+      const tickTime = tickIndex * TICK_MS;
+      runTimersUntil(tickTime);
+      now = tickTime;
+      runAnimationFrame();
+    }
+    runTimersUntil(target);
+    now = Math.max(now, target);
+  }
+
+  // Recording helper of the upstream contract: the program names its canvas and clip length.
+  let recording = null;
+  window.setupRecording = (canvas, durationMs) => {
+    recording = { canvas, durationMs: Number(durationMs) || null };
+    return { start() {}, stop() {} };
+  };
+
+  function pickCanvas() {
+    if (recording && recording.canvas instanceof HTMLCanvasElement) return recording.canvas;
+    let best = null, area = -1;
+    for (const c of document.querySelectorAll('canvas')) {
+      const a = c.width * c.height;
+      if (a > area) { best = c; area = a; }
+    }
+    return best;
+  }
+
+  // WebGL canvases keep their drawing buffer so a capture always sees the last rendered frame.
+  const realGetContext = HTMLCanvasElement.prototype.getContext;
+  HTMLCanvasElement.prototype.getContext = function (type, attrs) {
+    if (typeof type === 'string' && type.startsWith('webgl')) {
+      attrs = Object.assign({}, attrs || {}, { preserveDrawingBuffer: true });
+    }
+    return realGetContext.call(this, type, attrs);
+  };
+
+  for (const level of ['log', 'info', 'warn', 'error']) {
+    const real = console[level].bind(console);
+    console[level] = (...args) => {
+      if (logs.length < 500) logs.push(`[${level}] ` + args.map(String).join(' ').slice(0, 500));
+      real(...args);
+    };
+  }
+
+  window.__visphy = {
+    advanceTo,
+    now: () => now,
+    errors: () => errors.slice(),
+    logs: () => logs.slice(),
+    recording: () => recording && { durationMs: recording.durationMs },
+    // Advance to `t` ms and return the chosen canvas as a PNG data URL (or null without canvas).
+    captureAt(t) {
+      advanceTo(t);
+      const c = pickCanvas();
+      if (!c) return { png: null, width: 0, height: 0 };
+      return { png: c.toDataURL('image/png'), width: c.width, height: c.height };
+    },
+  };
+})();
