@@ -7,7 +7,7 @@
   const TICK_MS = CONFIG.tickMs || 1000 / 60;
   const EPOCH_MS = CONFIG.epochMs || 1700000000000;
   let now = 0;            // virtual milliseconds since page start
-  let tickIndex = 0;      // number of animation ticks already run
+  let nextTick = 0;       // index of the next animation tick (tick i runs at i * TICK_MS)
   let nextId = 1;
   const timers = new Map(); // id -> {due, seq, fn, args, interval}
   let timerSeq = 0;
@@ -82,13 +82,14 @@
     }
   }
 
-  // Advance virtual time to `target` ms, running timers and one animation tick per TICK_MS.
+  // Advance virtual time to `target` ms, running timers and one animation tick per TICK_MS
+  // (the first tick at t = 0, so a program that draws only in requestAnimationFrame has a frame 0).
   function advanceTo(target) {
-    while ((tickIndex + 1) * TICK_MS <= target + 1e-9) {
-      tickIndex += 1;
-      const tickTime = tickIndex * TICK_MS;
+    while (nextTick * TICK_MS <= target + 1e-9) {
+      const tickTime = nextTick * TICK_MS;
+      nextTick += 1;
       runTimersUntil(tickTime);
-      now = tickTime;
+      now = Math.max(now, tickTime);
       runAnimationFrame();
     }
     runTimersUntil(target);

@@ -1,0 +1,67 @@
+"""Shared fixtures: a built mini dataset, a scratch VISPHY_HOME, and a helper to run the CLI."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def chromium_available() -> bool:
+    from visphy_core.sandbox.browser import BrowserUnavailable, find_chromium
+
+    try:
+        find_chromium()
+    except BrowserUnavailable:
+        return False
+    return True
+
+
+def pytest_collection_modifyitems(config, items):
+    if chromium_available():
+        return
+    skip = pytest.mark.skip(reason="Chromium not installed (run `make setup`)")
+    for item in items:
+        if "browser" in item.keywords:
+            item.add_marker(skip)
+
+
+@pytest.fixture(scope="session")
+def mini_root(tmp_path_factory) -> Path:
+    """The generated `mini` dataset, built once per test session."""
+    from visphy_core.bench.build import ensure_dataset
+
+    return ensure_dataset("mini", tmp_path_factory.mktemp("data"), progress=False)
+
+
+@pytest.fixture(scope="session")
+def mini_scenes(mini_root):
+    from visphy_core.dataset.generated import load_generated
+
+    return load_generated(mini_root)
+
+
+@pytest.fixture
+def visphy_home(tmp_path, mini_root) -> Path:
+    """A fresh VISPHY_HOME whose data dir already holds the mini dataset (no rebuild per test)."""
+    home = tmp_path / "home"
+    shutil.copytree(mini_root, home / "data" / mini_root.name)
+    return home
+
+
+def run_cli(*args: str, home: Path, env: dict | None = None, timeout: int = 600,
+            check: bool = True) -> subprocess.CompletedProcess:
+    """Run `python -m visphy_core ARGS` as a user would, with VISPHY_HOME=home."""
+    full_env = dict(os.environ, VISPHY_HOME=str(home), **(env or {}))
+    proc = subprocess.run([sys.executable, "-m", "visphy_core", *args], cwd=REPO,
+                          env=full_env, capture_output=True, text=True, timeout=timeout)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"visphy exited {proc.returncode}\nstdout:\n{proc.stdout[-4000:]}\n"
+                             f"stderr:\n{proc.stderr[-4000:]}")
+    return proc

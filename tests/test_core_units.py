@@ -1,0 +1,86 @@
+"""Cache, video and pixel-metric behaviour."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from visphy_core.cache import Cache, content_key
+from visphy_core.video import ClipInfo, decode_video, encode_video, frame_digest, normalise_clip
+from visphy_plugins.metrics.pixel import psnr_frame, ssim_frame
+
+
+def test_cache_entries_are_atomic_and_counted(tmp_path):
+    cache = Cache(tmp_path)
+    key = content_key("render", {"a": 1})
+    assert cache.get("render", key) is None
+    entry = cache.put("render", key, {"meta.json": "{}", "video.mp4": b"\x00\x01"})
+    assert (entry / "video.mp4").read_bytes() == b"\x00\x01"
+    assert cache.get("render", key) == entry
+    assert cache.stats() == {"render": {"hits": 1, "misses": 1}}
+    assert content_key({"a": 1, "b": 2}) == content_key({"b": 2, "a": 1})
+    assert not list(entry.parent.glob(".*"))  # no temp dirs left behind
+
+
+def _clip(n=5, size=32):
+    rng = np.random.default_rng(0)
+    return rng.integers(0, 255, (n, size, size, 3), dtype=np.uint8)
+
+
+def test_encoding_is_byte_identical_for_identical_frames(tmp_path):
+    frames = _clip()
+    a = encode_video(frames, tmp_path / "a.mp4", 5).read_bytes()
+    b = encode_video(frames, tmp_path / "b.mp4", 5).read_bytes()
+    assert a == b
+    decoded, info = decode_video(tmp_path / "a.mp4")
+    assert info == ClipInfo(fps=5.0, n_frames=5, width=32, height=32)
+
+
+def test_missing_and_corrupt_videos_name_the_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nope.mp4"):
+        decode_video(tmp_path / "nope.mp4")
+    bad = tmp_path / "bad.mp4"
+    bad.write_bytes(b"not a video")
+    with pytest.raises(ValueError, match="bad.mp4"):
+        decode_video(bad)
+
+
+def test_normalise_pairs_frames_by_time_not_index():
+    frames = np.stack([np.full((4, 4, 3), i, np.uint8) for i in range(30)])  # 15 fps, 2 s
+    out = normalise_clip(frames, 15.0, ClipInfo(fps=5, n_frames=12, width=8, height=8))
+    assert out.shape == (12, 8, 8, 3)
+    # frame k at k/5 s is source frame 3k; past the source's end the last frame is held
+    assert [int(f[4, 4, 0]) for f in out] == [0, 3, 6, 9, 12, 15, 18, 21, 24, 27, 29, 29]
+
+
+def test_psnr_and_ssim_behave():
+    a = _clip(1, 64)[0]
+    assert psnr_frame(a, a) == 100.0
+    assert ssim_frame(a, a) == pytest.approx(1.0)
+    noisy = np.clip(a.astype(int) + np.random.default_rng(1).normal(0, 5, a.shape), 0, 255)
+    noisy = noisy.astype(np.uint8)
+    mse = np.mean((a.astype(float) - noisy.astype(float)) ** 2)
+    assert psnr_frame(a, noisy) == pytest.approx(10 * np.log10(255**2 / mse))
+    worse = np.clip(a.astype(int) + np.random.default_rng(1).normal(0, 40, a.shape), 0, 255)
+    assert ssim_frame(a, worse.astype(np.uint8)) < ssim_frame(a, noisy) < 1.0
+
+
+def test_frame_digest_depends_on_content_and_shape():
+    a = np.zeros((4, 4, 3), np.uint8)
+    assert frame_digest(a) != frame_digest(np.zeros((2, 8, 3), np.uint8))
+    b = a.copy()
+    b[0, 0, 0] = 1
+    assert frame_digest(a) != frame_digest(b)
+
+
+def test_ssim_matches_scikit_image_reference():
+    """Calibration against scikit-image's Gaussian-window SSIM (Wang et al. 2004 settings)."""
+    skimage_metrics = pytest.importorskip("skimage.metrics")
+    from visphy_plugins.metrics.pixel import ssim_channel
+
+    rng = np.random.default_rng(3)
+    x = rng.integers(0, 255, (96, 96)).astype(np.float64)
+    y = np.clip(x + rng.normal(0, 20, x.shape), 0, 255)
+    ref = skimage_metrics.structural_similarity(x, y, gaussian_weights=True, sigma=1.5,
+                                                use_sample_covariance=False, data_range=255)
+    assert ssim_channel(x, y) == pytest.approx(ref, abs=1e-6)

@@ -1,0 +1,168 @@
+"""One test per hook (test_hookspecs.py fails if a hook has none): inline plugins, llm style."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from visphy_core.hookspecs import hookimpl
+from visphy_core.metrics import HIGHER, Metric
+from visphy_core.plugins import PluginError, build_plugin_manager, build_registry
+
+
+@pytest.fixture
+def pm():
+    return build_plugin_manager()
+
+
+def test_visphy_register_configs(pm):
+    from hydra.core.config_store import ConfigStore
+
+    @dataclass
+    class InlineModelConfig:
+        name: str = "inline_model"
+        temperature: float = 0.0
+
+    class Plugin:
+        @hookimpl
+        def visphy_register_configs(self, config_store):
+            config_store.store(group="model", name="inline_model", node=InlineModelConfig)
+
+    pm.register(Plugin(), name="inline")
+    registry = build_registry(pm)
+    assert registry.configs["model/inline_model"][1] == "inline"
+    assert ConfigStore.instance().repo["model"]["inline_model.yaml"].node.temperature == 0.0
+
+
+def test_visphy_register_models(pm):
+    class Plugin:
+        @hookimpl
+        def visphy_register_models(self, register):
+            register("inline_a", lambda cfg: "A")
+            register("inline_b", lambda cfg: "B")
+
+    pm.register(Plugin(), name="inline")
+    registry = build_registry(pm)
+    assert registry.get("models", "inline_b")(None) == "B"
+    assert registry.models["inline_a"][1] == "inline"
+    assert "oracle" in registry.models  # built-ins come through the same entry-point path
+    with pytest.raises(KeyError, match="unknown model 'nope'; installed: .*inline_a"):
+        registry.get("models", "nope")
+
+
+def test_visphy_register_engines(pm):
+    class Plugin:
+        @hookimpl
+        def visphy_register_engines(self, register):
+            register("threejs", lambda cfg: None)  # clashes with the built-in engine
+
+    pm.register(Plugin(), name="clash")
+    with pytest.raises(PluginError, match="engine 'threejs' registered twice"):
+        build_registry(pm)
+
+
+def test_visphy_register_metrics(pm):
+    class Constant(Metric):
+        name, direction, score_range = "inline_const", HIGHER, (0.0, 1.0)
+
+        def compute(self, inp):
+            return 0.5
+
+    class Plugin:
+        @hookimpl
+        def visphy_register_metrics(self, register):
+            register(Constant())
+
+    pm.register(Plugin(), name="inline")
+    metric = build_registry(pm).get("metrics", "inline_const")
+    assert metric.describe() == {"name": "inline_const", "direction": "higher",
+                                 "range": [0.0, 1.0], "needs": ["frames"]}
+
+
+def test_visphy_register_judges(pm):
+    class Plugin:
+        @hookimpl
+        def visphy_register_judges(self, register):
+            register("inline_judge", lambda cfg: "judge")
+
+    pm.register(Plugin(), name="inline")
+    registry = build_registry(pm)
+    assert registry.get("judges", "inline_judge")(None) == "judge"
+    with pytest.raises(PluginError, match="needs a factory"):
+        class Bad:
+            @hookimpl
+            def visphy_register_judges(self, register):
+                register("broken", "not callable")
+
+        pm.register(Bad(), name="bad")
+        build_registry(pm)
+
+
+class Recorder:
+    """Records every lifecycle call of a real (tiny) run."""
+
+    def __init__(self):
+        self.calls = []
+
+    @hookimpl
+    def visphy_run_start(self, run):
+        self.calls.append(("start", len(run.scenes), run.run_dir.is_dir()))
+
+    @hookimpl
+    def visphy_scene_done(self, run, scene, result):
+        self.calls.append(("scene", scene.scene_id, result.system_success))
+
+    @hookimpl
+    def visphy_run_end(self, run, summary):
+        self.calls.append(("end", summary["n_scenes"],
+                           (run.run_dir / "summary.json").is_file()))
+
+
+@pytest.fixture(scope="module")
+def recorded_run(tmp_path_factory, mini_root):
+    """One real run of two mini scenes with the Recorder plugin registered."""
+    import shutil
+
+    from visphy_core.config_check import compose
+    from visphy_core.plugins import get_plugin_manager
+    from visphy_core.run import run_experiment
+
+    home = tmp_path_factory.mktemp("home")
+    shutil.copytree(mini_root, home / "data" / mini_root.name)
+    cfg = compose([f"paths.root={home}", "dataset.limit=2", "tracking=none",
+                   "run.progress=false"])
+    recorder = Recorder()
+    pm = get_plugin_manager()
+    pm.register(recorder, name="recorder")
+    try:
+        summary = run_experiment(cfg)
+    finally:
+        pm.unregister(name="recorder")
+    return recorder.calls, summary
+
+
+@pytest.mark.browser
+def test_visphy_run_start(recorded_run):
+    calls, _ = recorded_run
+    assert calls[0] == ("start", 2, True)
+
+
+@pytest.mark.browser
+def test_visphy_scene_done(recorded_run):
+    calls, summary = recorded_run
+    scenes = [c for c in calls if c[0] == "scene"]
+    assert len(scenes) == summary["n_scenes"] == 2
+    assert all(ok for _, _, ok in scenes)
+
+
+@pytest.mark.browser
+def test_visphy_run_end(recorded_run):
+    calls, summary = recorded_run
+    assert calls[-1] == ("end", 2, True)
+    written = json.loads((__import__("pathlib").Path(summary["run_dir"]) / "summary.json")
+                         .read_text())
+    assert written["n_scenes"] == 2
+    assert np.isfinite(written["metrics"]["psnr"]["mean_model_success"])
