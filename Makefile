@@ -1,7 +1,7 @@
 # The README's two commands are `make run` and `make test`.
 PY := .venv/bin/python
 
-.PHONY: setup setup-test run test plugins clean
+.PHONY: setup setup-test run test plugins ui clean
 
 setup:
 	bash scripts/setup.sh
@@ -17,6 +17,10 @@ test: setup-test
 
 plugins: setup
 	$(PY) -m visphy_core plugins
+
+ui:
+	bash scripts/setup.sh ui
+	.venv/bin/mlflow ui --backend-store-uri sqlite:///$(abspath $(or $(VISPHY_HOME),visphy-out))/mlflow.db
 
 clean:
 	rm -rf .venv visphy-out
