@@ -88,4 +88,4 @@ def print_summary(summary: dict, results: list) -> None:
     console.print(f"cache: renders {render['hits']} hit / {render['misses']} rendered · "
                   f"replies {cache.get('response', {}).get('hits', 0)} hit · "
                   f"scores {cache.get('score', {}).get('hits', 0)} hit")
-    console.print(f"run directory: {summary['run_dir']}")
+    console.print(f"run directory: {summary['run_dir']}", soft_wrap=True)
