@@ -21,13 +21,14 @@ def main() -> None:
     parser.add_argument("--data-dir", default="visphy-out/data")
     args = parser.parse_args()
 
-    from visphy_core.bench.build import ensure_dataset
+    from visphy_core.bench.build import build_dataset
     from visphy_core.dataset.generated import load_generated
     from visphy_core.engine import RenderContract
     from visphy_core.video import frame_digest
     from visphy_plugins.engines.threejs import ThreeJsEngine
 
-    scenes = load_generated(ensure_dataset("mini", Path(args.data_dir), progress=False))
+    scenes = load_generated(build_dataset(Path(args.data_dir), split="mini", progress=False),
+                            split="mini")
     engine = ThreeJsEngine()
     t0 = time.perf_counter()
     engine.render(engine.program_from_spec(scenes[0]), RenderContract.for_scene(scenes[0]))

@@ -34,17 +34,18 @@ def pytest_collection_modifyitems(config, items):
 
 @pytest.fixture(scope="session")
 def mini_root(tmp_path_factory) -> Path:
-    """The generated `mini` dataset, built once per test session."""
-    from visphy_core.bench.build import ensure_dataset
+    """The generated benchmark with its `mini` split rendered, built once per test session
+    (the whole catalogue is simulated: labels and splits are benchmark-wide)."""
+    from visphy_core.bench.build import build_dataset
 
-    return ensure_dataset("mini", tmp_path_factory.mktemp("data"), progress=False)
+    return build_dataset(tmp_path_factory.mktemp("data"), split="mini", progress=False)
 
 
 @pytest.fixture(scope="session")
 def mini_scenes(mini_root):
     from visphy_core.dataset.generated import load_generated
 
-    return load_generated(mini_root)
+    return load_generated(mini_root, split="mini")
 
 
 @pytest.fixture

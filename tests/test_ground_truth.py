@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from visphy_core.bench.box2d_sim import simulate_2d, trajectory_digest
-from visphy_core.bench.build import build_dataset
 from visphy_core.bench.detection import detection_from_spec
 from visphy_core.bench.raster2d import render_frame_2d
 from visphy_core.bench.spec import validate_spec
@@ -84,18 +83,30 @@ def test_detection_centres_agree_with_the_rendered_first_frame(specs):
             assert abs(cy - obj["position"]["center_y"]) <= 2, (spec["scene_id"], obj["id"])
 
 
-def test_build_is_byte_identical(tmp_path):
-    a = build_dataset("mini", tmp_path / "a", progress=False)
-    b = build_dataset("mini", tmp_path / "b", progress=False)
+def test_build_is_byte_identical_and_seeds_matter(tmp_path):
+    from visphy_core.bench.build import write_scene
+    from visphy_core.bench.catalogue import build_catalogue, units
+
+    some = [u for u in units() if u.dim == "2d"][:2]
+    first = build_catalogue(seed=0, workers=1, progress=False, only=some)
+    again = build_catalogue(seed=0, workers=1, progress=False, only=some)
+    other = build_catalogue(seed=1, workers=1, progress=False, only=some)
+    assert [e.digest for e in first.entries] == [e.digest for e in again.entries]
+    assert [e.digest for e in first.entries] != [e.digest for e in other.entries]
+    for entry_a, entry_b in zip(first.entries, again.entries):
+        write_scene(entry_a, tmp_path / "a")
+        write_scene(entry_b, tmp_path / "b")
+    a, b = tmp_path / "a", tmp_path / "b"
     files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
-    assert files and files == sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
+    assert len(files) >= 14 and files == sorted(p.relative_to(b) for p in b.rglob("*")
+                                                if p.is_file())
     for rel in files:
         assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
 
 
 def test_built_layout_and_loader(mini_root, mini_scenes):
-    info = json.loads((mini_root / "BUILD_INFO.json").read_text())
-    assert info["n_scenes"] == len(mini_scenes) >= 3
+    catalogue = json.loads((mini_root / "catalogue.json").read_text())
+    assert len(catalogue["splits"]["mini"]) == len(mini_scenes) >= 3
     scene = mini_scenes[0]
     assert scene.clip.fps == 5 and scene.clip.n_frames == 17
     assert (scene.clip.width, scene.clip.height) == (512, 512)
@@ -111,7 +122,7 @@ def test_built_layout_and_loader(mini_root, mini_scenes):
 def test_loader_names_the_missing_or_malformed_file(tmp_path, mini_root):
     import shutil
 
-    root = tmp_path / "mini"
+    root = tmp_path / "bench"
     shutil.copytree(mini_root, root)
     sid = json.loads((root / "metadata.jsonl").read_text().splitlines()[0])["scene_id"]
     (root / "videos" / f"{sid}.mp4").unlink()

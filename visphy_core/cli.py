@@ -3,7 +3,7 @@
 Subcommands:
   plugins        list installed plugins and what each registers (also: --plugins)
   setup          install the vendored JavaScript libraries (npm ci into the asset cache)
-  build-dataset  build a generated dataset: build-dataset [name] [--data-dir DIR]
+  build-dataset  generate VisPhyBench: build-dataset [--split S] [--seed N] [--data-dir DIR]
 Anything else is a Hydra run: ``python -m visphy_core engine=threejs model=oracle dataset=mini``.
 """
 
@@ -42,16 +42,26 @@ def cmd_setup(argv: list[str]) -> int:
 
 
 def cmd_build_dataset(argv: list[str]) -> int:
+    import os
+    import time
     from pathlib import Path
 
     from visphy_core.bench.build import build_dataset
 
-    parser = argparse.ArgumentParser(prog="visphy build-dataset")
-    parser.add_argument("name", nargs="?", default="mini")
-    parser.add_argument("--data-dir", default="visphy-out/data")
+    home = os.environ.get("VISPHY_HOME", "visphy-out")
+    parser = argparse.ArgumentParser(
+        prog="python -m visphy_core build-dataset",
+        description="Generate VisPhyBench (simulate every scene, render the requested split).")
+    parser.add_argument("--split", default=None, help="sub, test or mini (default: all scenes)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--data-dir", default=f"{home}/data")
+    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     args = parser.parse_args(argv)
-    root = build_dataset(args.name, Path(args.data_dir))
-    print(f"dataset {args.name!r} written to {root}")
+    start = time.perf_counter()
+    root = build_dataset(Path(args.data_dir), seed=args.seed, split=args.split,
+                         workers=args.workers)
+    print(f"VisPhyBench (seed {args.seed}, split {args.split or 'all'}) ready in {root} "
+          f"({time.perf_counter() - start:.1f} s)")
     return 0
 
 

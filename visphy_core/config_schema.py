@@ -43,7 +43,8 @@ class RunConfig:
 @dataclass
 class DatasetConfig:
     name: str = MISSING
-    source: str = "generated"
+    source: str = "generated"          # "generated" (visphy's builder) or "original"
+    seed: int = 0                      # generated: the benchmark's seed
     root: Optional[str] = None         # original layout: folder holding <split>/
     split: Optional[str] = None
     scenes: Optional[list[str]] = None  # explicit scene ids

@@ -45,8 +45,11 @@ class ThreeJsEngine(BrowserEngine):
         if spec is None or traj is None:
             raise ValueError(f"{scene.scene_id}: the reference program needs the scene's spec and "
                              "trajectory (generated benchmarks have both)")
-        if scene.dim != "2d":
-            raise NotImplementedError(f"{scene.scene_id}: 3D reference programs are not built yet")
+        if scene.dim == "3d":
+            from visphy_core.bench.render3d import replay_html_3d
+
+            html = replay_html_3d(spec, traj["frame_poses"], scene.clip.fps, scene.clip.n_frames)
+            return Program(language=self.language, source=html, spec=spec)
         order = {str(body_id): i for i, body_id in enumerate(traj["body_ids"])}
         payload = {
             "width": scene.clip.width, "height": scene.clip.height, "fps": scene.clip.fps,

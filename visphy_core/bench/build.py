@@ -1,10 +1,13 @@
-"""Write a generated benchmark to disk in the VisPhyBench layout, plus visphy's exact ground truth.
+"""Write the generated VisPhyBench to disk: the VisPhyBench layout plus visphy's exact ground truth.
 
-Layout of ``<data_dir>/<name>/``: ``videos/<id>.mp4``, ``detection_json/<id>_frame_01.json``,
-``keyframes/<id>_frame_01.png`` and ``_frame_10.png``, ``specs/<id>.json``,
-``trajectories/<id>.npz``, ``difficulty_table.json``, ``metadata.jsonl`` and, written last so its
-presence means the build completed, ``BUILD_INFO.json``. Every file is written atomically, and
-nothing depends on the clock, so two builds are byte-identical.
+``<data_dir>/visphybench-seed<seed>/`` holds ``catalogue.json`` (every scene's annotated spec,
+labels, splits, rejection counts: simulated, not rendered), and per rendered scene
+``videos/<id>.mp4``, ``detection_json/<id>_frame_01.json``, ``keyframes/<id>_frame_01.png`` and
+``_frame_10.png``, ``specs/<id>.json``, ``trajectories/<id>.npz`` and ``meta/<id>.json`` (written
+last: its presence means the scene is complete). ``metadata.jsonl``, ``difficulty_table.json``
+and the datasheet are rewritten after every build; the contact sheet and preview once every
+scene is rendered. Scenes are rendered on demand, so ``split=mini`` renders four scenes, and an
+interrupted build resumes where it stopped. Nothing depends on the clock: builds are byte-identical.
 """
 
 from __future__ import annotations
@@ -12,41 +15,33 @@ from __future__ import annotations
 import io
 import json
 import os
+import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
-from visphy_core.bench.box2d_sim import Rollout, simulate_2d, trajectory_digest
-from visphy_core.bench.detection import detection_from_spec
-from visphy_core.bench.raster2d import render_clip_2d
-from visphy_core.video import encode_video
+from visphy_core.bench.catalogue import Catalogue, Entry, build_catalogue
 
-#: Bump when anything that changes the written files changes: a dataset built by another
-#: builder version is rebuilt on first use.
-BUILDER_VERSION = "visphy-bench/1"
+#: Bump when anything that changes the written files changes: older builds are redone.
+BUILDER_VERSION = "visphy-bench/2"
 KEY_FRAMES = (1, 10)
+DATASET_NAME = "visphybench"
 
 
-def _mini() -> list[dict]:
-    from visphy_core.bench.templates_mini import mini_specs
-
-    return mini_specs()
+def dataset_root(data_dir: Path, seed: int = 0) -> Path:
+    return Path(data_dir) / f"{DATASET_NAME}-seed{seed}"
 
 
-#: Dataset name → function returning its annotated scene specs (in a fixed order).
-BUILDERS: dict[str, Callable[[], list[dict]]] = {"mini": _mini}
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
+def atomic_write(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     tmp.write_bytes(data)
     os.replace(tmp, path)
 
 
-def _json_bytes(obj) -> bytes:
-    return (json.dumps(obj, indent=1, sort_keys=False) + "\n").encode()
+def json_bytes(obj) -> bytes:
+    return (json.dumps(obj, indent=1) + "\n").encode()
 
 
 def _png_bytes(frame: np.ndarray) -> bytes:
@@ -57,74 +52,223 @@ def _png_bytes(frame: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def _npz_bytes(rollout: Rollout) -> bytes:
+def _npz_bytes(rollout, dim: str) -> bytes:
     buf = io.BytesIO()
-    np.savez(buf, body_ids=np.array(rollout.body_ids, dtype=str),
-             frame_poses=rollout.frame_poses, step_poses=rollout.step_poses,
-             frame_steps=rollout.frame_steps, frame_times_s=rollout.frame_times_s)
+    arrays = {"body_ids": np.array(rollout.body_ids, dtype=str),
+              "frame_poses": rollout.frame_poses, "step_poses": rollout.step_poses,
+              "frame_steps": rollout.frame_steps, "frame_times_s": rollout.frame_times_s}
+    if dim == "2d":
+        arrays["pose_layout"] = np.array(["x_px", "y_px", "angle_rad"])
+    else:
+        arrays["pose_layout"] = np.array(["x_m", "y_m", "z_m", "qx", "qy", "qz", "qw"])
+    np.savez(buf, **arrays)
     return buf.getvalue()
 
 
-def write_scene(spec: dict, root: Path, split: str) -> dict:
-    """Simulate, render and write one scene; returns its metadata line."""
+# ------------------------------------------------------------------------------ catalogue
+
+
+def load_or_build_catalogue(root: Path, seed: int, progress: bool = True,
+                            workers: int = 2) -> Catalogue:
+    path = root / "catalogue.json"
+    if path.is_file():
+        data = json.loads(path.read_text())
+        if data.get("builder") == BUILDER_VERSION and data.get("seed") == seed:
+            entries = [Entry(spec=s["spec"], digest=s["digest"], attempts=s["attempts"],
+                             rejected=s["rejected"]) for s in data["scenes"]]
+            return Catalogue(seed=seed, entries=entries, rejected=data["rejected"],
+                             splits=data["splits"])
+        for stale in (root / "meta").glob("*.json"):  # built by another builder version
+            stale.unlink()
+    start = time.perf_counter()
+    catalogue = build_catalogue(seed=seed, workers=workers, progress=progress)
+    atomic_write(path, json_bytes({
+        "builder": BUILDER_VERSION, "seed": seed, "splits": catalogue.splits,
+        "rejected": catalogue.rejected,
+        "scenes": [{"spec": e.spec, "digest": e.digest, "attempts": e.attempts,
+                    "rejected": e.rejected} for e in catalogue.entries]}))
+    _note_time(root, "catalogue_s", time.perf_counter() - start)
+    return catalogue
+
+
+def _note_time(root: Path, key: str, seconds: float) -> None:
+    path = root / "build_times.json"
+    times = json.loads(path.read_text()) if path.is_file() else {}
+    times[key] = round(seconds, 2)
+    atomic_write(path, json_bytes(times))
+
+
+# ------------------------------------------------------------------------------ one scene
+
+
+def _simulate_checked(spec: dict, digest: str):
+    if spec["dim"] == "2d":
+        from visphy_core.bench.box2d_sim import simulate_2d, trajectory_digest
+
+        rollout = simulate_2d(spec)
+        got = trajectory_digest(rollout)
+    else:
+        from visphy_core.bench.cannon3d import simulate_3d, trajectory_digest_3d
+
+        rollout = simulate_3d(spec)
+        got = trajectory_digest_3d(rollout)
+    if got != digest:
+        raise RuntimeError(f"{spec['scene_id']}: re-simulation gave trajectory digest {got[:12]}, "
+                           f"the catalogue says {digest[:12]} (non-deterministic simulation)")
+    return rollout
+
+
+def _frames_and_detection(spec: dict, rollout, pool) -> tuple[np.ndarray, dict]:
+    if spec["dim"] == "2d":
+        from visphy_core.bench.detection import detection_from_spec
+        from visphy_core.bench.raster2d import render_clip_2d
+
+        return (render_clip_2d(spec, rollout.frame_poses),
+                detection_from_spec(spec, rollout.frame_poses[0]))
+    from visphy_core.bench.detection3d import detection_from_spec_3d
+    from visphy_core.bench.render3d import render_clip_3d
+
+    return (render_clip_3d(spec, rollout.frame_poses, pool),
+            detection_from_spec_3d(spec, rollout.frame_poses[0]))
+
+
+def clip_of(spec: dict) -> tuple[float, int, int, int]:
+    """(fps, n_frames, width, height) of a scene's reference clip."""
+    w = spec["world"]
+    if spec["dim"] == "2d":
+        width, height = w["units"]["canvas_px"]
+    else:
+        width, height = spec["camera"]["width"], spec["camera"]["height"]
+    return float(w["video_fps"]), int(w["n_frames"]), int(width), int(height)
+
+
+def write_scene(entry: Entry, root: Path, pool=None) -> dict:
+    """Simulate (checking the catalogue digest), render and write one scene; returns its meta."""
+    from visphy_core.video import encode_video
+
+    spec = json.loads(json.dumps(entry.spec))
     sid = spec["scene_id"]
-    rollout = simulate_2d(spec)
-    digest = trajectory_digest(rollout)
-    spec = dict(spec)
-    spec["ground_truth"] = dict(spec.get("ground_truth", {}),
-                                trajectory=f"trajectories/{sid}.npz", events=rollout.events)
-    spec["digest_sha256"] = digest
-    world = spec["world"]
-    width, height = world["units"]["canvas_px"]
-    fps = world["video_fps"]
-    frames = render_clip_2d(spec, rollout.frame_poses)
+    rollout = _simulate_checked(spec, entry.digest)
+    spec["ground_truth"]["trajectory"] = f"trajectories/{sid}.npz"
+    frames, detection = _frames_and_detection(spec, rollout, pool)
+    fps, n_frames, width, height = clip_of(spec)
+    if frames.shape != (n_frames, height, width, 3):
+        raise RuntimeError(f"{sid}: rendered {frames.shape}, expected {(n_frames, height, width, 3)}")
     encode_video(frames, root / "videos" / f"{sid}.mp4", fps)
     for k in KEY_FRAMES:
-        _atomic_write(root / "keyframes" / f"{sid}_frame_{k:02d}.png", _png_bytes(frames[k - 1]))
-    _atomic_write(root / "detection_json" / f"{sid}_frame_01.json",
-                  _json_bytes(detection_from_spec(spec, rollout.frame_poses[0])))
-    _atomic_write(root / "specs" / f"{sid}.json", _json_bytes(spec))
-    _atomic_write(root / "trajectories" / f"{sid}.npz", _npz_bytes(rollout))
-    return {"scene_id": sid, "template_id": spec.get("template_id"), "dim": spec["dim"],
-            "splits": [split], "difficulty": spec["difficulty"]["label"], "fps": fps,
-            "n_frames": int(len(frames)), "width": int(width), "height": int(height),
-            "digest_sha256": digest}
+        atomic_write(root / "keyframes" / f"{sid}_frame_{k:02d}.png", _png_bytes(frames[k - 1]))
+    atomic_write(root / "detection_json" / f"{sid}_frame_01.json", json_bytes(detection))
+    atomic_write(root / "specs" / f"{sid}.json", json_bytes(spec))
+    atomic_write(root / "trajectories" / f"{sid}.npz", _npz_bytes(rollout, spec["dim"]))
+    meta = {"scene_id": sid, "template_id": spec.get("template_id"), "dim": spec["dim"],
+            "family": spec.get("family"), "splits": spec.get("splits", []),
+            "difficulty": spec["difficulty"]["label"], "fps": fps, "n_frames": n_frames,
+            "width": width, "height": height, "digest_sha256": entry.digest,
+            "categories": sorted({o["category"] for o in detection["objects"]}),
+            "n_objects_by_category": _count(o["category"] for o in detection["objects"])}
+    atomic_write(root / "meta" / f"{sid}.json", json_bytes(meta))
+    return meta
 
 
-def build_dataset(name: str, data_dir: Path, progress: bool = True) -> Path:
-    """Build dataset ``name`` under ``data_dir`` (overwriting), with a progress bar."""
-    if name not in BUILDERS:
-        raise ValueError(f"unknown generated dataset {name!r}; valid: {', '.join(sorted(BUILDERS))}")
-    root = Path(data_dir) / name
-    (root / "BUILD_INFO.json").unlink(missing_ok=True)
-    specs = BUILDERS[name]()
-    if progress:
-        from rich.progress import track
+def _count(items) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for item in items:
+        out[item] = out.get(item, 0) + 1
+    return dict(sorted(out.items()))
 
-        specs_iter = track(specs, description=f"building {name}", transient=True)
-    else:
-        specs_iter = specs
-    lines = [write_scene(spec, root, split=name) for spec in specs_iter]
-    table = {spec["scene_id"]: {"difficulty": spec["difficulty"]["label"],
-                                "features": spec["difficulty"].get("features", {})}
-             for spec in specs}
-    _atomic_write(root / "difficulty_table.json", _json_bytes(table))
-    _atomic_write(root / "metadata.jsonl",
-                  "".join(json.dumps(line) + "\n" for line in lines).encode())
-    _atomic_write(root / "BUILD_INFO.json", _json_bytes(
-        {"builder": BUILDER_VERSION, "name": name, "n_scenes": len(lines),
-         "scene_ids": [line["scene_id"] for line in lines]}))
+
+def _write_2d(args: tuple[Entry, str]) -> dict:
+    entry, root = args
+    return write_scene(entry, Path(root))
+
+
+# ------------------------------------------------------------------------------ whole builds
+
+
+def _render(entries: list[Entry], root: Path, progress: bool, workers: int) -> None:
+    from visphy_core.bench.catalogue import _track
+
+    two_d = [e for e in entries if e.spec["dim"] == "2d"]
+    three_d = [e for e in entries if e.spec["dim"] == "3d"]
+    if two_d:
+        if workers > 1 and len(two_d) > 1:
+            with ProcessPoolExecutor(max_workers=workers) as ex:
+                done = ex.map(_write_2d, [(e, str(root)) for e in two_d])
+                for _ in _track(done, len(two_d), "rendering 2D scenes", progress):
+                    pass
+        else:
+            for e in _track(two_d, len(two_d), "rendering 2D scenes", progress):
+                write_scene(e, root)
+    if three_d:
+        from visphy_core.sandbox.browser import BrowserPool
+
+        with BrowserPool() as pool:
+            for e in _track(three_d, len(three_d), "rendering 3D scenes", progress):
+                write_scene(e, root, pool)
+
+
+def _built_metas(root: Path, catalogue: Catalogue) -> list[dict]:
+    metas = []
+    for e in catalogue.entries:
+        path = root / "meta" / f"{e.spec['scene_id']}.json"
+        if path.is_file():
+            metas.append(json.loads(path.read_text()))
+    return metas
+
+
+def _write_indexes(root: Path, catalogue: Catalogue, metas: list[dict],
+                   build_seconds: float | None) -> None:
+    from visphy_core.bench.datasheet import write_datasheet
+
+    atomic_write(root / "metadata.jsonl", "".join(json.dumps(m) + "\n" for m in metas).encode())
+    table = {e.spec["scene_id"]: {"difficulty": e.spec["difficulty"]["label"],
+                                  "score": e.spec["difficulty"]["score"],
+                                  "features": e.spec["difficulty"]["features"],
+                                  "splits": e.spec.get("splits", [])}
+             for e in catalogue.entries}
+    atomic_write(root / "difficulty_table.json", json_bytes(table))
+    if len(metas) == len(catalogue.entries):
+        write_datasheet(root, metas, catalogue.rejected, build_seconds)
+        _write_previews(root, metas)
+
+
+def _write_previews(root: Path, metas: list[dict]) -> None:
+    from PIL import Image
+
+    from visphy_core.bench.preview import write_contact_sheet, write_preview
+    from visphy_core.video import decode_video
+
+    firsts = [(m["scene_id"], np.asarray(Image.open(
+        root / "keyframes" / f"{m['scene_id']}_frame_01.png").convert("RGB"))) for m in metas]
+    write_contact_sheet(firsts, root / "contact_sheet.png")
+    picks = metas[:: max(1, len(metas) // 16)][:16]
+    write_preview([(m["scene_id"], decode_video(root / "videos" / f"{m['scene_id']}.mp4")[0])
+                   for m in picks], root / "preview.mp4")
+
+
+def build_dataset(data_dir: Path, seed: int = 0, split: str | None = None,
+                  progress: bool = True, workers: int = 2) -> Path:
+    """Make sure every scene of ``split`` (default: all) is rendered; returns the dataset root."""
+    root = dataset_root(data_dir, seed)
+    catalogue = load_or_build_catalogue(root, seed, progress=progress, workers=workers)
+    start = time.perf_counter()
+    if split is not None and split not in catalogue.splits:
+        raise ValueError(f"the generated benchmark has no split {split!r}; valid: "
+                         f"{', '.join(sorted(catalogue.splits))}")
+    wanted = set(catalogue.splits[split]) if split else None
+    todo = [e for e in catalogue.entries
+            if (wanted is None or e.spec["scene_id"] in wanted)
+            and not (root / "meta" / f"{e.spec['scene_id']}.json").is_file()]
+    if todo:
+        _render(todo, root, progress, workers)
+        _note_time(root, f"render_{split or 'all'}_s", time.perf_counter() - start)
+    metas = _built_metas(root, catalogue)
+    times = json.loads((root / "build_times.json").read_text()) if (
+        root / "build_times.json").is_file() else {}
+    full_build = times.get("catalogue_s", 0.0) + times["render_all_s"] \
+        if "render_all_s" in times else None
+    _write_indexes(root, catalogue, metas, full_build)
     return root
 
 
-def ensure_dataset(name: str, data_dir: Path, progress: bool = True) -> Path:
-    """The dataset's root, building it first when missing or built by another builder version."""
-    root = Path(data_dir) / name
-    info = root / "BUILD_INFO.json"
-    if info.is_file():
-        try:
-            if json.loads(info.read_text()).get("builder") == BUILDER_VERSION:
-                return root
-        except json.JSONDecodeError:
-            pass
-    return build_dataset(name, data_dir, progress=progress)
+ensure_dataset = build_dataset

@@ -125,8 +125,8 @@ def _scene_ball_into_jar() -> dict:
     deflector = box("black_bar", "black", 170, BAR, 215, 330, angle=-0.55)
     return scene(2, 0, "red ball bounces off a tilted bar and drops into a gray jar", [
         ball("red_ball", "red", 16, 175, 470), deflector,
-        jar("gray_jar", "gray", 100, 70, 330, BAR / 2 + 0.5),
-        ball("blue_ball", "blue", 20, 460, 20.5)])
+        jar("gray_jar", "gray", 100, 70, 440, BAR / 2 + 0.5),
+        ball("blue_ball", "blue", 20, 70, 20.5)])
 
 
 def _scene_box_slides() -> dict:
@@ -141,9 +141,9 @@ def _scene_box_slides() -> dict:
 
 
 def _scene_thrown_ball() -> dict:
-    return scene(4, 0, "red ball launched sideways knocks a gray box with a green ball on top", [
-        ball("red_ball", "red", 16, 60, 380, velocity=(150.0, 60.0, 0.0)),
-        box("purple_box", "purple", 90, 30, 200, 200),
+    return scene(4, 0, "thrown red ball knocks a green ball off a gray box", [
+        ball("red_ball", "red", 16, 40, 300, velocity=(100.0, 25.0, 0.0)),
+        box("purple_box", "purple", 90, 30, 150, 60),
         _body("gray_box", "gray", {"type": "box", "length_px": 50.0, "thickness_px": 50.0},
               380, 25.5, 0.0, True),
         ball("green_ball", "green", 20, 380, 71.0),
@@ -252,9 +252,21 @@ def annotate_ground_truth(spec: dict) -> tuple[dict, Rollout]:
     return out, rollout
 
 
-SCENES = (_scene_ramp_roll, _scene_ball_into_jar, _scene_box_slides, _scene_thrown_ball)
+def _scene_corner_drop() -> dict:
+    return scene(5, 0, "red ball falls freely, clips the corner of a purple box and rolls away", [
+        ball("red_ball", "red", 20, 196, 480), box("purple_box", "purple", 100, 30, 130, 40),
+        box("black_bar", "black", 120, BAR, 420, 380)])
+
+
+SCENES = (_scene_ramp_roll, _scene_ball_into_jar, _scene_box_slides, _scene_thrown_ball,
+          _scene_corner_drop)
+
+
+def mini_scenes() -> list[tuple[dict, Rollout]]:
+    """The mini scenes with their rollouts, annotated, in a fixed order."""
+    return [annotate_ground_truth(make()) for make in SCENES]
 
 
 def mini_specs() -> list[dict]:
     """The mini scenes, annotated (difficulty, events, identifiability), in a fixed order."""
-    return [annotate_ground_truth(make())[0] for make in SCENES]
+    return [spec for spec, _ in mini_scenes()]

@@ -6,17 +6,24 @@ from pathlib import Path
 
 from visphy_core.scene import Scene
 
-SOURCES = ("generated",)
+SOURCES = ("generated", "original")
 
 
 def load_dataset(cfg, data_dir: Path, progress: bool = True) -> list[Scene]:
-    """Scenes selected by the ``dataset`` config group (built on first use when generated)."""
+    """Scenes selected by the ``dataset`` config group (generated ones are built on first use)."""
     if cfg.source == "generated":
-        from visphy_core.bench.build import ensure_dataset
+        from visphy_core.bench.build import build_dataset
         from visphy_core.dataset.generated import load_generated
 
-        root = ensure_dataset(cfg.name, data_dir, progress=progress)
+        root = build_dataset(data_dir, seed=cfg.seed, split=cfg.split, progress=progress)
         scenes = load_generated(root, split=cfg.split, scene_ids=cfg.scenes)
+    elif cfg.source == "original":
+        from visphy_core.dataset.original import load_original
+
+        if not cfg.root:
+            raise ValueError("dataset.source=original needs dataset.root (the folder holding "
+                             "<split>/videos; or set VISPHYBENCH_ROOT)")
+        scenes = load_original(Path(cfg.root), split=cfg.split or "sub", scene_ids=cfg.scenes)
     else:
         raise ValueError(f"dataset.source={cfg.source!r} is not a known source; "
                          f"valid: {', '.join(SOURCES)}")

@@ -1,0 +1,242 @@
+"""The 3D subset's ground truth: schema, cannon-es rollouts, templates, replay, detection."""
+
+from __future__ import annotations
+
+import copy
+import shutil
+
+import numpy as np
+import pytest
+
+from visphy_core.bench.cannon3d import simulate_3d, trajectory_digest_3d
+from visphy_core.bench.detection3d import detection_from_spec_3d, project_points
+from visphy_core.bench.spec3d import RED_RGB, validate_spec_3d
+from visphy_core.bench.templates_3d import (
+    REASONS,
+    TEMPLATES_3D,
+    difficulty_features_3d,
+    validity_problems_3d,
+)
+
+pytestmark = pytest.mark.skipif(shutil.which("node") is None,
+                                reason="Node.js not installed (needed by the cannon-es rollouts)")
+
+
+def _first_valid(template, variant: int = 0, draws: int = 4):
+    """(spec, rollout, draw) of the first valid candidate, drawing rng(template_id*100 + k)."""
+    for k in range(draws):
+        spec = template.make(np.random.default_rng(template.template_id * 100 + k), variant)
+        validate_spec_3d(spec)
+        rollout = simulate_3d(spec)
+        if not validity_problems_3d(spec, rollout):
+            return spec, rollout, k
+    return None
+
+
+@pytest.fixture(scope="module")
+def valid_scenes():
+    return {t.template_id: _first_valid(t) for t in TEMPLATES_3D}
+
+
+def test_twelve_templates_thirty_scenes_with_paper_style_ids():
+    assert [t.template_id for t in TEMPLATES_3D] == list(range(1, 13))
+    assert sum(t.n_variants for t in TEMPLATES_3D) == 30
+    spec = TEMPLATES_3D[2].make(np.random.default_rng(0), 1)
+    assert spec["scene_id"] == "03_tmpl_01" and spec["dim"] == "3d"
+
+
+def test_schema_accepts_every_template_variant_and_each_has_a_red_sphere():
+    for t in TEMPLATES_3D:
+        for v in range(t.n_variants):
+            spec = t.make(np.random.default_rng(t.template_id * 100), v)
+            validate_spec_3d(spec)
+            w, cam = spec["world"], spec["camera"]
+            assert (w["n_frames"], w["video_fps"], w["steps_per_frame"]) == (75, 15, 4)
+            assert (cam["width"], cam["height"]) == (512, 512)
+            assert spec["render"]["background_rgb"] == [255, 255, 255]
+            assert any(b["dynamic"] and b["shape"]["type"] == "sphere"
+                       and tuple(b["color_rgb"]) == RED_RGB for b in spec["bodies"])
+
+
+def test_schema_errors_name_the_scene_and_the_field():
+    spec = TEMPLATES_3D[0].make(np.random.default_rng(100), 0)
+    bad = copy.deepcopy(spec)
+    bad["bodies"][0]["shape"]["radius_m"] = -0.2
+    with pytest.raises(ValueError) as info:
+        validate_spec_3d(bad)
+    msg = str(info.value)
+    assert spec["scene_id"] in msg and "$.bodies[0].shape.radius_m" in msg and "\n" not in msg
+    bad = copy.deepcopy(spec)
+    del bad["camera"]["fov_deg"]
+    with pytest.raises(ValueError, match=r"\$\.camera\.fov_deg: required"):
+        validate_spec_3d(bad)
+    bad = copy.deepcopy(spec)
+    bad["bodies"][0]["pose"]["quat"] = [0.0, 0.0, 0.5, 0.5]
+    with pytest.raises(ValueError, match=r"\$\.bodies\[0\]\.pose\.quat: quaternion"):
+        validate_spec_3d(bad)
+    bad = copy.deepcopy(spec)
+    bad["bodies"][0]["category"] = "rectangle"
+    with pytest.raises(ValueError, match=r"\$\.bodies\[0\]\.category"):
+        validate_spec_3d(bad)
+
+
+def test_simulation_is_deterministic_and_the_initial_state_matters(valid_scenes):
+    spec, rollout, _ = valid_scenes[5]
+    again = simulate_3d(spec)
+    assert trajectory_digest_3d(again) == trajectory_digest_3d(rollout)
+    assert np.array_equal(again.step_poses, rollout.step_poses)
+    assert again.events == rollout.events
+    assert rollout.frame_poses.shape == (75, len(spec["bodies"]), 7)
+    assert rollout.step_poses.shape == (4 * 74 + 1, len(spec["bodies"]), 7)
+    assert list(rollout.frame_steps) == [4 * k for k in range(75)]
+    assert np.allclose(rollout.frame_times_s, np.arange(75) / 15)
+    assert np.array_equal(rollout.frame_poses[0], rollout.step_poses[0])
+    moved = copy.deepcopy(spec)
+    moved["bodies"][0]["pose"]["position_m"][0] += 0.01
+    assert trajectory_digest_3d(simulate_3d(moved)) != trajectory_digest_3d(rollout)
+
+
+def test_free_fall_is_cannons_semi_implicit_euler_of_half_g_t_squared():
+    spec = copy.deepcopy(TEMPLATES_3D[3].make(np.random.default_rng(400), 0))
+    ball = next(b for b in spec["bodies"] if b["id"] == "red_ball")
+    ball["pose"]["position_m"] = [0.0, 3.0, 0.0]
+    ball["velocity"] = {"linear_m_s": [0.0, 0.0, 0.0], "angular_rad_s": [0.0, 0.0, 0.0]}
+    spec["bodies"] = [ball]
+    spec["contacts"]["pairs"] = []
+    rollout = simulate_3d(spec, n_steps=30)            # 0.5 s, still in the air
+    g, dt = 9.82, 1 / 60
+    n = np.arange(31)
+    t = n * dt
+    y = rollout.step_poses[:, 0, 1]
+    # cannon integrates v += g dt, then x += v dt: y_n = y0 - g dt² n(n+1)/2 = y0 - g t (t+dt)/2
+    assert np.allclose(y, 3.0 - 0.5 * g * t * (t + dt), atol=1e-9, rtol=0)
+    # i.e. 0.5 g t² to within the integrator's lag g dt t / 2 (4.1 cm at 0.5 s), to 1e-3 m
+    lag = 0.5 * g * dt * t
+    assert np.abs((3.0 - y) - (0.5 * g * t ** 2 + lag)).max() < 1e-3
+    assert np.allclose(rollout.step_poses[:, 0, [0, 2]], 0.0) and rollout.events == []
+
+
+def test_each_template_has_a_valid_scene_within_four_draws(valid_scenes):
+    for t in TEMPLATES_3D:
+        found = valid_scenes[t.template_id]
+        assert found is not None, f"template {t.template_id}: no valid scene in 4 draws"
+        spec, rollout, _ = found
+        assert validity_problems_3d(spec, rollout) == []
+        dyn = [i for i, b in enumerate(spec["bodies"]) if b["dynamic"]]
+        travel = np.linalg.norm(rollout.frame_poses[-1, dyn, :3] - rollout.frame_poses[0, dyn, :3],
+                                axis=1).max()
+        assert travel > 0.3, f"{spec['scene_id']}: nothing moves clearly ({travel:.2f} m)"
+
+
+def test_validity_reasons_fire(valid_scenes):
+    spec, rollout, _ = valid_scenes[4]
+    assert set(REASONS) == {"overlap", "offscreen", "static", "tunnelling", "speed_cap"}
+    sunk = copy.deepcopy(spec)
+    red = next(b for b in sunk["bodies"] if b["id"] == "red_ball")
+    other = next(b for b in sunk["bodies"] if b["id"] != "red_ball" and b["dynamic"])
+    red["pose"]["position_m"] = list(other["pose"]["position_m"])
+    assert "overlap" in validity_problems_3d(sunk, simulate_3d(sunk))
+    far = copy.deepcopy(spec)
+    far["camera"]["look_at"] = [40.0, 0.0, 0.0]
+    assert "offscreen" in validity_problems_3d(far, rollout)
+    still = copy.deepcopy(rollout)
+    still.step_poses = np.repeat(rollout.step_poses[:1], len(rollout.step_poses), axis=0)
+    assert validity_problems_3d(spec, still) == ["static"]
+    fast = copy.deepcopy(rollout)
+    fast.step_poses[5:, 0, 1] -= 2.0
+    assert {"tunnelling", "speed_cap"} <= set(validity_problems_3d(spec, fast))
+
+
+def test_difficulty_features(valid_scenes):
+    spec, rollout, _ = valid_scenes[9]  # dominoes: planks topple
+    feats = difficulty_features_3d(spec, rollout)
+    assert feats["n_bodies"] == len(spec["bodies"]) and feats["n_dynamic"] >= 5
+    assert feats["rotation_over_30deg"] and feats["max_rotation_deg"] > 30
+    assert feats["n_contacts"] >= 2 and 0.0 <= feats["occlusion"] <= 1.0
+    assert feats["sensitivity_px"] >= 0.0 and feats["chaotic"] == (feats["sensitivity_px"] > 16)
+
+
+def test_detection_schema_and_projection(valid_scenes):
+    spec, rollout, _ = valid_scenes[1]
+    det = detection_from_spec_3d(spec, rollout.frame_poses[0])
+    assert det["image_size"] == {"width": 512, "height": 512}
+    assert det["coordinate_system"]["origin"] == "top_left"
+    assert [o["id"] for o in det["objects"]] == [b["id"] for b in spec["bodies"]]
+    for obj in det["objects"]:
+        box = obj["bbox"]
+        assert box["x_min"] <= obj["position"]["center_x"] <= box["x_max"]
+        assert box["y_min"] <= obj["position"]["center_y"] <= box["y_max"]
+    cam = spec["camera"]
+    centre = project_points(spec, [cam["look_at"]])[0]
+    assert np.allclose(centre, [256.0, 256.0], atol=1e-9)  # the camera looks at the image centre
+    above = project_points(spec, [np.add(cam["look_at"], [0.0, 0.5, 0.0])])[0]
+    assert above[1] < 256.0  # y up in the world is up in the image
+
+
+# ------------------------------------------------------------------------------ rendering
+@pytest.fixture(scope="module")
+def pool():
+    from visphy_plugins.engines.js_assets import assets_installed
+
+    if not assets_installed():
+        pytest.skip("browser engine libraries not installed (`python -m visphy_core setup`)")
+    from visphy_core.sandbox.browser import BrowserPool
+
+    with BrowserPool() as p:
+        yield p
+
+
+def _red_centroid(frame: np.ndarray) -> tuple[np.ndarray, int]:
+    r, g, b = (frame[..., i].astype(int) for i in range(3))
+    mask = (r > 90) & (r - g > 50) & (r - b > 50)
+    ys, xs = np.nonzero(mask)
+    return np.array([xs.mean() + 0.5, ys.mean() + 0.5]), int(mask.sum())
+
+
+@pytest.mark.browser
+def test_replay_is_deterministic_and_matches_the_projection(valid_scenes, pool):
+    from visphy_core.bench.render3d import render_clip_3d, replay_html_3d
+    from visphy_core.video import frame_digest
+
+    spec, rollout, _ = valid_scenes[4]  # sphere collision: the red ball is never hidden
+    html = replay_html_3d(spec, rollout.frame_poses, 15, 75)
+    assert html == replay_html_3d(spec, rollout.frame_poses, 15, 75)
+    assert "setupRecording(" in html and "requestAnimationFrame" in html
+    a = render_clip_3d(spec, rollout.frame_poses, pool)
+    b = render_clip_3d(spec, rollout.frame_poses, pool)
+    assert a.shape == (75, 512, 512, 3) and a.dtype == np.uint8
+    assert [frame_digest(f) for f in a] == [frame_digest(f) for f in b]
+    assert not np.array_equal(a[0], a[-1])  # something moves
+    assert tuple(a[0][2, 256]) == (255, 255, 255)  # white sky at the top
+    det = detection_from_spec_3d(spec, rollout.frame_poses[0])
+    red = next(o for o in det["objects"] if o["id"] == "red_ball")
+    for k in (0, 5):
+        centroid, n = _red_centroid(a[k])
+        want = project_points(spec, rollout.frame_poses[k, 0, :3])[0]
+        assert n > 100 and np.hypot(*(centroid - want)) <= 2.0, (k, centroid, want)
+    centroid, n = _red_centroid(a[0])
+    assert np.hypot(centroid[0] - red["position"]["center_x"],
+                    centroid[1] - red["position"]["center_y"]) <= 2.0
+    radius = np.sqrt(n / np.pi)
+    assert abs(radius - red["size"]["radius_pixels"]) <= 2.0
+
+
+@pytest.mark.browser
+def test_threejs_engine_runs_the_replay_page_unchanged(valid_scenes, pool):
+    """The engine's reference program for 3D scenes (same page, engine's trusted template)
+    reproduces the ground-truth frames exactly."""
+    from visphy_core.bench.render3d import render_clip_3d, replay_html_3d
+    from visphy_core.engine import Program, RenderContract
+    from visphy_plugins.engines.threejs import ThreeJsEngine
+
+    spec, rollout, _ = valid_scenes[8]
+    poses = rollout.frame_poses[:6]
+    engine = ThreeJsEngine()
+    try:
+        result = engine.render(Program("html", replay_html_3d(spec, poses, 15, 6), spec=spec),
+                               RenderContract(fps=15, n_frames=6, width=512, height=512,
+                                              dim="3d", timeout_s=120))
+    finally:
+        engine.close()
+    assert result.ok, result.error
+    assert np.array_equal(result.frames, render_clip_3d(spec, poses, pool))
