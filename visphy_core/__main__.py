@@ -1,4 +1,4 @@
-"""`python -m visphy_core <hydra overrides>` or `python -m visphy_core plugins|setup|build-dataset`."""
+"""`python -m visphy_core <hydra overrides>`, or a subcommand: plugins, setup, build-dataset."""
 
 import sys
 

@@ -162,7 +162,8 @@ def process_scene(scene: Scene, model: Model, engine: Engine, metrics: list[Metr
         suffix = "" if attempt == 1 else f".attempt{attempt}"
         _write(scene_dir / f"response{suffix}.txt", response.text)
         if response.error:
-            result.failure_class, result.failure_detail = FailureClass.MODEL_ERROR.value, response.error
+            result.failure_class = FailureClass.MODEL_ERROR.value
+            result.failure_detail = response.error
             break
         analysis = extract_analysis(response.text)
         try:

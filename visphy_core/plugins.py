@@ -1,4 +1,4 @@
-"""The plugin manager: every plugin, built-in or third-party, comes from the ``visphy`` entry points.
+"""The plugin manager: every plugin, built-in or third-party, is a ``visphy`` entry point.
 
 Environment switches:
   VISPHY_LOAD_PLUGINS     comma-separated allow-list (entry-point or distribution names); "" = none
@@ -150,7 +150,8 @@ def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
                 else:
                     obj, key = factory, name
                     if not callable(obj):
-                        raise PluginError(f"plugin {_plugin!r}: {_kind[:-1]} {key!r} needs a factory")
+                        raise PluginError(
+                            f"plugin {_plugin!r}: {_kind[:-1]} {key!r} needs a factory")
                 if key in _table and _table[key][1] != _plugin:
                     raise PluginError(f"{_kind[:-1]} {key!r} registered twice: by "
                                       f"{_table[key][1]!r} and by {_plugin!r}")

@@ -153,7 +153,8 @@ def write_scene(entry: Entry, root: Path, pool=None) -> dict:
     frames, detection = _frames_and_detection(spec, rollout, pool)
     fps, n_frames, width, height = clip_of(spec)
     if frames.shape != (n_frames, height, width, 3):
-        raise RuntimeError(f"{sid}: rendered {frames.shape}, expected {(n_frames, height, width, 3)}")
+        raise RuntimeError(
+            f"{sid}: rendered {frames.shape}, expected {(n_frames, height, width, 3)}")
     encode_video(frames, root / "videos" / f"{sid}.mp4", fps)
     for k in KEY_FRAMES:
         atomic_write(root / "keyframes" / f"{sid}_frame_{k:02d}.png", _png_bytes(frames[k - 1]))

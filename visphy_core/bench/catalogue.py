@@ -136,7 +136,7 @@ def _features(dim: str, spec: dict, rollout) -> tuple[dict, float]:
 
 
 def draw_scene(unit: Unit, seed: int) -> Entry:
-    """The first valid candidate of one slot, annotated with events, features and identifiability."""
+    """The first valid candidate of a slot, annotated: events, features, identifiability."""
     import numpy as np
 
     template = next(t for t in _templates(unit.dim) if t.template_id == unit.template_id)

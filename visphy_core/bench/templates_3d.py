@@ -458,12 +458,12 @@ def _t03_plank_knockoff(rng: np.random.Generator, variant: int) -> dict:
 
 def _t04_sphere_collision(rng: np.random.Generator, variant: int) -> dict:
     d = _dir(rng)
-    r = _u(rng, 0.18, 0.24)
-    tx = d * _u(rng, 0.2, 0.8)
+    r = _u(rng, 0.2, 0.26)
+    tx = d * _u(rng, 0.1, 0.6)
     targets = []
     n = variant + 1
     colors = ["blue", "green", "gray"]
-    rt = _u(rng, 0.16, 0.22)
+    rt = _u(rng, 0.18, 0.24)
     if n == 1:
         spots = [(tx, _u(rng, -0.3, 0.3))]
     elif n == 2:
@@ -476,13 +476,13 @@ def _t04_sphere_collision(rng: np.random.Generator, variant: int) -> dict:
     for i, (x, z) in enumerate(spots):
         targets.append(make_body(f"{colors[i]}_ball", colors[i], sphere_shape(rt),
                                  [x, rt + GAP, z], mass=_u(rng, 0.5, 1.5), **_mat(rng, "sphere")))
-    x0, z0 = -d * _u(rng, 2.2, 2.7), _u(rng, -0.5, 0.5)
+    x0, z0 = -d * _u(rng, 1.6, 2.0), _u(rng, -0.4, 0.4)
     vx = d * _u(rng, 3.5, 5.0)
     t_hit = abs(spots[0][0] - x0) / abs(vx)
     vz = (spots[0][1] + _u(rng, -0.08, 0.08) - z0) / t_hit
     bodies = [red_ball(rng, [x0, r + GAP, z0], r, velocity=(vx, 0.0, vz))] + targets
     bodies.append(make_body("black_bumper", "black", box_shape(0.15, 0.3, 3.0),
-                            [d * 3.1, 0.15, 0.0], dynamic=False, **_mat(rng, "static")))
+                            [d * 2.5, 0.15, 0.0], dynamic=False, **_mat(rng, "static")))
     return scene_3d(4, variant, "sphere_collision",
                     "a red ball launched along the floor collides with other balls",
                     bodies, camera(rng, bodies))

@@ -22,11 +22,9 @@ from visphy_core.bench.raster2d import PALETTE, body_mask
 from visphy_core.bench.spec import (
     PHYRE_PROFILE,
     category_of,
-    contact_table,
     shape_area_centroid,
     validate_spec,
 )
-from visphy_core.scene import SPEC_SCHEMA
 
 BAR = PHYRE_PROFILE["bar_thickness_px"]  # 10.24 px
 _STILL = {"vx_px_s": 0.0, "vy_px_s": 0.0, "omega_rad_s": 0.0}
@@ -81,35 +79,11 @@ def on_bar(bar: dict, along: float, above: float) -> tuple[float, float]:
 
 def scene(template: int, variant: int, description: str, bodies: list[dict]) -> dict:
     """Wrap bodies into a PHYRE-profile `visphy-scene/1` spec (ground truth still empty)."""
-    p = PHYRE_PROFILE
-    return {
-        "schema": SPEC_SCHEMA, "scene_id": f"task{template:05d}_{variant:03d}",
-        "template_id": f"{template:05d}", "variant": variant, "seed": template * 1000 + variant,
-        "dim": "2d", "family": "mini", "description": description,
-        "difficulty": {"label": "easy", "score": 0.0, "features": {}},
-        "world": {
-            "engine": "box2d", "engine_version": "2.3.10", "profile": "phyre",
-            "units": {"px_per_m": p["px_per_m"], "canvas_px": list(p["canvas_px"]),
-                      "origin": "bottom-left", "y_up": True, "angles": "rad_ccw"},
-            "gravity_m_s2": list(p["gravity_m_s2"]), "dt_s": p["dt_s"],
-            "solver": {"velocity_iterations": p["velocity_iterations"],
-                       "position_iterations": p["position_iterations"]},
-            "steps_per_frame": p["steps_per_frame"],
-            "first_frame_after_steps": p["first_frame_after_steps"],
-            "n_frames": 17, "video_fps": 5,
-            "walls": {"thickness_px": 5.0, "sides": ["bottom", "left", "right", "top"]},
-            "damping": {"linear": 0.0, "angular": 0.01}, "allow_sleep": True,
-        },
-        "render": {"background_rgb": list(PALETTE["white"]), "antialias": False,
-                   "codec": "h264", "pix_fmt": "yuv420p"},
-        "bodies": bodies,
-        "contacts": {"default": {"friction": p["friction"], "restitution": p["restitution"]},
-                     "pairs": []},
-        "ground_truth": {"trajectory": None, "events": [],
-                         "identifiable": {"gravity": False, "initial_velocity": [],
-                                          "restitution": [], "friction": [], "mass_ratio": []}},
-        "digest_sha256": None,
-    }
+    from visphy_core.bench.blocks2d import scene2d
+
+    spec = scene2d(template, variant, "mini", description, bodies)
+    spec["seed"] = template * 1000 + variant
+    return spec
 
 
 # ------------------------------------------------------------------------------ the scenes
@@ -202,39 +176,10 @@ def difficulty_of(spec: dict, rollout: Rollout) -> dict:
 
 
 def identifiable_of(spec: dict, rollout: Rollout) -> dict:
-    """Which physical parameters the clip (one frame per `steps_per_frame` steps) can reveal.
+    """Which physical parameters the clip can reveal (`visphy_core.bench.identifiable`)."""
+    from visphy_core.bench.identifiable import identifiable_params
 
-    gravity: some dynamic body touches nothing over three consecutive frames (a second
-    difference). initial_velocity: bodies given a non-zero initial velocity (all others are known
-    to start at rest). restitution: pairs whose rebound, e * v_n, keeps a body airborne for at
-    least one frame interval (2 e v_n / g >= period). friction: pairs sliding for at least one
-    frame interval. mass_ratio: pairs of dynamic bodies colliding at >= 1 m/s.
-    """
-    w = spec["world"]
-    period = w["steps_per_frame"] * w["dt_s"]
-    g = float(np.hypot(*w["gravity_m_s2"]))
-    touching, fs = rollout.step_touching, rollout.frame_steps
-    gravity = False
-    for i, b in enumerate(spec["bodies"]):
-        for k in range(len(fs) - 2):
-            if b["dynamic"] and not touching[fs[k]:fs[k + 2] + 1, i].any():
-                gravity = True
-    default, table = contact_table(spec)
-    dynamic = {b["id"] for b in spec["bodies"] if b["dynamic"]}
-    restitution, friction, mass_ratio = [], [], []
-    for key, st in rollout.pair_stats.items():
-        a, b = key.split("|")
-        e = table.get(frozenset((a, b)), default)["restitution"]
-        if 2 * e * st["max_normal_speed_m_s"] / g >= period:
-            restitution.append([a, b])
-        if st["steps_sliding"] >= w["steps_per_frame"]:
-            friction.append([a, b])
-        if a in dynamic and b in dynamic and st["max_normal_speed_m_s"] >= 1.0:
-            mass_ratio.append([a, b])
-    moving = [b["id"] for b in spec["bodies"]
-              if b["dynamic"] and any(abs(v) > 0 for v in b["velocity"].values())]
-    return {"gravity": gravity, "initial_velocity": moving, "restitution": restitution,
-            "friction": friction, "mass_ratio": mass_ratio}
+    return identifiable_params(spec, rollout)
 
 
 def annotate_ground_truth(spec: dict) -> tuple[dict, Rollout]:
