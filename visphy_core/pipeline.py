@@ -140,7 +140,8 @@ def _write(path: Path, content: str | bytes) -> None:
 def process_scene(scene: Scene, model: Model, engine: Engine, metrics: list[Metric],
                   settings: PipelineSettings, cache: Cache, scene_dir: Path) -> SceneResult:
     """Run one scene end to end and write its artifacts under ``scene_dir``."""
-    result = SceneResult(scene_id=scene.scene_id, dim=scene.dim, difficulty=scene.difficulty)
+    result = SceneResult(scene_id=scene.scene_id, dim=scene.dim, difficulty=scene.difficulty,
+                         scores={m.name: None for m in metrics})  # same columns for every row
     contract = RenderContract.for_scene(scene, timeout_s=settings.timeout_s, seed=settings.seed)
     prompt, images = build_prompt(scene, engine.instructions(scene.dim), engine.language,
                                   settings.prompt)
