@@ -29,4 +29,6 @@ spec="."
 [ -n "$EXTRAS" ] && spec=".[$EXTRAS]"
 echo "[setup] pip install -e '$spec'"
 .venv/bin/python -m pip install -q --disable-pip-version-check -e "$spec"
+bash scripts/setup_manim.sh
+bash scripts/setup_blender.sh
 .venv/bin/python -m visphy_core setup

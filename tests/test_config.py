@@ -47,7 +47,7 @@ def test_default_config_values():
 
 
 @pytest.mark.parametrize("override, message", [
-    ("engine=threejz", "engine=threejz is not an option of 'engine'; valid: threejs"),
+    ("engine=threejz", "engine=threejz is not an option of 'engine'; valid: "),
     ("model=orcle", "model=orcle is not an option of 'model'; valid: "),
     ("engine.timout_s=3", "unknown key 'engine.timout_s'; valid keys of 'engine': name, timeout_s"),
     ("run.retyr=false", "unknown key 'run.retyr'; valid keys of 'run': cache, fallback"),
@@ -70,7 +70,9 @@ def test_cli_reports_a_misspelt_option_in_one_line(tmp_path):
     proc = run_cli("engine=threejz", home=tmp_path, check=False)
     assert proc.returncode == 2
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
-    assert lines == ["error: engine=threejz is not an option of 'engine'; valid: threejs"]
+    assert len(lines) == 1
+    assert lines[0].startswith("error: engine=threejz is not an option of 'engine'; valid: ")
+    assert "threejs" in lines[0].split("valid: ")[1].split(", ")
 
 
 def test_experiment_overrides_apply():

@@ -1,0 +1,407 @@
+"""Engine ``blender``: a bpy (Blender as a Python module) script, rendered to frames in a sandbox.
+
+bpy needs numpy < 2 and Python 3.11 (cp311 wheels, ~940 MB), which conflicts with the main
+environment, so Blender lives in its own virtual environment (``scripts/setup_blender.sh``) and
+every scene runs as one subprocess of that environment's interpreter:
+
+    <blender venv>/bin/python -s -B blender_runner.py job.json
+
+inside a private work directory, through `visphy_core.sandbox.process.run_sandboxed` (scrubbed
+environment, rlimits, no network when the kernel allows it, wall-clock kill). The trusted runner
+(`blender_runner.py`, copied into the work directory) resets Blender to an empty factory scene,
+runs the model's script, forces the render settings (engine, contract size at 100 %, colour
+management "Standard", fixed seeds, PNG output) and renders exactly ``n_frames`` stills; the frame
+<-> time mapping is documented in that file: contract frame k is Blender frame
+``frame_start + k * script_fps / fps`` (frame_start is t = 0; sub-frames when the script changed
+its fps).
+
+Interpreter lookup: ``python`` in the engine config, else ``$VISPHY_BLENDER_PYTHON``, else
+``${VISPHY_BLENDER_VENV:-~/.cache/visphy/blender-venv}/bin/python``; when none exists the render
+is an ``infra_error`` ("Blender venv missing: run scripts/setup_blender.sh").
+
+Extraction and validation: the longest ```python block (an unlabelled block counts when it
+imports bpy); ``compile()`` failing is ``syntax_error``; valid Python that never imports bpy is
+``wrong_language`` (it is a program, but for another library: matplotlib, pygame, manim...), an
+empty block is ``no_code``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+
+from visphy_core.config_schema import EngineConfig
+from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
+                                RenderResult, classify_frames)
+from visphy_core.extract import extract_code, extract_spec, fenced_blocks
+from visphy_core.hookspecs import hookimpl
+from visphy_core.scene import Scene
+
+HERE = Path(__file__).resolve().parent
+RUNNER = HERE / "blender_runner.py"
+TEMPLATE = HERE / "templates" / "blender_replay.py.tmpl"
+SETUP_HINT = "Blender venv missing: run scripts/setup_blender.sh"
+RENDER_ENGINES = ("workbench", "cycles", "eevee")
+SCRIPT_NAME = "program.py"
+
+_IMPORTS_BPY = re.compile(r"^[ \t]*(?:import[ \t]+(?:[\w.]+[ \t]*,[ \t]*)*bpy\b|from[ \t]+bpy\b)",
+                          re.M)
+
+
+@dataclass
+class BlenderConfig(EngineConfig):
+    """``conf/engine/blender.yaml``: EngineConfig plus Blender's render settings."""
+
+    name: str = "blender"
+    timeout_s: float = 120.0
+    render_engine: str = "workbench"   # workbench (≈0.04 s/frame) | cycles (CPU) | eevee (slow)
+    samples: int = 16                  # Cycles / EEVEE samples per pixel
+    denoise: bool = False              # Cycles denoiser (off: frames depend on the seed only)
+    threads: int = 0                   # render threads; 0 = all cores (frames do not change)
+    view_transform: str = "Standard"   # colour management; "Standard": sRGB colours 1:1
+    memory_mb: int = 4096              # address-space limit of the Blender process
+    python: Optional[str] = None       # Blender venv interpreter (default: see module doc)
+    keep_workdir: bool = False         # keep the per-scene work directory (debugging)
+
+
+def _get(cfg: Any, key: str, default: Any) -> Any:
+    if cfg is None:
+        return default
+    if isinstance(cfg, dict):
+        value = cfg.get(key, default)
+    else:
+        value = getattr(cfg, key, default)
+    return default if value is None else value
+
+
+def default_venv() -> Path:
+    return Path(os.environ.get("VISPHY_BLENDER_VENV")
+                or Path.home() / ".cache" / "visphy" / "blender-venv")
+
+
+def find_blender_python(cfg: Any = None) -> Path | None:
+    """The Blender venv's interpreter, or None when it is not installed."""
+    candidates = [_get(cfg, "python", None), os.environ.get("VISPHY_BLENDER_PYTHON"),
+                  str(default_venv() / "bin" / "python")]
+    for cand in candidates:
+        if cand and Path(cand).is_file() and os.access(cand, os.X_OK):
+            return Path(cand)
+    return None
+
+
+def bpy_version(python: Path | None) -> str | None:
+    """bpy's version from the venv's dist-info (no Blender start-up)."""
+    if python is None:
+        return None
+    venv = python.parent.parent
+    for dist in sorted(venv.glob("lib/python3*/site-packages/bpy-*.dist-info")):
+        return dist.name[len("bpy-"):-len(".dist-info")]
+    return None
+
+
+INSTRUCTIONS_COMMON = """
+Write one Python script for Blender 5.0 (`import bpy`) in a single ```python block. visphy runs it
+headless in a fresh, empty factory scene and then renders the animation itself with a fixed
+renderer: do not call bpy.ops.render, do not set scene.render.engine, do not save or load .blend
+files, do not read or write files, no network. Build the scene with bpy: create every object,
+material and the camera yourself and set `bpy.context.scene.camera`; keep the camera fixed. Give
+each material its colour with `mat.diffuse_color = (r, g, b, 1)` (linear RGB: the renderer shows
+this viewport colour) and make the background with
+`scene.world = bpy.data.worlds.new("w"); scene.world.color = (1, 1, 1)`.
+Animate the whole clip, either with Blender's rigid body world (`bpy.ops.rigidbody.world_add()`,
+`bpy.ops.rigidbody.object_add()` on the active object, `obj.rigid_body.type/mass/friction/
+restitution`; visphy simulates it frame by frame from frame_start before rendering) or by
+simulating the motion in plain Python with a fixed time step and inserting keyframes with
+`obj.keyframe_insert("location", frame=f)` (and the rotation) for every frame. The scene arrives
+with `scene.frame_start = 1` (= time 0), `scene.frame_end` = the clip's last frame and
+`scene.render.fps` = the clip's frame rate: read them instead of hard-coding them; frame f shows
+time (f - frame_start) / fps. A `bpy.app.handlers.frame_change_pre` handler is allowed only if it
+sets the state as a pure function of `scene.frame_current` (it may run several times per frame).
+Blender 5.0 notes: `Action.fcurves` no longer exists (for linear keyframes set
+`bpy.context.preferences.edit.keyframe_new_interpolation_type = 'LINEAR'` before inserting
+them); numpy and the standard library are available.
+""".strip()
+
+INSTRUCTIONS_2D = INSTRUCTIONS_COMMON + """
+
+2D scene: work in pixel units (1 Blender unit = 1 pixel of the video), x to the right, y up, origin
+at the bottom-left corner of the frame, all bodies in the plane z = 0 (use z only to order
+overlapping shapes). Use an orthographic camera (`cam.data.type = 'ORTHO'`, `ortho_scale` = the
+frame width) at (width / 2, height / 2, 100) looking down -z, flat unlit colours
+(`scene.display.shading.light = 'FLAT'`, `scene.display.shading.color_type = 'MATERIAL'`,
+`scene.display.render_aa = 'OFF'`), a white world, and flat meshes (discs, rectangles, polygons)
+that match the first frame's layout and colours. Motion stays in the plane: no z motion, rotation
+only about z. Gravity points along -y here: with the rigid body world set `scene.gravity` to
+(0, -g, 0) in pixels / s^2 and keep every body in the plane (e.g. a generic rigid body constraint
+locking z translation and x/y rotation), or keyframe your own 2D simulation.
+""".rstrip()
+
+INSTRUCTIONS_3D = INSTRUCTIONS_COMMON + """
+
+3D scene: Blender's world is z-up (x right, y into the screen, z up). Use a fixed perspective
+camera matching the view in the images, a large grey floor plane, a white world, shaded solid
+colours (`scene.display.shading.light = 'STUDIO'`), and rigid bodies (spheres, boxes, ramps,
+containers, planks) whose full 3D motion, including rotation, comes from the rigid body world
+(gravity -z by default) or from your own fixed-step simulation.
+""".rstrip()
+
+
+class BlenderEngine(Engine):
+    name = "blender"
+    language = "python"
+    version = "1"
+    supports_3d = True
+
+    # ------------------------------------------------------------------ prompt & programs
+    def instructions(self, dim: str) -> str:
+        return INSTRUCTIONS_3D if dim == "3d" else INSTRUCTIONS_2D
+
+    def extract(self, text: str) -> Program:
+        try:
+            source = extract_code(text, ("python", "py", "python3", "bpy"))
+        except ProgramRejected as exc:
+            if exc.failure is not FailureClass.WRONG_LANGUAGE:
+                raise
+            # an unlabelled block that imports bpy is still the program
+            blocks, _ = fenced_blocks(text)
+            bare = [b for lang, b in blocks if lang == "" and _IMPORTS_BPY.search(b)]
+            if not bare:
+                raise
+            source = max(bare, key=len)
+        return Program(language=self.language, source=source, spec=extract_spec(text))
+
+    def validate(self, program: Program) -> None:
+        source = program.source
+        if not source.strip():
+            raise ProgramRejected(FailureClass.NO_CODE, "the python block is empty")
+        try:
+            compile(source, SCRIPT_NAME, "exec")
+        except SyntaxError as exc:
+            raise ProgramRejected(FailureClass.SYNTAX_ERROR,
+                                  f"SyntaxError: {exc.msg} ({SCRIPT_NAME} line {exc.lineno})")
+        except ValueError as exc:  # e.g. null bytes in the source
+            raise ProgramRejected(FailureClass.SYNTAX_ERROR, f"{SCRIPT_NAME}: {exc}")
+        if not _IMPORTS_BPY.search(source):
+            raise ProgramRejected(FailureClass.WRONG_LANGUAGE,
+                                  "the Python program never imports bpy (a Blender script "
+                                  "must `import bpy`)")
+
+    def program_from_spec(self, scene: Scene) -> Program:
+        spec, traj = scene.spec, scene.trajectory
+        if spec is None or traj is None:
+            raise ValueError(f"{scene.scene_id}: the reference program needs the scene's spec and "
+                             "trajectory (generated benchmarks have both)")
+        payload = replay_payload(spec, traj, scene.dim, scene.clip.fps, scene.clip.n_frames,
+                                 scene.clip.width, scene.clip.height)
+        source = TEMPLATE.read_text().replace(
+            "__SCENE_JSON__", repr(json.dumps(payload, separators=(",", ":"))))
+        return Program(language=self.language, source=source, spec=spec)
+
+    def cache_identity(self) -> str:
+        parts = [f"{self.name}@{self.version}", _get(self.cfg, "render_engine", "workbench")]
+        if _get(self.cfg, "render_engine", "workbench") != "workbench":
+            parts += [f"s{_get(self.cfg, 'samples', 16)}", f"dn{int(_get(self.cfg, 'denoise', 0))}"]
+        parts += [str(_get(self.cfg, "view_transform", "Standard")),
+                  f"bpy{bpy_version(find_blender_python(self.cfg)) or '?'}"]
+        return ":".join(parts)
+
+    # ------------------------------------------------------------------------- render
+    def render(self, program: Program, contract: RenderContract) -> RenderResult:
+        start = time.perf_counter()
+        python = find_blender_python(self.cfg)
+        if python is None:
+            return RenderResult(frames=None, failure=FailureClass.INFRA_ERROR, error=SETUP_HINT)
+        render_engine = str(_get(self.cfg, "render_engine", "workbench")).lower()
+        if render_engine not in RENDER_ENGINES:
+            return RenderResult(frames=None, failure=FailureClass.INFRA_ERROR,
+                                error=f"engine.render_engine={render_engine!r}; valid: "
+                                      f"{', '.join(RENDER_ENGINES)}")
+        from visphy_core.sandbox.process import Limits, run_sandboxed
+
+        workdir = Path(tempfile.mkdtemp(prefix="visphy-blender-"))
+        try:
+            shutil.copy(RUNNER, workdir / RUNNER.name)
+            (workdir / SCRIPT_NAME).write_text(program.source, encoding="utf-8")
+            job = {"script": SCRIPT_NAME, "out_dir": "frames", "result": "result.json",
+                   "fps": contract.fps, "n_frames": contract.n_frames,
+                   "width": contract.width, "height": contract.height,
+                   "render_engine": render_engine, "samples": int(_get(self.cfg, "samples", 16)),
+                   "denoise": bool(_get(self.cfg, "denoise", False)),
+                   "threads": int(_get(self.cfg, "threads", 0)),
+                   "view_transform": _get(self.cfg, "view_transform", "Standard"),
+                   "seed": int(contract.seed), "dim": contract.dim}
+            (workdir / "job.json").write_text(json.dumps(job, indent=1))
+            cores = int(_get(self.cfg, "threads", 0)) or (os.cpu_count() or 1)
+            limits = Limits(wall_s=float(contract.timeout_s),
+                            cpu_s=float(contract.timeout_s) * max(1, cores),
+                            memory_mb=int(_get(self.cfg, "memory_mb", 4096)),
+                            network=False)
+            # HOME and TMPDIR are the work dir (run_sandboxed); PYTHONHASHSEED is fixed there
+            env = {"PYTHONNOUSERSITE": "1", "PYTHONDONTWRITEBYTECODE": "1"}
+            proc = run_sandboxed([str(python), "-s", "-B", RUNNER.name, "job.json"], workdir,
+                                 limits, env_extra=env)
+            result = self._collect(proc, workdir, contract)
+        finally:
+            if not _get(self.cfg, "keep_workdir", False):
+                shutil.rmtree(workdir, ignore_errors=True)
+        result.wall_s = time.perf_counter() - start
+        return result
+
+    def _collect(self, proc: Any, workdir: Path, contract: RenderContract) -> RenderResult:
+        logs = [line for line in _lines(proc.stdout) + _lines(proc.stderr)
+                if not _noise(line)][-200:]
+        if not getattr(proc, "network_isolated", True):
+            logs.append("sandbox: Blender ran WITH network access (no network namespace here)")
+        result = RenderResult(frames=None, logs=logs)
+        info: dict = {}
+        try:
+            info = json.loads((workdir / "result.json").read_text())
+        except (OSError, ValueError):
+            info = {}
+        if info.get("traceback"):
+            result.logs.append(info["traceback"])
+        status = info.get("status")
+        frame_files = sorted((workdir / "frames").glob("frame_*.png")) if (
+            workdir / "frames").is_dir() else []
+        fail = FailureClass
+        if proc.timed_out or proc.limit_hit in ("wall", "cpu"):
+            which = "CPU time" if proc.limit_hit == "cpu" else "time"
+            result.failure = fail.TIMEOUT
+            result.error = (f"no result within the {which} limit of {contract.timeout_s:g} s "
+                            f"({len(frame_files)}/{contract.n_frames} frames rendered; "
+                            "infinite loop or too heavy a scene?)")
+        elif proc.limit_hit == "memory":
+            result.failure = fail.RUNTIME_ERROR
+            result.error = (f"memory limit of {_get(self.cfg, 'memory_mb', 4096)} MB exceeded"
+                            + (f": {info['error']}" if info.get("error") else ""))
+        elif proc.limit_hit == "file_size":
+            result.failure = fail.RUNTIME_ERROR
+            result.error = "file size limit exceeded (the script writes too much)"
+        elif status == "syntax_error":
+            result.failure, result.error = fail.SYNTAX_ERROR, info.get("error")
+        elif status in ("runtime_error", "render_error"):
+            result.failure, result.error = fail.RUNTIME_ERROR, info.get("error")
+        elif status == "sandbox_violation":
+            result.failure, result.error = fail.SANDBOX_VIOLATION, info.get("error")
+        elif status == "infra_error":
+            result.failure, result.error = fail.INFRA_ERROR, info.get("error")
+        elif status is None and proc.returncode is None:
+            result.failure = fail.INFRA_ERROR
+            result.error = f"could not start Blender: {' '.join(_lines(proc.stderr))[-500:]}"
+        elif status != "ok":
+            rc = proc.returncode
+            tail = " | ".join(logs[-3:])[-500:]
+            how = f"killed by signal {-rc}" if rc is not None and rc < 0 else f"exit status {rc}"
+            result.failure = fail.RUNTIME_ERROR
+            result.error = f"Blender stopped without a result ({how}): {tail}"
+        elif not frame_files:
+            result.failure, result.error = fail.BLANK_OUTPUT, "Blender rendered no frames"
+        if result.failure is not None:
+            return result
+        if len(frame_files) != contract.n_frames:
+            result.failure = fail.BLANK_OUTPUT
+            result.error = f"{len(frame_files)} frames rendered, {contract.n_frames} expected"
+            return result
+        frames = _read_frames(frame_files, contract)
+        if classify_frames(frames) is FailureClass.BLANK_OUTPUT:
+            result.failure, result.error = fail.BLANK_OUTPUT, "every frame is one flat colour"
+            return result
+        result.frames = frames
+        timings = info.get("timings") or {}
+        if timings:
+            result.logs.append("blender timings: " + ", ".join(
+                f"{k} {v:.2f}" for k, v in timings.items()))
+        return result
+
+
+def _lines(text: Any) -> list[str]:
+    if not text:
+        return []
+    if isinstance(text, bytes):
+        text = text.decode("utf-8", "replace")
+    return [line for line in str(text).splitlines() if line.strip()]
+
+
+_NOISE = re.compile(r"\|\s*Saved: '|^Saved: '|^EGL Error|^\s*Time: \d")
+
+
+def _noise(line: str) -> bool:
+    """Blender's per-frame "Saved:" chatter and headless-GL warnings."""
+    return _NOISE.search(line) is not None
+
+
+def _read_frames(paths: list[Path], contract: RenderContract) -> np.ndarray:
+    from PIL import Image
+
+    frames = []
+    for p in paths:
+        with Image.open(p) as im:
+            arr = np.asarray(im.convert("RGB"))
+        if arr.shape[:2] != (contract.height, contract.width):
+            from visphy_core.video import resize_with_padding
+
+            arr = resize_with_padding(arr, contract.width, contract.height)
+        frames.append(arr)
+    return np.stack(frames).astype(np.uint8, copy=False)
+
+
+# ------------------------------------------------------------------ reference program payload
+
+
+def _r(v: float, nd: int) -> float:
+    return round(float(v), nd) + 0.0
+
+
+def replay_payload(spec: dict, traj: dict, dim: str, fps: float, n_frames: int, width: int,
+                   height: int) -> dict:
+    """What ``templates/blender_replay.py.tmpl`` reads: shapes, colours, camera, per-frame poses
+    in the order of ``spec["bodies"]`` (2D: x_px, y_px, angle_rad; 3D: x, y, z, qx, qy, qz, qw)."""
+    order = {str(b): i for i, b in enumerate(traj["body_ids"])}
+    poses = np.asarray(traj["frame_poses"], dtype=np.float64)[:n_frames]
+    idx = [order[b["id"]] for b in spec["bodies"]]
+    poses = poses[:, idx]
+    bodies = [{"id": b["id"], "color_rgb": list(b["color_rgb"]), "shape": b["shape"]}
+              for b in spec["bodies"]]
+    payload: dict[str, Any] = {"dim": dim, "width": int(width), "height": int(height),
+                               "fps": float(fps), "n_frames": int(n_frames), "bodies": bodies}
+    if dim == "3d":
+        cam, render, floor = spec["camera"], spec["render"], spec["world"]["floor"]
+        payload.update({
+            "camera": {"fov_deg": float(cam["fov_deg"]), "near": float(cam.get("near", 0.1)),
+                       "far": float(cam.get("far", 100.0)), "position": list(cam["position"]),
+                       "look_at": list(cam["look_at"]),
+                       "up": list(cam.get("up", [0.0, 1.0, 0.0]))},
+            "background_rgb": list(render.get("background_rgb", [255, 255, 255])),
+            "lighting": render.get("lighting"),
+            "shadows": bool(render.get("shadows", False)),
+            "floor": {"y": float(floor["y"]), "color_rgb": list(floor["color_rgb"]),
+                      "size_m": float(floor.get("size_m", 60.0))},
+            "frame_poses": [[[_r(v, 6) for v in p[:3]] + [_r(v, 7) for v in p[3:]]
+                             for p in frame] for frame in poses],
+        })
+    else:
+        payload.update({
+            "background_rgb": list(spec.get("render", {}).get("background_rgb",
+                                                                [255, 255, 255])),
+            "frame_poses": [[[_r(v, 6) for v in p] for p in frame] for frame in poses],
+        })
+    return payload
+
+
+@hookimpl
+def visphy_register_configs(config_store):
+    config_store.store(group="engine", name="schema_blender", node=BlenderConfig)
+
+
+@hookimpl
+def visphy_register_engines(register):
+    register("blender", BlenderEngine)

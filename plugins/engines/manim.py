@@ -1,0 +1,515 @@
+"""Engine ``manim``: a Python program using Manim Community Edition (scripted animation, no
+physics engine), run in a sandboxed child process (`visphy_core.sandbox.process`).
+
+How a program becomes frames:
+
+* **Extraction / validation** (host): the reply's ```python block; it must compile (else
+  ``syntax_error`` with the line) and define a class ``GeneratedScene`` deriving from a Manim
+  scene (else ``no_code``).
+* **Render** (sandbox): the program and a trusted runner (`RUNNER_SOURCE`) are written into a
+  private work dir, and the runner is started with the host's own interpreter
+  (``sys.executable``, so the same Manim) under `run_sandboxed`: no network, scrubbed
+  environment, resource limits, wall-clock limit = ``contract.timeout_s``, and - when visphy
+  runs as root and ``nobody`` can run this very interpreter (`sandbox_user`) - as ``nobody``.
+  The runner fixes Manim's configuration (``pixel_width/height`` = contract size,
+  ``frame_rate`` = contract fps, frame 8 units tall and 8·W/H wide centred on the origin,
+  white background, Cairo renderer, caching off, no media files: ``dry_run``), seeds
+  ``random``/``numpy`` with ``contract.seed``, imports the program, re-applies that
+  configuration (a program cannot change the contract at import time) and renders
+  ``GeneratedScene``, capturing every frame the renderer emits in memory.
+* **Timing**: Manim emits frame *i* of a scene at scene time *i / fps* (every ``play``/``wait``
+  of duration *d* emits about d·fps frames - ⌈d·fps⌉ for an animation, ⌊d·fps⌋ for a static
+  ``wait`` - starting at its own start state). Frame *k* of the clip
+  is emitted frame *k*: a scene longer than ``n_frames / fps`` is **truncated** (rendering stops
+  as soon as ``n_frames`` frames exist), a shorter one **holds its last frame** to the end. A
+  scene that plays no animation at all emits no frame: ``blank_output``.
+* **Determinism**: Cairo rasterises deterministically, the seeds are fixed, ``PYTHONHASHSEED=0``
+  and BLAS runs single-threaded, so the same program gives byte-identical frames.
+
+Failure classes: syntax error → ``syntax_error``; any exception while importing or rendering →
+``runtime_error`` (exception type, message and program line in ``error``); wall-clock or CPU
+limit → ``timeout``; address-space limit → ``runtime_error`` ("memory limit ..."); no frame or
+only one flat colour → ``blank_output``. Whether the child was network-isolated and which user it
+ran as is recorded in ``RenderResult.logs`` (first line, ``sandbox: ...``).
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import logging
+import os
+import shutil
+import stat
+import sys
+import tempfile
+import time
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
+                                RenderResult, classify_frames)
+from visphy_core.extract import extract_code, extract_spec
+from visphy_core.hookspecs import hookimpl
+from visphy_core.sandbox.process import (Limits, ProcessResult, run_sandboxed,
+                                         unprivileged_uid)
+from visphy_core.scene import Scene
+
+log = logging.getLogger(__name__)
+
+TEMPLATES = Path(__file__).with_name("templates")
+#: Height of the Manim camera frame in scene units (Manim's default); the width follows the
+#: video's aspect ratio, so one unit is ``height_px / FRAME_HEIGHT_UNITS`` pixels.
+FRAME_HEIGHT_UNITS = 8.0
+
+INSTRUCTIONS = """
+Write one Python program for Manim Community Edition (manim 0.18-0.22, `from manim import *`)
+that defines `class GeneratedScene(Scene)` with a `construct(self)` method; visphy renders that
+class itself (do not call render() or use the command line). There is no physics engine: script
+the motion yourself, e.g. by integrating positions and velocities with a fixed time step in
+Python and moving mobjects with updaters, ValueTrackers or one `self.wait(1 / config.frame_rate)`
+per video frame. Use only numpy, math and manim; there is no network and no LaTeX, so write
+text with `Text(...)`, never `MathTex` or `Tex`.
+The camera is fixed and matches the video exactly: white background, the frame is
+config.frame_height = 8 units tall and config.frame_width units wide with the origin at its
+centre, and config.pixel_width x config.pixel_height is the video size; an image pixel (px, py)
+measured from the bottom-left corner with y up is the point ((px - W/2) * 8 / H,
+(py - H/2) * 8 / H, 0). Draw flat shapes (Circle, Rectangle, Polygon, ...) with
+fill_opacity=1 and stroke_width=0 in the colours of the images. Scene time t is video time: the
+frame shown at t = k / fps is video frame k; the scene should last the whole clip.
+""".strip()
+
+INSTRUCTIONS_3D = INSTRUCTIONS + """
+For a 3D scene derive GeneratedScene from ThreeDScene and set a fixed camera orientation with
+self.set_camera_orientation(...) that matches the view in the images.
+"""
+
+
+# ------------------------------------------------------------------------------ trusted runner
+#: The trusted part of every render: run inside the sandbox next to ``program.py``. It reads
+#: ``job.json``, writes ``frames.rgb`` (raw uint8 RGB, frame after frame) + ``result.json``, or
+#: ``error.json`` and exits 3. Everything it writes is treated as untrusted by the host (the
+#: program runs in the same process).
+RUNNER_SOURCE = r'''
+"""visphy trusted Manim runner (written by visphy; runs the program in program.py)."""
+import json
+import os
+import random
+import sys
+import traceback
+
+JOB = json.load(open("job.json"))
+W, H, FPS, N, SEED = JOB["width"], JOB["height"], JOB["fps"], JOB["n_frames"], JOB["seed"]
+PROGRAM = os.path.abspath("program.py")
+FRAMES = []
+STATE = {"plays": 0}
+
+
+def fail(kind, exc=None, message=None):
+    info = {"kind": kind, "type": type(exc).__name__ if exc is not None else kind,
+            "message": message if message is not None else str(exc), "line": None}
+    if exc is not None:
+        if isinstance(exc, SyntaxError) and exc.filename == PROGRAM:
+            info["line"] = exc.lineno
+        for frame in traceback.extract_tb(exc.__traceback__):
+            if frame.filename == PROGRAM:
+                info["line"] = frame.lineno
+        traceback.print_exception(type(exc), exc, exc.__traceback__)
+    with open("error.json", "w") as fh:
+        json.dump(info, fh)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(3)
+
+
+class Enough(BaseException):
+    """Raised once the clip has all its frames (a BaseException: `except Exception` in the
+    program does not swallow it)."""
+
+
+random.seed(SEED)
+try:
+    import numpy as np
+    np.random.seed(SEED)
+    import manim
+    from manim import config, tempconfig
+    from manim.renderer.cairo_renderer import CairoRenderer
+    from PIL import Image
+except BaseException as exc:  # noqa: BLE001
+    fail("import_manim", exc)
+
+SETTINGS = {
+    "pixel_width": W, "pixel_height": H, "frame_rate": FPS,
+    "frame_height": JOB["frame_height"], "frame_width": JOB["frame_height"] * W / H,
+    "background_color": "#FFFFFF", "background_opacity": 1.0, "transparent": False,
+    "renderer": "cairo", "disable_caching": True, "dry_run": True, "write_to_movie": False,
+    "save_last_frame": False, "preview": False, "show_in_file_browser": False,
+    "progress_bar": "none", "verbosity": "WARNING", "media_dir": os.path.abspath("media"),
+    "seed": SEED, "from_animation_number": 0, "upto_animation_number": -1,
+}
+if "ffmpeg_executable" in config:
+    # Manim < 0.19 refuses to start without an ffmpeg binary even when, as here, nothing is
+    # encoded (dry run, frames are taken in memory); it only checks that the path is executable.
+    import shutil
+    SETTINGS["ffmpeg_executable"] = shutil.which("ffmpeg") or shutil.which("true") or "/bin/true"
+
+
+def to_rgb(frame):
+    frame = np.asarray(frame)
+    if frame.ndim == 3 and frame.shape[2] == 4:
+        alpha = frame[..., 3:4].astype(np.float32) / 255.0
+        if not np.all(frame[..., 3] == 255):  # composite over the white background
+            rgb = frame[..., :3].astype(np.float32) * alpha + 255.0 * (1.0 - alpha)
+            frame = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
+        else:
+            frame = frame[..., :3]
+    frame = np.ascontiguousarray(frame, dtype=np.uint8)
+    if frame.shape != (H, W, 3):  # the program changed the resolution: fit, pad with white
+        img = Image.fromarray(frame)
+        scale = min(W / img.width, H / img.height)
+        new = (max(1, round(img.width * scale)), max(1, round(img.height * scale)))
+        img = img.resize(new, Image.Resampling.BILINEAR)
+        canvas = Image.new("RGB", (W, H), (255, 255, 255))
+        canvas.paste(img, ((W - new[0]) // 2, (H - new[1]) // 2))
+        frame = np.asarray(canvas)
+    return frame
+
+
+def add_frame(self, frame, num_frames=1):
+    """Replaces CairoRenderer.add_frame: keep frames in memory instead of encoding them."""
+    if self.skip_animations:
+        return
+    self.time += num_frames / self.camera.frame_rate
+    rgb = None
+    for _ in range(int(num_frames)):
+        if len(FRAMES) >= N:
+            raise Enough()
+        if rgb is None:
+            rgb = to_rgb(frame)
+        FRAMES.append(rgb)
+    if len(FRAMES) >= N:
+        raise Enough()
+
+
+CairoRenderer.add_frame = add_frame
+
+with tempconfig(SETTINGS):
+    try:
+        import importlib.util
+        spec = importlib.util.spec_from_file_location("generated_program", PROGRAM)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules["generated_program"] = module
+        spec.loader.exec_module(module)
+    except SyntaxError as exc:
+        fail("syntax", exc)
+    except BaseException as exc:  # noqa: BLE001
+        fail("runtime", exc)
+    config.update({k: v for k, v in SETTINGS.items() if k in config})
+    cls = getattr(module, "GeneratedScene", None)
+    if not (isinstance(cls, type) and issubclass(cls, manim.Scene)):
+        fail("no_scene", message="the program defines no class GeneratedScene(Scene)")
+    random.seed(SEED)
+    np.random.seed(SEED)
+    try:
+        scene = cls()
+        scene.render()
+    except Enough:
+        pass
+    except SyntaxError as exc:
+        fail("syntax", exc)
+    except BaseException as exc:  # noqa: BLE001
+        fail("runtime", exc)
+
+with open("frames.rgb", "wb") as fh:
+    for f in FRAMES:
+        fh.write(f.tobytes())
+with open("result.json", "w") as fh:
+    json.dump({"frames": len(FRAMES), "width": W, "height": H,
+               "manim": getattr(manim, "__version__", "?")}, fh)
+sys.stdout.flush()
+sys.stderr.flush()
+os._exit(0)
+'''
+
+
+def _cfg_get(cfg, key: str, default):
+    if cfg is None:
+        return default
+    try:
+        value = cfg.get(key, default) if hasattr(cfg, "get") else getattr(cfg, key, default)
+    except Exception:  # noqa: BLE001 (struct configs raise on unknown keys)
+        return default
+    return default if value is None else value
+
+
+@lru_cache(maxsize=1)
+def sandbox_user() -> tuple[int | None, str]:
+    """The uid renders run as, and a one-line reason; probed once per process.
+
+    When visphy runs as root, renders run as ``nobody`` - but only if ``nobody`` runs *this*
+    interpreter (same ``sys.version`` and ``sys.base_prefix``) and can import Manim. An
+    interpreter installed under a private directory (e.g. pyenv in a 0700 ``/root``) fails the
+    probe: the dynamic linker would silently fall back to another libpython and stdlib, which is
+    not reliable, so renders then run as the calling user (network isolation and limits still
+    apply) and the reason is logged with every render.
+    """
+    uid = unprivileged_uid()
+    if uid is None:
+        return None, "runs as the calling user (not root, or setpriv missing)"
+    work = Path(tempfile.mkdtemp(prefix="visphy-manim-probe-"))
+    code = "import sys, manim, PIL, numpy; print(repr((sys.version, sys.base_prefix)))"
+    try:
+        res = run_sandboxed([sys.executable, "-s", "-B", "-c", code], work,
+                            Limits(wall_s=60, cpu_s=60), run_as=uid)
+    except (OSError, ValueError) as exc:
+        return None, f"runs as the calling user: could not drop privileges ({exc})"
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    if res.returncode != 0:
+        last = (res.stderr.strip().splitlines() or ["?"])[-1]
+        return None, f"runs as the calling user: uid {uid} cannot import manim ({last})"
+    if res.stdout.strip() != repr((sys.version, sys.base_prefix)):
+        return None, (f"runs as the calling user: uid {uid} cannot reach this interpreter's "
+                      f"installation ({sys.base_prefix}), it would run another Python")
+    return uid, f"runs as uid {uid} (nobody)"
+
+
+def manim_available() -> tuple[bool, str]:
+    """(True, version) when Manim CE imports in this interpreter, else (False, reason)."""
+    try:
+        import manim  # noqa: F401
+    except Exception as exc:  # noqa: BLE001
+        return False, (f"manim is not importable ({type(exc).__name__}: {exc}); run "
+                       "scripts/setup_manim.sh")
+    return True, getattr(manim, "__version__", "?")
+
+
+class ManimEngine(Engine):
+    name = "manim"
+    language = "python"
+    version = "1"
+    supports_3d = False  # programs may use ThreeDScene; the reference program is 2D only
+
+    #: Sandbox limits besides the wall clock; an engine config that has keys of these names
+    #: (``memory_mb``, ``file_size_mb``; also ``keep_workdir``) overrides them.
+    memory_mb = 4096
+    file_size_mb = 512
+
+    def instructions(self, dim: str) -> str:
+        return INSTRUCTIONS_3D if dim == "3d" else INSTRUCTIONS
+
+    def cache_identity(self) -> str:
+        """Manim's version changes anti-aliasing details, so it is part of every cache key."""
+        ok, version = manim_available()
+        return f"{self.name}@{self.version}+manim-{version if ok else 'missing'}"
+
+    # ------------------------------------------------------------------ extract / validate
+    def extract(self, text: str) -> Program:
+        source = extract_code(text, ("python", "py", "python3"))
+        return Program(language=self.language, source=source, spec=extract_spec(text))
+
+    def validate(self, program: Program) -> None:
+        try:
+            tree = ast.parse(program.source, filename="program.py")
+            compile(tree, "program.py", "exec")
+        except SyntaxError as exc:
+            raise ProgramRejected(FailureClass.SYNTAX_ERROR,
+                                  f"SyntaxError: {exc.msg} (line {exc.lineno})") from None
+        except ValueError as exc:  # e.g. null bytes in the source
+            raise ProgramRejected(FailureClass.SYNTAX_ERROR, f"invalid source: {exc}") from None
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ClassDef) and node.name == "GeneratedScene":
+                bases = [b.attr if isinstance(b, ast.Attribute) else getattr(b, "id", "")
+                         for b in node.bases]
+                if any(name.endswith("Scene") for name in bases):
+                    return
+        raise ProgramRejected(FailureClass.NO_CODE,
+                              "the program defines no class GeneratedScene(Scene)")
+
+    # ------------------------------------------------------------------ render
+    def render(self, program: Program, contract: RenderContract) -> RenderResult:
+        start = time.monotonic()
+        uid, who = sandbox_user()
+        keep = bool(_cfg_get(self.cfg, "keep_workdir", False))
+        work = Path(tempfile.mkdtemp(prefix="visphy-manim-"))
+        try:
+            (work / "program.py").write_text(program.source)
+            (work / "visphy_runner.py").write_text(RUNNER_SOURCE)
+            (work / "job.json").write_text(json.dumps({
+                "width": contract.width, "height": contract.height, "fps": contract.fps,
+                "n_frames": contract.n_frames, "seed": contract.seed,
+                "frame_height": FRAME_HEIGHT_UNITS}))
+            limits = Limits(wall_s=contract.timeout_s, cpu_s=contract.timeout_s + 5,
+                            memory_mb=int(_cfg_get(self.cfg, "memory_mb", self.memory_mb)),
+                            file_size_mb=max(int(_cfg_get(self.cfg, "file_size_mb",
+                                                          self.file_size_mb)),
+                                             (contract.n_frames * contract.width *
+                                              contract.height * 3 >> 20) + 64))
+            env = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+                   "PYTHONDONTWRITEBYTECODE": "1", "PYTHONUNBUFFERED": "1",
+                   "XDG_CACHE_HOME": str(work / ".cache")}
+            res = run_sandboxed([sys.executable, "-s", "-B", "visphy_runner.py"], work, limits,
+                                env_extra=env, run_as=uid)
+            result = self._classify(res, work, contract, limits)
+            result.logs.insert(0, f"sandbox: network isolated={res.network_isolated}; {who}; "
+                                  f"exit {res.returncode}; {res.wall_s:.2f} s")
+            if keep:
+                result.logs.append(f"work dir kept: {work}")
+        finally:
+            if not keep:
+                shutil.rmtree(work, ignore_errors=True)
+        result.wall_s = time.monotonic() - start
+        return result
+
+    @staticmethod
+    def _classify(res: ProcessResult, work: Path, contract: RenderContract,
+                  limits: Limits) -> RenderResult:
+        logs = [f"[stdout] {line}" for line in res.stdout.splitlines()[-40:]]
+        logs += [f"[stderr] {line}" for line in res.stderr.splitlines()[-60:]]
+        result = RenderResult(frames=None, logs=logs, wall_s=res.wall_s)
+        error = _read_json(work / "error.json")
+        if res.timed_out:
+            result.failure = FailureClass.TIMEOUT
+            result.error = f"no result within {contract.timeout_s:g} s (infinite loop?)"
+        elif res.limit_hit == "cpu":
+            result.failure = FailureClass.TIMEOUT
+            result.error = f"CPU time limit ({limits.cpu_s:g} s) exceeded"
+        elif res.limit_hit == "memory":
+            result.failure = FailureClass.RUNTIME_ERROR
+            what = _describe(error) if error else _last_line(res.stderr)
+            result.error = f"memory limit ({limits.memory_mb} MB) exceeded: {what}"
+        elif res.returncode != 0 and isinstance(error, dict):
+            result.failure = (FailureClass.SYNTAX_ERROR if error.get("kind") == "syntax"
+                              else FailureClass.INFRA_ERROR if error.get("kind") == "import_manim"
+                              else FailureClass.RUNTIME_ERROR)
+            result.error = _describe(error)
+            if res.limit_hit == "file_size":
+                result.error = f"file size limit ({limits.file_size_mb} MB) exceeded: " + \
+                    result.error
+        elif res.returncode != 0:
+            result.failure = FailureClass.RUNTIME_ERROR
+            if res.limit_hit == "file_size":
+                result.error = f"file size limit ({limits.file_size_mb} MB) exceeded"
+            elif res.returncode is None:
+                result.failure, result.error = FailureClass.INFRA_ERROR, _last_line(res.stderr)
+            elif res.returncode < 0:
+                result.error = f"the program was killed by signal {-res.returncode}"
+            else:
+                result.error = f"exit status {res.returncode}: {_last_line(res.stderr)}"
+        else:
+            frames, problem = _read_frames(work, contract)
+            if problem:
+                result.failure, result.error = FailureClass.RUNTIME_ERROR, problem
+            elif frames is None:
+                result.failure = FailureClass.BLANK_OUTPUT
+                result.error = ("the scene emitted no frame (no self.play / self.wait in "
+                                "construct)")
+            elif classify_frames(frames) is FailureClass.BLANK_OUTPUT:
+                result.failure = FailureClass.BLANK_OUTPUT
+                result.error = "every frame is one flat colour"
+            else:
+                result.frames = frames
+        return result
+
+    # ------------------------------------------------------------------ reference program
+    def program_from_spec(self, scene: Scene) -> Program:
+        spec, traj = scene.spec, scene.trajectory
+        if scene.dim == "3d":
+            raise NotImplementedError(
+                f"{scene.scene_id}: the manim engine has no reference program for 3D scenes "
+                "(Manim's Cairo renderer draws 3D only approximately); use the threejs engine "
+                "for 3D oracles")
+        if spec is None or traj is None:
+            raise ValueError(f"{scene.scene_id}: the reference program needs the scene's spec and "
+                             "trajectory (generated benchmarks have both)")
+        order = {str(body_id): i for i, body_id in enumerate(traj["body_ids"])}
+        payload = {
+            "scene_id": scene.scene_id,
+            "width": scene.clip.width, "height": scene.clip.height, "fps": scene.clip.fps,
+            "n_frames": scene.clip.n_frames,
+            "bodies": [{"id": b["id"], "color_rgb": b["color_rgb"], "shape": b["shape"]}
+                       for b in spec["bodies"]],
+            "frame_poses": [[[round(float(v), 6) for v in frame[order[b["id"]]]]
+                             for b in spec["bodies"]] for frame in traj["frame_poses"]],
+        }
+        source = (TEMPLATES / "manim_replay_2d.py.tmpl").read_text()
+        source = source.replace("__SCENE_JSON__",
+                                repr(json.dumps(payload, separators=(",", ":"))))
+        return Program(language=self.language, source=source, spec=spec)
+
+
+# ------------------------------------------------------------------------------ helpers
+def _read_untrusted(path: Path, max_bytes: int) -> bytes | None:
+    """A regular file the sandboxed program could have tampered with: no symlinks (a link to a
+    file only the host may read must not leak into the run), no devices, bounded size."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | getattr(os, "O_NONBLOCK", 0))
+    except OSError:
+        return None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode) or info.st_size > max_bytes:
+            return None
+        chunks, left = [], info.st_size
+        while left > 0:
+            chunk = os.read(fd, min(left, 1 << 24))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            left -= len(chunk)
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
+
+
+def _read_json(path: Path, max_bytes: int = 1 << 20):
+    data = _read_untrusted(path, max_bytes)
+    if data is None:
+        return None
+    try:
+        return json.loads(data.decode("utf-8", "replace"))
+    except ValueError:
+        return None
+
+
+def _last_line(text: str) -> str:
+    lines = [ln for ln in text.strip().splitlines() if ln.strip()]
+    return lines[-1][:500] if lines else "no output"
+
+
+def _describe(error: dict) -> str:
+    kind, message = str(error.get("type", "Error")), str(error.get("message", ""))[:1500]
+    line = error.get("line")
+    text = f"{kind}: {message}" + (f" (program line {line})" if isinstance(line, int) else "")
+    low = (kind + message).lower()
+    if "latex" in low or "mathtex" in low or "dvisvgm" in low:
+        text += " - LaTeX is not installed: use Text(...) instead of MathTex/Tex"
+    return text
+
+
+def _read_frames(work: Path, contract: RenderContract) -> tuple[np.ndarray | None, str | None]:
+    """Frames the runner wrote (held to ``n_frames``), None when it wrote none, or a problem."""
+    meta = _read_json(work / "result.json")
+    frame_bytes = contract.width * contract.height * 3
+    raw = _read_untrusted(work / "frames.rgb", contract.n_frames * frame_bytes)
+    if not isinstance(meta, dict) or raw is None:
+        return None, ("the runner wrote no usable result (the program ended the process early, "
+                      "or replaced its output files?)")
+    count = len(raw) // frame_bytes
+    if len(raw) % frame_bytes or count != meta.get("frames"):
+        return None, f"corrupt frame output ({len(raw)} bytes, result says {meta.get('frames')!r})"
+    if count == 0:
+        return None, None
+    data = np.frombuffer(raw, dtype=np.uint8)
+    frames = data.reshape(count, contract.height, contract.width, 3)
+    if count < contract.n_frames:  # the scene ended early: hold its last frame
+        hold = np.repeat(frames[-1:], contract.n_frames - count, axis=0)
+        frames = np.concatenate([frames, hold])
+    return np.array(frames, copy=True), None  # writable, independent of the buffer
+
+
+@hookimpl
+def visphy_register_engines(register):
+    register("manim", ManimEngine)

@@ -1,0 +1,254 @@
+"""Engine `manim`: extraction, validation, rendering contract, determinism, failure classes and the
+reference program against ground truth."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from visphy_core.engine import FailureClass, Program, ProgramRejected, RenderContract
+
+pytestmark = pytest.mark.manim
+
+try:
+    import manim  # noqa: F401
+except Exception as exc:  # noqa: BLE001
+    pytest.skip(f"Manim CE is not importable ({type(exc).__name__}: {exc}); run "
+                "scripts/setup_manim.sh", allow_module_level=True)
+
+from visphy_plugins.engines.manim import INSTRUCTIONS, ManimEngine  # noqa: E402
+
+HEADER = "from manim import *\n\nclass GeneratedScene(Scene):\n    def construct(self):\n"
+#: A red dot moving right at 1 unit per second for 1 s, then holding for `hold` seconds.
+MOVING = HEADER + """\
+        dot = Dot(point=LEFT * 2, radius=0.4, color="#f34f46")
+        self.add(dot)
+        self.play(dot.animate.shift(RIGHT * 1), run_time=1, rate_func=linear)
+        self.wait({hold})
+"""
+
+
+@pytest.fixture(scope="module")
+def engine():
+    eng = ManimEngine()
+    yield eng
+    eng.close()
+
+
+def program(source: str) -> Program:
+    return Program(language="python", source=source)
+
+
+def contract(**kw) -> RenderContract:
+    base = {"fps": 10.0, "n_frames": 12, "width": 160, "height": 120, "timeout_s": 60.0}
+    return RenderContract(**{**base, **kw})
+
+
+def red_centre_x(frame: np.ndarray) -> float:
+    mask = np.all(frame == (243, 79, 70), axis=2)
+    return float(np.nonzero(mask)[1].mean()) + 0.5
+
+
+# ------------------------------------------------------------------------- extract / validate
+def test_extract_takes_the_python_block(engine):
+    reply = ("The ball rolls.\n\n```json\n{\"bodies\": []}\n```\n\n```python\n"
+             + MOVING.format(hold=1) + "```\n")
+    prog = engine.extract(reply)
+    assert prog.language == "python" and "class GeneratedScene" in prog.source
+    assert prog.spec == {"bodies": []}
+
+
+@pytest.mark.parametrize("reply, failure", [
+    ("no code at all", FailureClass.NO_CODE),
+    ("```html\n<html><script></script></html>\n```", FailureClass.WRONG_LANGUAGE),
+    ("```python\nfrom manim import *\nclass GeneratedScene(Scene):\n", FailureClass.TRUNCATED),
+])
+def test_extract_failures(engine, reply, failure):
+    with pytest.raises(ProgramRejected) as err:
+        engine.extract(reply)
+    assert err.value.failure is failure
+
+
+def test_validate_classes(engine):
+    engine.validate(program(MOVING.format(hold=1)))
+    engine.validate(program("import manim\nclass GeneratedScene(manim.MovingCameraScene):\n"
+                            "    def construct(self):\n        pass\n"))
+    with pytest.raises(ProgramRejected) as err:
+        engine.validate(program("from manim import *\nx = (1,\nprint(x)\n"))
+    assert err.value.failure is FailureClass.SYNTAX_ERROR and "line" in str(err.value)
+    with pytest.raises(ProgramRejected) as err:
+        engine.validate(program("from manim import *\nclass Other(Scene):\n    pass\n"))
+    assert err.value.failure is FailureClass.NO_CODE
+    with pytest.raises(ProgramRejected) as err:
+        engine.validate(program("class GeneratedScene:\n    pass\n"))
+    assert err.value.failure is FailureClass.NO_CODE
+
+
+def test_instructions_ask_for_text_not_mathtex(engine):
+    text = engine.instructions("2d")
+    assert text == INSTRUCTIONS
+    assert "GeneratedScene(Scene)" in text and "Text(" in text and "MathTex" in text
+    assert "white background" in text and "no physics engine" in text.lower()
+
+
+# ------------------------------------------------------------------------- render
+def test_renders_exact_frame_count_size_and_timing(engine):
+    c = contract()
+    res = engine.render(program(MOVING.format(hold=0.3)), c)  # 1.3 s of scene for a 1.2 s clip
+    assert res.ok, (res.failure, res.error, res.logs[-10:])
+    assert res.frames.shape == (12, 120, 160, 3) and res.frames.dtype == np.uint8
+    assert tuple(res.frames[0, 0, 0]) == (255, 255, 255)  # white background
+    assert res.logs[0].startswith("sandbox: network isolated=")
+    px_per_unit = 120 / 8.0  # frame 8 units tall
+    xs = [red_centre_x(f) for f in res.frames]
+    for k in range(11):  # frame k shows scene time k / fps
+        expect = 80 + (-2 + min(k / 10, 1.0)) * px_per_unit
+        assert abs(xs[k] - expect) < 0.6, (k, xs[k], expect)
+
+
+def test_short_scene_holds_last_frame_long_scene_is_truncated(engine):
+    short = engine.render(program(MOVING.format(hold=0.1)), contract(n_frames=20))
+    assert short.ok and short.frames.shape[0] == 20
+    assert all(np.array_equal(short.frames[10], f) for f in short.frames[10:])
+    long = engine.render(program(MOVING.format(hold=600)), contract(n_frames=8))
+    assert long.ok and long.frames.shape[0] == 8 and long.wall_s < 30
+
+
+def test_same_program_same_frames(engine):
+    src = HEADER + """\
+        import random
+        import numpy as np
+        dots = VGroup(*[Dot(point=[random.uniform(-3, 3), np.random.uniform(-2, 2), 0],
+                            color=BLUE) for _ in range(5)])
+        label = Text("visphy", color=BLACK).scale(0.6).to_edge(UP)
+        self.add(dots, label)
+        self.play(Rotate(dots, angle=PI / 3), run_time=1)
+"""
+    a = engine.render(program(src), contract())
+    b = engine.render(program(src), contract())
+    assert a.ok and b.ok, (a.error, b.error)
+    assert np.array_equal(a.frames, b.frames)
+    c = engine.render(program(src), contract(seed=1))
+    assert c.ok and not np.array_equal(a.frames, c.frames)  # contract.seed seeds random/numpy
+
+
+@pytest.mark.parametrize("body, failure, needle", [
+    ("        x = 1 / 0\n", FailureClass.RUNTIME_ERROR, "ZeroDivisionError"),
+    ("        self.add(MathTex('x^2'))\n        self.wait(1)\n", FailureClass.RUNTIME_ERROR,
+     "use Text"),
+    ("        import numpy as np\n        a = np.ones(10 ** 10, dtype=np.uint8)\n",
+     FailureClass.RUNTIME_ERROR, "memory limit"),
+    ("        self.add(Circle(color=RED))\n", FailureClass.BLANK_OUTPUT, "no frame"),
+    ("        self.wait(1)\n", FailureClass.BLANK_OUTPUT, "flat colour"),
+])
+def test_failure_classes(engine, body, failure, needle):
+    res = engine.render(program(HEADER + body), contract())
+    assert res.failure is failure and needle in (res.error or ""), (res.failure, res.error)
+    assert res.frames is None
+
+
+def test_runtime_error_names_the_program_line(engine):
+    res = engine.render(program(HEADER + "        y = 2\n        undefined_name + y\n"),
+                        contract())
+    assert res.failure is FailureClass.RUNTIME_ERROR
+    assert "NameError" in res.error and "program line 6" in res.error
+
+
+def test_timeout(engine):
+    res = engine.render(program(HEADER + "        while True:\n            pass\n"),
+                        contract(timeout_s=3.0))
+    assert res.failure is FailureClass.TIMEOUT and res.wall_s < 20
+
+
+def test_program_has_no_network(engine):
+    body = ("        import socket\n        s = socket.socket()\n"
+            "        s.connect(('127.0.0.1', 9))\n")
+    res = engine.render(program(HEADER + body), contract())
+    assert res.failure is FailureClass.RUNTIME_ERROR
+    if "network isolated=True" in res.logs[0]:
+        assert "unreachable" in res.error.lower()
+
+
+# ------------------------------------------------------------------------- reference program
+def colour_centres(frame: np.ndarray, colours) -> dict:
+    """Centroid (px) of the pixels of each exact colour present in a frame."""
+    out = {}
+    for colour in colours:
+        ys, xs = np.nonzero(np.all(frame == colour, axis=2))
+        if len(xs):
+            out[tuple(colour)] = np.array([xs.mean(), ys.mean()])
+    return out
+
+
+def reference_error(engine, scene, gt: np.ndarray) -> tuple[float, float]:
+    """(mean object-centre error in px, mean PSNR) of the reference program against ``gt``."""
+    from visphy_plugins.metrics.pixel import psnr_frame
+
+    prog = engine.program_from_spec(scene)
+    engine.validate(prog)
+    res = engine.render(prog, RenderContract.for_scene(scene, timeout_s=120))
+    assert res.ok, (res.failure, res.error, res.logs[-10:])
+    assert res.frames.shape == gt.shape
+    colours = {tuple(b["color_rgb"]) for b in scene.spec["bodies"]}
+    errors = []
+    for got, want in zip(res.frames, gt):
+        a, b = colour_centres(got, colours), colour_centres(want, colours)
+        errors += [float(np.hypot(*(a[c] - b[c]))) for c in a.keys() & b.keys()]
+    assert errors
+    return float(np.mean(errors)), float(np.mean([psnr_frame(g, w)
+                                                   for g, w in zip(res.frames, gt)]))
+
+
+def test_reference_program_tracks_ground_truth_handmade(engine, tmp_path):
+    """Every hand-made mini scene (circles, boxes, a jar), against the exact rasteriser."""
+    from visphy_core.bench.build import _npz_bytes
+    from visphy_core.bench.raster2d import render_clip_2d
+    from visphy_core.bench.templates_mini import mini_scenes
+    from visphy_core.scene import Scene
+    from visphy_core.video import ClipInfo
+
+    for spec, rollout in mini_scenes()[:3]:
+        sid = spec["scene_id"]
+        (tmp_path / f"{sid}.json").write_text(json.dumps(spec))
+        (tmp_path / f"{sid}.npz").write_bytes(_npz_bytes(rollout, "2d"))
+        w, h = spec["world"]["units"]["canvas_px"]
+        scene = Scene(scene_id=sid, dim="2d", video_path=tmp_path / f"{sid}.mp4",
+                      clip=ClipInfo(fps=spec["world"]["video_fps"],
+                                    n_frames=spec["world"]["n_frames"], width=w, height=h),
+                      spec_path=tmp_path / f"{sid}.json", trajectory_path=tmp_path / f"{sid}.npz")
+        gt = render_clip_2d(spec, rollout.frame_poses)
+        err, psnr = reference_error(engine, scene, gt)
+        assert err <= 3.0 and psnr >= 30.0, (sid, err, psnr)
+
+
+def test_reference_program_tracks_ground_truth_mini_split(engine, mini_scenes):
+    """One scene of the generated benchmark's mini split, against its decoded reference clip."""
+    scene = mini_scenes[0]
+    err, psnr = reference_error(engine, scene, scene.reference_frames())
+    assert err <= 3.0 and psnr >= 30.0, (scene.scene_id, err, psnr)
+
+
+def test_reference_program_3d_not_implemented(engine):
+    from pathlib import Path
+
+    from visphy_core.scene import Scene
+    from visphy_core.video import ClipInfo
+
+    scene = Scene(scene_id="14_tmpl_14", dim="3d", clip=ClipInfo(15.0, 75, 512, 512),
+                  video_path=Path("/nonexistent.mp4"))
+    with pytest.raises(NotImplementedError, match="3D"):
+        engine.program_from_spec(scene)
+
+
+def test_output_files_are_read_without_following_links(tmp_path):
+    from visphy_plugins.engines.manim import _read_untrusted
+
+    secret = tmp_path / "host_only.txt"
+    secret.write_text("secret")
+    (tmp_path / "frames.rgb").symlink_to(secret)
+    (tmp_path / "big.rgb").write_bytes(b"x" * 100)
+    assert _read_untrusted(tmp_path / "frames.rgb", 1 << 20) is None
+    assert _read_untrusted(tmp_path / "big.rgb", 99) is None
+    assert _read_untrusted(tmp_path / "big.rgb", 100) == b"x" * 100
