@@ -84,3 +84,12 @@ def test_ssim_matches_scikit_image_reference():
     ref = skimage_metrics.structural_similarity(x, y, gaussian_weights=True, sigma=1.5,
                                                 use_sample_covariance=False, data_range=255)
     assert ssim_channel(x, y) == pytest.approx(ref, abs=1e-6)
+
+
+def test_a_disabled_cache_recomputes_but_still_stores(tmp_path):
+    cache = Cache(tmp_path, enabled=False)
+    key = content_key("x")
+    entry = cache.put("score", key, {"value.json": "1"})
+    assert (entry / "value.json").read_text() == "1"
+    assert cache.get("score", key) is None
+    assert cache.stats() == {"score": {"hits": 0, "misses": 1}}

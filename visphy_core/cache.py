@@ -27,7 +27,11 @@ def content_key(*parts: Any) -> str:
 
 
 class Cache:
-    """``<root>/<kind>/<ab>/<key>/`` directories holding one stage result each."""
+    """``<root>/<kind>/<ab>/<key>/`` directories holding one stage result each.
+
+    ``enabled=False`` (``run.cache=false``) makes every lookup a miss, so everything is recomputed;
+    results are still stored, which the stages read back.
+    """
 
     def __init__(self, root: str | Path, enabled: bool = True):
         self.root = Path(root)
@@ -49,9 +53,7 @@ class Cache:
 
     def put(self, kind: str, key: str, files: dict[str, bytes | str | Path]) -> Path:
         """Store named files atomically; returns the entry directory."""
-        entry = self.path(kind, key)
-        if not self.enabled:
-            return entry
+        entry = self.path(kind, key)  # written even when reads are disabled: one code path
         entry.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{key[:8]}.", dir=entry.parent))
         try:
