@@ -33,7 +33,7 @@ durationMs)` once to record a finite clip.
 
 class ThreeJsEngine(BrowserEngine):
     name = "threejs"
-    version = "1"
+    version = "2"
     supports_3d = True
     preload = ("three.min.js", "cannon.min.js")
 

@@ -1,7 +1,10 @@
 // visphy virtual clock: injected before any page script so the program never sees real time.
 // requestAnimationFrame, performance.now, Date, setTimeout/setInterval, requestIdleCallback and
 // Math.random are replaced; the host advances time with __visphy.advanceTo(ms) and reads frames
-// with __visphy.capture(). Same program + same config => same sequence of callbacks => same frames.
+// with __visphy.captureAt(t) (canvas readback) or __visphy.prepareScreenshot(t) followed by a page
+// screenshot (pages without a canvas: SVG, DOM). Document animations (SMIL, CSS animations and
+// transitions, Web Animations) are paused and seeked to the virtual time in screenshot mode.
+// Same program + same config => same sequence of callbacks => same frames.
 (() => {
   const CONFIG = window.__VISPHY_CONFIG__ || {};
   const TICK_MS = CONFIG.tickMs || 1000 / 60;
@@ -10,6 +13,9 @@
   let nextTick = 0;       // index of the next animation tick (tick i runs at i * TICK_MS)
   let nextId = 1;
   const timers = new Map(); // id -> {due, seq, fn, args, interval}
+  const readyChecks = [];   // trusted-template predicates: the page may be captured once all hold
+  // Screenshot mode: SMIL / CSS / Web Animations follow `now` instead of the real timeline.
+  const syncDocumentAnimations = CONFIG.capture === 'screenshot';
   let timerSeq = 0;
   let rafQueue = new Map();  // id -> callback
   const errors = [];
@@ -70,6 +76,7 @@
       if (best === null) return;
       now = Math.max(now, best.due);
       if (best.interval) { best.due += best.interval; best.seq = timerSeq++; } else { timers.delete(bestId); }
+      if (syncDocumentAnimations) syncSmilClock();
       try { typeof best.fn === 'function' ? best.fn(...best.args) : (0, eval)(String(best.fn)); }
       catch (e) { report('timer', e); }
     }
@@ -90,27 +97,91 @@
       nextTick += 1;
       runTimersUntil(tickTime);
       now = Math.max(now, tickTime);
+      if (syncDocumentAnimations) syncSmilClock();
       runAnimationFrame();
+      if (syncDocumentAnimations) stampAnimations();
     }
     runTimersUntil(target);
     now = Math.max(now, target);
   }
 
+  // Document animations run on the real document timeline; in screenshot mode every one of them
+  // is paused when first seen (birth = the virtual time it appeared) and seeked to `now - birth`
+  // before each capture. SMIL timelines are paused and seeked per outermost <svg>.
+  const births = new WeakMap();
+  const realAnimate = Element.prototype.animate;
+  Element.prototype.animate = function (...args) {
+    const anim = realAnimate.apply(this, args);
+    births.set(anim, now);
+    if (syncDocumentAnimations) {
+      try { anim.pause(); anim.currentTime = 0; } catch (e) { /* ignore */ }
+    }
+    return anim;
+  };
+  function stampAnimations() {
+    if (!document.getAnimations) return;
+    for (const anim of document.getAnimations()) {
+      if (!births.has(anim)) {
+        births.set(anim, now);
+        try { anim.pause(); } catch (e) { /* ignore */ }
+      }
+    }
+  }
+  // SMIL clocks follow `now` at every tick, so beginElement() from a timer starts on time.
+  function seekSmil() {
+    for (const svg of document.querySelectorAll('svg')) {
+      if (svg.ownerSVGElement || typeof svg.setCurrentTime !== 'function') continue;
+      if (!svg.querySelector('animate, animateTransform, animateMotion, set')) continue;
+      try { svg.pauseAnimations(); svg.setCurrentTime(now / 1000); } catch (e) { /* ignore */ }
+    }
+  }
+  let smilAt = -1;
+  function syncSmilClock() {
+    if (smilAt !== now) { smilAt = now; seekSmil(); }
+  }
+  function seekDocumentAnimations() {
+    stampAnimations();
+    if (document.getAnimations) {
+      for (const anim of document.getAnimations()) {
+        try { anim.pause(); anim.currentTime = Math.max(0, now - births.get(anim)); }
+        catch (e) { /* an animation that refuses seeking stays where it is */ }
+      }
+    }
+    smilAt = now;
+    seekSmil();
+  }
+
   // Recording helper of the upstream contract: the program names its canvas and clip length.
   let recording = null;
+  // Accepts a canvas, an <svg>, or what libraries hand out for one (p5.Renderer / p5.Graphics:
+  // .elt / .canvas; three.js renderer: .domElement; a 2D context: .canvas).
+  function unwrapTarget(x) {
+    for (let i = 0; i < 3 && x && !(x instanceof Element); i++) {
+      x = x.elt || x.domElement || x.canvas || null;
+    }
+    return x instanceof Element ? x : null;
+  }
   window.setupRecording = (canvas, durationMs) => {
-    recording = { canvas, durationMs: Number(durationMs) || null };
+    recording = { canvas: unwrapTarget(canvas), durationMs: Number(durationMs) || null };
     return { start() {}, stop() {} };
   };
 
   function pickCanvas() {
     if (recording && recording.canvas instanceof HTMLCanvasElement) return recording.canvas;
-    let best = null, area = -1;
+    // The largest canvas, preferring ones that are displayed (p5.Graphics buffers are hidden).
+    let best = null, score = -1;
     for (const c of document.querySelectorAll('canvas')) {
-      const a = c.width * c.height;
-      if (a > area) { best = c; area = a; }
+      const shown = c.getClientRects().length > 0 ? 1 : 0;
+      const s = shown * 1e9 + c.width * c.height;
+      if (s > score) { best = c; score = s; }
     }
     return best;
+  }
+
+  // Something a screenshot can show: an <svg> or a canvas (or the recorded element).
+  function hasDrawable() {
+    if (recording && recording.canvas && recording.canvas.isConnected) return true;
+    return !!document.querySelector('svg, canvas');
   }
 
   // WebGL canvases keep their drawing buffer so a capture always sees the last rendered frame.
@@ -136,6 +207,23 @@
     errors: () => errors.slice(),
     logs: () => logs.slice(),
     recording: () => recording && { durationMs: recording.durationMs },
+    // Trusted templates register predicates (e.g. "p5 finished preload() and setup()"); the
+    // host waits, in real time and within the page's time limit, until all hold.
+    addReadyCheck(fn) { readyChecks.push(fn); },
+    isReady() {
+      if (errors.length) return true;  // a page that already failed is captured as it is
+      for (const fn of readyChecks) {
+        try { if (!fn()) return false; } catch (e) { return false; }
+      }
+      return true;
+    },
+    // Advance to `t` ms, seek document animations there, and say whether there is anything to
+    // screenshot; the host then captures the viewport.
+    prepareScreenshot(t) {
+      advanceTo(t);
+      if (syncDocumentAnimations) seekDocumentAnimations();
+      return { drawable: hasDrawable() };
+    },
     // Advance to `t` ms and return the chosen canvas as a PNG data URL (or null without canvas).
     captureAt(t) {
       advanceTo(t);
