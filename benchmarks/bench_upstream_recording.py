@@ -28,7 +28,8 @@ window.setupRecording = (canvas, durationMs) => {
   recorder.onstop = async () => {
     const buf = await new Blob(chunks, { type: 'video/webm' }).arrayBuffer();
     let s = ''; const bytes = new Uint8Array(buf);
-    for (let i = 0; i < bytes.length; i += 0x8000) s += String.fromCharCode(...bytes.subarray(i, i + 0x8000));
+    for (let i = 0; i < bytes.length; i += 0x8000)
+      s += String.fromCharCode(...bytes.subarray(i, i + 0x8000));
     window.__recorded = btoa(s);
   };
   recorder.start();

@@ -78,4 +78,5 @@ def test_category_rule():
     assert cat({"type": "polygon",
                 "vertices_px": [[0, 0], [50, 0], [50, 5], [0, 5]]}) == "line"
     assert cat({"type": "compound", "parts_px": [[[0, 0], [1, 0], [0, 1]]] * 3}) == "u_shape"
-    assert cat({"type": "compound", "parts_px": [[[0, 0], [1, 0], [0, 1]]] * 2}) == "composite_shape"
+    two_triangles = {"type": "compound", "parts_px": [[[0, 0], [1, 0], [0, 1]]] * 2}
+    assert cat(two_triangles) == "composite_shape"

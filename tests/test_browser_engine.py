@@ -73,10 +73,12 @@ def test_webgl_three_js_renders_deterministically(engine):
 const renderer = new THREE.WebGLRenderer({canvas: document.getElementById('c'), antialias: false});
 const scene = new THREE.Scene(); scene.background = new THREE.Color(0xffffff);
 const camera = new THREE.OrthographicCamera(0, 128, 128, 0, -1, 1);
-const ball = new THREE.Mesh(new THREE.CircleGeometry(10, 64), new THREE.MeshBasicMaterial({color: 0xf34f46}));
+const ball = new THREE.Mesh(new THREE.CircleGeometry(10, 64),
+                            new THREE.MeshBasicMaterial({color: 0xf34f46}));
 scene.add(ball);
 const world = new CANNON.World(); world.gravity.set(0, -60, 0);
-const body = new CANNON.Body({mass: 1, shape: new CANNON.Sphere(10)}); body.position.set(64, 110, 0);
+const body = new CANNON.Body({mass: 1, shape: new CANNON.Sphere(10)});
+body.position.set(64, 110, 0);
 world.addBody(body);
 let last = performance.now();
 function loop(now) { world.step(1/60, (now - last) / 1000, 10); last = now;

@@ -121,8 +121,10 @@ def _add_walls(world: Box2D.b2World, spec: dict, ppm: float) -> list[Box2D.b2Bod
     """Static boxes of `walls.thickness_px` just outside the canvas (floor at the bottom edge)."""
     w, h = spec["world"]["units"]["canvas_px"]
     t = spec["world"]["walls"]["thickness_px"]
-    boxes = {"bottom": (w / 2, -t / 2, w / 2 + t, t / 2), "top": (w / 2, h + t / 2, w / 2 + t, t / 2),
-             "left": (-t / 2, h / 2, t / 2, h / 2 + t), "right": (w + t / 2, h / 2, t / 2, h / 2 + t)}
+    boxes = {"bottom": (w / 2, -t / 2, w / 2 + t, t / 2),
+             "top": (w / 2, h + t / 2, w / 2 + t, t / 2),
+             "left": (-t / 2, h / 2, t / 2, h / 2 + t),
+             "right": (w + t / 2, h / 2, t / 2, h / 2 + t)}
     walls = []
     for side in ("bottom", "left", "right", "top"):
         if side not in spec["world"]["walls"]["sides"]:
@@ -200,7 +202,8 @@ def simulate_2d(spec: dict, n_steps: int | None = None) -> Rollout:
             ba, bb = c.fixtureA.body, c.fixtureB.body
             tx, ty = -wm.normal.y, wm.normal.x
             for p in list(wm.points)[:c.manifold.pointCount]:
-                va, vb = ba.GetLinearVelocityFromWorldPoint(p), bb.GetLinearVelocityFromWorldPoint(p)
+                va = ba.GetLinearVelocityFromWorldPoint(p)
+                vb = bb.GetLinearVelocityFromWorldPoint(p)
                 if abs((va.x - vb.x) * tx + (va.y - vb.y) * ty) > SLIDE_SPEED_M_S:
                     slid.add(key)
                     break

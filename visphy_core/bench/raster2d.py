@@ -45,7 +45,7 @@ def _pixel_window(xmin: float, xmax: float, ymin: float, ymax: float, width: int
 
 
 def _centres(win: tuple[int, int, int, int], height: int) -> tuple[np.ndarray, np.ndarray]:
-    """World coordinates (x column vector, y row vector broadcastable) of the window's pixel centres."""
+    """World coordinates of the window's pixel centres (x column vector, y row vector)."""
     i0, i1, j0, j1 = win
     xs = np.arange(i0, i1, dtype=np.float64) + 0.5
     ys = height - (np.arange(j0, j1, dtype=np.float64) + 0.5)

@@ -98,7 +98,8 @@ _BODY = {
 }
 _EVENT = _obj({"t_s": _NONNEG, "step": {"type": "integer", "minimum": 0},
                "type": {"enum": ["contact_begin"]}, "a": {"type": "string"},
-               "b": {"type": "string"}, "normal_speed_m_s": _NUM}, required=["t_s", "type", "a", "b"])
+               "b": {"type": "string"}, "normal_speed_m_s": _NUM},
+              required=["t_s", "type", "a", "b"])
 _ID_LIST = {"type": "array", "items": {"type": "string"}}
 _PAIR_LIST = {"type": "array", "items": {"type": "array", "items": {"type": "string"},
                                          "minItems": 2, "maxItems": 2}}

@@ -49,7 +49,8 @@ def _body(bid: str, color: str, shape: dict, x: float, y: float, angle: float, d
 def ball(bid: str, color: str, r: float, x: float, y: float, dynamic: bool = True,
          velocity: tuple[float, float, float] | None = None) -> dict:
     """A PHYRE ball (circle of radius r px)."""
-    return _body(bid, color, {"type": "circle", "radius_px": float(r)}, x, y, 0.0, dynamic, velocity)
+    shape = {"type": "circle", "radius_px": float(r)}
+    return _body(bid, color, shape, x, y, 0.0, dynamic, velocity)
 
 
 def box(bid: str, color: str, length: float, thickness: float, x: float, y: float,

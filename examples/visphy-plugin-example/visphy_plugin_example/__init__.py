@@ -20,7 +20,10 @@ PAGE = """<!DOCTYPE html>
 const canvas = document.getElementById('c');
 const ctx = canvas.getContext('2d');
 setupRecording(canvas, 1000);
-function draw() {{ ctx.drawImage(document.getElementById('still'), 0, 0, {w}, {h}); requestAnimationFrame(draw); }}
+function draw() {{
+  ctx.drawImage(document.getElementById('still'), 0, 0, {w}, {h});
+  requestAnimationFrame(draw);
+}}
 window.addEventListener('load', draw);
 </script></body></html>"""
 
