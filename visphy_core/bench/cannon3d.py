@@ -16,7 +16,6 @@ continuous ``y0 - g t²/2``; the ground truth is the discrete rollout.
 from __future__ import annotations
 
 import base64
-import hashlib
 import json
 import os
 import shutil
@@ -65,15 +64,10 @@ class Rollout3D:
 
 
 def trajectory_digest_3d(rollout: Rollout3D) -> str:
-    """SHA-256 over body ids, frame steps/times and the frame and step pose arrays (float64 LE)."""
-    h = hashlib.sha256()
-    h.update("\0".join(rollout.body_ids).encode())
-    for arr, dtype in ((rollout.frame_steps, "<i8"), (rollout.frame_times_s, "<f8"),
-                       (rollout.frame_poses, "<f8"), (rollout.step_poses, "<f8")):
-        a = np.ascontiguousarray(arr, dtype=dtype)
-        h.update(str(a.shape).encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
+    """The same digest as 2D rollouts (body ids, frame steps/times, frame and step poses)."""
+    from visphy_core.bench.box2d_sim import trajectory_digest
+
+    return trajectory_digest(rollout)
 
 
 def find_node() -> str:
