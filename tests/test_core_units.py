@@ -93,3 +93,24 @@ def test_a_disabled_cache_recomputes_but_still_stores(tmp_path):
     assert (entry / "value.json").read_text() == "1"
     assert cache.get("score", key) is None
     assert cache.stats() == {"score": {"hits": 0, "misses": 1}}
+
+
+def test_normalise_command_matches_a_foreign_video_to_the_reference(tmp_path):
+    """A 30 fps 320×240 clip becomes the reference's 5 fps, 17 frames, 64×64 (padded)."""
+    import subprocess
+    import sys
+
+    ref = encode_video(np.full((17, 64, 64, 3), 255, np.uint8), tmp_path / "ref.mp4", 5)
+    foreign = np.zeros((60, 240, 320, 3), np.uint8)
+    foreign[:, :, :, 0] = np.arange(60)[:, None, None] * 4  # red level encodes the frame index
+    encode_video(foreign, tmp_path / "foreign.mp4", 30)
+    out = tmp_path / "out.mp4"
+    subprocess.run([sys.executable, "-m", "visphy_core", "normalise", str(tmp_path / "foreign.mp4"),
+                    "--like", str(ref), "-o", str(out)], check=True, capture_output=True)
+    frames, info = decode_video(out)
+    assert info == ClipInfo(fps=5.0, n_frames=17, width=64, height=64)
+    # frame k shows the foreign frame at k/5 s = index 6k (held at 59 after 2 s); letterboxed
+    reds = [int(f[32, 32, 0]) for f in frames]
+    expected = [min(6 * k, 59) * 4 for k in range(17)]
+    assert all(abs(r - e) <= 6 for r, e in zip(reds, expected)), (reds, expected)
+    assert frames[0][2, 32].min() > 240  # white padding above the 4:3 picture

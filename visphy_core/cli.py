@@ -4,6 +4,7 @@ Subcommands:
   plugins        list installed plugins and what each registers (also: --plugins)
   setup          install the vendored JavaScript libraries (npm ci into the asset cache)
   build-dataset  generate VisPhyBench: build-dataset [--split S] [--seed N] [--data-dir DIR]
+  normalise      resample a foreign video to a reference clip: normalise IN --like REF -o OUT
 Anything else is a Hydra run: ``python -m visphy_core engine=threejs model=oracle dataset=mini``.
 """
 
@@ -65,7 +66,31 @@ def cmd_build_dataset(argv: list[str]) -> int:
     return 0
 
 
-SUBCOMMANDS = {"plugins": cmd_plugins, "setup": cmd_setup, "build-dataset": cmd_build_dataset}
+def cmd_normalise(argv: list[str]) -> int:
+    from pathlib import Path
+
+    from visphy_core.video import decode_video, encode_video, normalise_clip
+
+    parser = argparse.ArgumentParser(
+        prog="python -m visphy_core normalise",
+        description="Resample any video to a reference clip's fps, frame count and size "
+                    "(nearest frame in time; aspect kept, padded with white).")
+    parser.add_argument("video", help="the foreign video (a baseline's or upstream output)")
+    parser.add_argument("--like", required=True, help="the reference clip to match")
+    parser.add_argument("-o", "--output", required=True)
+    args = parser.parse_args(argv)
+    frames, info = decode_video(Path(args.video))
+    _, target = decode_video(Path(args.like))
+    out = normalise_clip(frames, info.fps, target)
+    encode_video(out, Path(args.output), target.fps)
+    print(f"{args.video}: {info.n_frames} frames {info.width}x{info.height} @ {info.fps:g} fps "
+          f"-> {args.output}: {target.n_frames} frames {target.width}x{target.height} "
+          f"@ {target.fps:g} fps")
+    return 0
+
+
+SUBCOMMANDS = {"plugins": cmd_plugins, "setup": cmd_setup, "build-dataset": cmd_build_dataset,
+               "normalise": cmd_normalise}
 
 
 def run_hydra(argv: list[str]) -> int:
