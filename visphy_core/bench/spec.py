@@ -56,12 +56,14 @@ _POLY = {"type": "array", "items": _VEC2, "minItems": 3, "maxItems": MAX_POLYGON
 
 
 def _obj(props: dict[str, Any], required: list[str] | None = None, extra: bool = False) -> dict:
-    return {"type": "object", "properties": props, "required": required or list(props),
+    """A closed object schema; every property is required unless ``required`` says otherwise."""
+    return {"type": "object", "properties": props,
+            "required": list(props) if required is None else required,
             "additionalProperties": extra}
 
 
 def _shape_case(kind: str, props: dict[str, Any]) -> dict:
-    return {"if": {"properties": {"type": {"const": kind}}},
+    return {"if": {"properties": {"type": {"const": kind}}, "required": ["type"]},
             "then": _obj({"type": {"const": kind}, **props})}
 
 

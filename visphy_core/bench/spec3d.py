@@ -34,7 +34,20 @@ from typing import Any
 import jsonschema
 import numpy as np
 
-from visphy_core.bench.spec import CATEGORIES
+from visphy_core.bench.spec import (  # schema building blocks shared with the 2D schema
+    _CONTACT,
+    _EVENT,
+    _ID_LIST,
+    _NONNEG,
+    _NUM,
+    _PAIR_LIST,
+    _POS,
+    _RGB,
+    CATEGORIES,
+    _obj,
+    _path,
+    _shape_case,
+)
 from visphy_core.scene import SPEC_SCHEMA
 
 #: Constants of the generated 3D subset (MISSION §5): a spec with profile "visphybench-3d" must
@@ -57,25 +70,9 @@ RED_RGB = (243, 79, 70)
 #: Long thin boxes (longest / shortest side >= this) are "line" (planks), others "rectangle".
 LINE_ASPECT = 4.0
 
-_NUM = {"type": "number"}
-_NONNEG = {"type": "number", "minimum": 0}
-_POS = {"type": "number", "exclusiveMinimum": 0}
-_RGB = {"type": "array", "items": {"type": "integer", "minimum": 0, "maximum": 255},
-        "minItems": 3, "maxItems": 3}
 _VEC3 = {"type": "array", "items": _NUM, "minItems": 3, "maxItems": 3}
 _POS3 = {"type": "array", "items": _POS, "minItems": 3, "maxItems": 3}
 _QUAT = {"type": "array", "items": _NUM, "minItems": 4, "maxItems": 4}
-
-
-def _obj(props: dict[str, Any], required: list[str] | None = None, extra: bool = False) -> dict:
-    return {"type": "object", "properties": props,
-            "required": list(props) if required is None else required,
-            "additionalProperties": extra}
-
-
-def _shape_case(kind: str, props: dict[str, Any]) -> dict:
-    return {"if": {"properties": {"type": {"const": kind}}, "required": ["type"]},
-            "then": _obj({"type": {"const": kind}, **props})}
 
 
 _PRIMITIVE_CASES = [
@@ -95,7 +92,6 @@ _SHAPE = {
 }
 _MATERIAL = _obj({"mass_kg": _POS, "density_kg_m3": _POS, "friction": _NONNEG,
                   "restitution": _NONNEG}, required=["friction", "restitution"])
-_CONTACT = _obj({"friction": _NONNEG, "restitution": _NONNEG})
 _BODY = {
     **_obj(
         {
@@ -113,13 +109,6 @@ _BODY = {
     "if": {"properties": {"dynamic": {"const": True}}},
     "then": {"required": ["velocity", "material"]},
 }
-_EVENT = _obj({"t_s": _NONNEG, "step": {"type": "integer", "minimum": 0},
-               "type": {"enum": ["contact_begin"]}, "a": {"type": "string"},
-               "b": {"type": "string"}, "normal_speed_m_s": _NUM},
-              required=["t_s", "type", "a", "b"])
-_ID_LIST = {"type": "array", "items": {"type": "string"}}
-_PAIR_LIST = {"type": "array", "items": {"type": "array", "items": {"type": "string"},
-                                         "minItems": 2, "maxItems": 2}}
 _SPOOK = _obj({"stiffness": _POS, "relaxation": _POS})
 
 #: JSON Schema (draft 2020-12) of `visphy-scene/1` for 3D scenes.
@@ -383,13 +372,6 @@ def category_of_3d(body: dict) -> str:
 
 
 # ------------------------------------------------------------------------------- validation
-def _path(parts: Any) -> str:
-    out = "$"
-    for p in parts:
-        out += f"[{p}]" if isinstance(p, int) else f".{p}"
-    return out
-
-
 def _fail(spec: Any, path: str, message: str) -> None:
     sid = spec.get("scene_id", "<no scene_id>") if isinstance(spec, dict) else "<not an object>"
     raise ValueError(f"invalid 3D scene spec {sid}: {path}: {message}")
