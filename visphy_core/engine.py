@@ -31,8 +31,16 @@ class FailureClass(str, Enum):
     BLANK_OUTPUT = "blank_output"
     STATIC_OUTPUT = "static_output"
     SANDBOX_VIOLATION = "sandbox_violation"
-    INFRA_ERROR = "infra_error"
-    MODEL_ERROR = "model_error"
+    RESOURCE_LIMIT = "resource_limit"   # the program hit a memory, disk, file-size or process cap
+    INFRA_ERROR = "infra_error"         # our side failed (browser crash, missing renderer)
+    MODEL_ERROR = "model_error"         # the provider failed after retries
+    DATA_ERROR = "data_error"           # a bad input of this scene (detection JSON, GT video)
+
+    @property
+    def blames_program(self) -> bool:
+        """True when the model's program is at fault (a repair call may help)."""
+        return self not in (FailureClass.INFRA_ERROR, FailureClass.MODEL_ERROR,
+                            FailureClass.DATA_ERROR)
 
 
 class ProgramRejected(Exception):
@@ -95,6 +103,9 @@ class RenderResult:
     logs: list[str] = field(default_factory=list)
     blocked_requests: list[str] = field(default_factory=list)
     wall_s: float = 0.0
+    #: How the program was isolated, e.g. "bwrap:uid65534,netns,pidns" or "browser:netns";
+    #: "none" when it ran unisolated (explicit opt-out). Recorded in every result row.
+    isolation: str | None = None
 
     @property
     def ok(self) -> bool:
