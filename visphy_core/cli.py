@@ -6,14 +6,83 @@ Subcommands:
   build-dataset  generate VisPhyBench: build-dataset [--split S] [--seed N] [--data-dir DIR]
   normalise      resample a foreign video to a reference clip: normalise IN --like REF -o OUT
 Anything else is a Hydra run: ``python -m visphy_core engine=threejs model=oracle dataset=mini``.
+
+Bad input (a config value, a missing dataset, a plugin that does not load, Chromium missing) is
+reported as one line, ``error: ...`` on stderr, exit status 2. ``--traceback`` (or
+``VISPHY_TRACEBACK=1``) shows the full traceback instead, for debugging.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+from types import TracebackType
 
-from visphy_core.config_check import ConfigError, check_overrides
+from visphy_core.config_check import check_inputs, check_overrides
+from visphy_core.errors import UserError
+
+#: Modules whose ValueError / FileNotFoundError is about the user's dataset, not a bug.
+DATASET_MODULES = ("visphy_core.dataset", "visphy_core.bench.build")
+HYDRA_FLAGS = ("--help", "-h", "--hydra-help", "--info", "--cfg", "-c", "--resolve",
+               "--package", "-p", "--shell-completion", "-sc")
+
+
+def _traceback_wanted() -> bool:
+    return os.environ.get("VISPHY_TRACEBACK", "").strip().lower() not in ("", "0", "false", "no")
+
+
+def _external_user_errors() -> tuple[type[BaseException], ...]:
+    """Error types of other modules that always mean bad input or a missing prerequisite."""
+    types: list[type[BaseException]] = []
+    for module, name in (("visphy_core.plugins", "PluginError"),
+                         ("visphy_core.sandbox.browser", "BrowserUnavailable"),
+                         ("visphy_plugins.engines.js_assets", "AssetsMissing")):
+        try:
+            mod = __import__(module, fromlist=[name])
+            types.append(getattr(mod, name))
+        except Exception:  # noqa: BLE001 - a module that does not import cannot have raised
+            continue
+    return tuple(types)
+
+
+def _raise_site(tb: TracebackType | None) -> str:
+    name = ""
+    while tb is not None:
+        name = tb.tb_frame.f_globals.get("__name__", "")
+        tb = tb.tb_next
+    return name
+
+
+def _in_dataset_loading(tb: TracebackType | None) -> bool:
+    while tb is not None:
+        if tb.tb_frame.f_globals.get("__name__", "").startswith(DATASET_MODULES):
+            return True
+        tb = tb.tb_next
+    return False
+
+
+def is_user_error(exc: BaseException) -> bool:
+    """Whether ``exc`` is the user's input rather than a bug: a `UserError` (config errors
+    included), a plugin that fails to load, Chromium or the browser libraries missing, or a
+    ValueError / FileNotFoundError raised by dataset loading (a missing root, unknown scene
+    ids, an empty selection, a malformed index file)."""
+    if isinstance(exc, UserError) or isinstance(exc, _external_user_errors()):
+        return True
+    tb = exc.__traceback__
+    if isinstance(exc, (FileNotFoundError, NotADirectoryError)) and _in_dataset_loading(tb):
+        return True
+    return isinstance(exc, ValueError) and _raise_site(tb).startswith(DATASET_MODULES)
+
+
+def one_line(exc: BaseException) -> str:
+    text = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+    return text or type(exc).__name__
+
+
+def report(exc: BaseException) -> int:
+    print(f"error: {one_line(exc)}", file=sys.stderr)
+    return 2
 
 
 def cmd_plugins(argv: list[str]) -> int:
@@ -99,21 +168,29 @@ def run_hydra(argv: list[str]) -> int:
 
     from visphy_core.plugins import get_registry
 
-    get_registry()  # plugins store their structured configs before Hydra composes
-    if not any(a in ("--help", "-h", "--hydra-help", "--info", "--cfg", "-c") or
-               a.startswith("--info") for a in argv):
-        try:
-            check_overrides([a for a in argv if not a.startswith("-")])
-        except ConfigError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
+    show_traceback = _traceback_wanted()
+    try:
+        get_registry()  # plugins store their structured configs before Hydra composes
+        if not any(a in HYDRA_FLAGS or a.startswith("--info") for a in argv):
+            check_overrides([a for a in argv if not a.startswith("-")], inputs=True)
+    except Exception as exc:  # noqa: BLE001
+        if show_traceback or not is_user_error(exc):
+            raise
+        return report(exc)
     GlobalHydra.instance().clear()
 
     @hydra.main(version_base="1.3", config_path="pkg://visphy_conf", config_name="config")
     def _main(cfg) -> None:
         from visphy_core.run import run_experiment
 
-        run_experiment(cfg)
+        try:
+            check_inputs(cfg)
+            run_experiment(cfg)
+        except Exception as exc:  # noqa: BLE001
+            if show_traceback or not is_user_error(exc):
+                raise
+            # Hydra prints a traceback for any exception out of the task; SystemExit passes.
+            raise SystemExit(report(exc)) from None
 
     sys.argv = [sys.argv[0]] + argv
     _main()
@@ -122,8 +199,18 @@ def run_hydra(argv: list[str]) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    if "--traceback" in argv:
+        argv = [a for a in argv if a != "--traceback"]
+        os.environ["VISPHY_TRACEBACK"] = "1"
+    if _traceback_wanted():
+        os.environ.setdefault("HYDRA_FULL_ERROR", "1")
     if argv and argv[0] in SUBCOMMANDS:
-        return SUBCOMMANDS[argv[0]](argv[1:])
+        try:
+            return SUBCOMMANDS[argv[0]](argv[1:])
+        except Exception as exc:  # noqa: BLE001
+            if _traceback_wanted() or not is_user_error(exc):
+                raise
+            return report(exc)
     if "--plugins" in argv:
         return cmd_plugins([])
     return run_hydra(argv)

@@ -1,15 +1,39 @@
-"""Compose the config before a run and turn Hydra's multi-line errors into one line that lists
-the valid choices: ``engine=threejz`` or ``engine.timout_s=3`` fail before anything starts."""
+"""Check the config before a run and turn every mistake into one line that says what is valid.
+
+Everything here runs before any work (no dataset built, no run directory made):
+
+* group options (``engine=threejz``) and keys (``engine.timout_s=3``, ``+engine.foo=1``);
+* types and choices: a choice-valued key is a `StrEnum` in its schema, so OmegaConf rejects a bad
+  value when the config is composed (``tracking.backend=mlfow``);
+* ranges: a dataclass field declares ``metadata={"min": X, "max": Y}`` (either optional,
+  inclusive; on a list every item is checked, and ``"min_items"`` bounds its length). The walk
+  reads the dataclass of every node with ``OmegaConf.get_type``, so plugin schemas get the same
+  check as the core ones (``engine.timeout_s=-5``);
+* names against the installed plugins: ``model.name``, ``engine.name``, ``judge.name``,
+  ``metrics.names`` (``metrics.names=[psnrr]``);
+* the tracking URI's scheme, and (`check_inputs`, CLI only) the files a config names;
+* sweeps (``-m engine.timeout_s=10,-5``): every value of every sweep is composed and checked.
+"""
 
 from __future__ import annotations
 
-from omegaconf import DictConfig, OmegaConf
+import dataclasses
+import math
+from pathlib import Path
+from typing import Any, Iterator
+
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from visphy_core.errors import ConfigError, UserError
+
+__all__ = ["ConfigError", "UserError", "check_overrides", "check_inputs", "check_values",
+           "compose", "compose_all", "group_options"]
 
 CONFIG_MODULE = "visphy_conf"
-
-
-class ConfigError(ValueError):
-    """A config option or key that does not exist."""
+GROUPS = ("dataset", "model", "engine", "metrics", "judge", "tracking", "experiment")
+#: The schemes MLflow's tracking store understands (a plain path is a local file store too).
+MLFLOW_SCHEMES = ("databricks", "databricks-uc", "file", "http", "https", "mssql", "mysql",
+                  "postgresql", "sqlite", "uc")
 
 
 def _hidden(option: str) -> bool:
@@ -24,37 +48,71 @@ def group_options(group: str) -> list[str]:
     return sorted(o for o in loader.get_group_options(group) if not _hidden(o))
 
 
+# ------------------------------------------------------------------------------ overrides
+
+
+def _parse(overrides: list[str]) -> list:
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+
+    parsed = []
+    parser = OverridesParser.create()
+    for text in overrides:
+        try:
+            parsed.extend(parser.parse_overrides([text]))
+        except HydraException as exc:
+            reason = str(exc).splitlines()[0].strip()
+            raise ConfigError(f"cannot parse the override '{text}': {reason} (the syntax: "
+                              f"key=value, group=option, a,b sweeps; quote values with spaces)"
+                              ) from None
+    return parsed
+
+
+def _sweep_values(ov) -> list[str]:
+    try:
+        return [str(v) for v in ov.sweep_string_iterator()]
+    except Exception:  # noqa: BLE001 - interval() and friends: only an optimiser can expand them
+        return []
+
+
+def _variants(overrides: list[str]) -> Iterator[list[str]]:
+    """The overrides with every sweep at its first value, then once per other value of each
+    sweep (the others at their first value): every swept value is composed at least once."""
+    parsed = _parse(overrides)
+    firsts = []
+    for text, ov in zip(overrides, parsed):
+        values = _sweep_values(ov) if ov.is_sweep_override() else []
+        firsts.append(f"{ov.get_key_element()}={values[0]}" if values else text)
+    yield firsts
+    for i, (ov, first) in enumerate(zip(parsed, firsts)):
+        if not ov.is_sweep_override():
+            continue
+        for value in _sweep_values(ov)[1:]:
+            variant = list(firsts)
+            variant[i] = f"{ov.get_key_element()}={value}"
+            yield variant
+
+
 def _first_values(overrides: list[str]) -> list[str]:
     """Replace sweeps (``a,b`` / ``range()``) by their first value so one compose checks them."""
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
-    parsed = OverridesParser.create().parse_overrides(overrides)
-    out = []
-    for text, ov in zip(overrides, parsed):
-        if ov.is_sweep_override():
-            first = next(iter(ov.sweep_string_iterator()))
-            out.append(f"{ov.get_key_element()}={first}")
-        else:
-            out.append(text)
-    return out
+    return next(_variants(overrides))
 
 
 def _check_groups(overrides: list[str]) -> None:
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
-    parsed = OverridesParser.create().parse_overrides(overrides)
-    groups = {"dataset", "model", "engine", "metrics", "judge", "tracking", "experiment",
-              "hydra/launcher"}
-    for ov in parsed:
+    groups = set(GROUPS) | {"hydra/launcher"}
+    for ov in _parse(overrides):
         key = ov.key_or_group
         if key not in groups or ov.is_delete():
             continue
         valid = group_options(key)
-        values = list(ov.sweep_string_iterator()) if ov.is_sweep_override() else [ov.value()]
+        values = _sweep_values(ov) if ov.is_sweep_override() else [ov.value()]
         for value in values:
             if value is not None and str(value) not in valid:
                 raise ConfigError(f"{key}={value} is not an option of '{key}'; valid: "
                                   f"{', '.join(valid)}")
+
+
+# ------------------------------------------------------------------------------ composition
 
 
 def _keys_of(cfg: DictConfig, path: str) -> list[str]:
@@ -62,50 +120,343 @@ def _keys_of(cfg: DictConfig, path: str) -> list[str]:
     return sorted(node.keys()) if isinstance(node, DictConfig) else []
 
 
-def compose(overrides: list[str]) -> DictConfig:
-    """Compose the run config as the CLI would, raising `ConfigError` with one line."""
+def _show(value: Any) -> str:
+    if isinstance(value, bool) or value is None:
+        return str(value).lower() if value is not None else "null"
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, (list, tuple, ListConfig)):
+        return "[" + ", ".join(_show(v) for v in value) + "]"
+    return str(value)
+
+
+def _omegaconf_cause(exc: BaseException):
+    from omegaconf.errors import OmegaConfBaseException
+
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, OmegaConfBaseException) and getattr(exc, "full_key", None):
+            return exc
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _unknown_key(key: str, base: DictConfig) -> str:
+    if "." not in key:
+        return f"unknown key '{key}'; valid top-level keys: {', '.join(_keys_of(base, ''))}"
+    parent = key.rsplit(".", 1)[0]
+    valid = _keys_of(base, parent)
+    if valid:
+        return f"unknown key '{key}'; valid keys of '{parent}': {', '.join(valid)}"
+    return f"unknown key '{key}': '{parent}' is not a config section"
+
+
+def _one_line(exc: Exception, overrides: list[str], base: DictConfig) -> str:
+    from omegaconf.errors import ConfigAttributeError, ConfigKeyError, ValidationError
+
+    cause = _omegaconf_cause(exc)
+    if cause is not None:
+        key = str(cause.full_key)
+        msg = (cause.msg or "").splitlines()[0].strip()
+        if isinstance(cause, (ConfigAttributeError, ConfigKeyError)):
+            return _unknown_key(key, base)
+        if isinstance(cause, ValidationError):
+            value = getattr(cause, "value", None)
+            if "expected one of [" in msg:
+                choices = msg.split("expected one of [", 1)[1].rstrip("]")
+                return f"{key}={_show(value)} is not a valid choice; valid: {choices}"
+            for kind in ("Float", "Integer", "Boolean", "String"):
+                if f"could not be converted to {kind}" in msg:
+                    return f"{key}={_show(value)} is not a valid {kind.lower()}"
+            if "is not a valid bool" in msg:
+                return f"{key}={_show(value)} is not a valid boolean; valid: true, false"
+            if "is not a ListConfig" in msg:
+                return f"{key}={_show(value)} must be a list, e.g. {key}=[1,10]"
+            if "is not a DictConfig" in msg or "is not a subclass" in msg:
+                return f"{key}: {msg}"
+            return f"{key}={_show(value)}: {msg}"
+    text = str(exc)
+    for ov in overrides:
+        key = ov.split("=", 1)[0].lstrip("+~")
+        if "." in key and OmegaConf.select(base, key, default="__missing__") == "__missing__":
+            return _unknown_key(key, base)
+        if "." not in key and key not in base and key not in GROUPS and "/" not in key:
+            return _unknown_key(key, base)
+    first = " ".join(line.strip() for line in text.splitlines() if line.strip())
+    return first[:400]
+
+
+def _compose_one(overrides: list[str]) -> DictConfig:
     from hydra import compose as hydra_compose
+
+    try:
+        return hydra_compose(config_name="config", overrides=overrides, return_hydra_config=False)
+    except Exception as exc:  # noqa: BLE001 - Hydra wraps OmegaConf's errors in its own
+        groups_only = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") in GROUPS]
+        try:
+            base = hydra_compose(config_name="config", overrides=groups_only)
+        except Exception:  # noqa: BLE001
+            base = hydra_compose(config_name="config")
+        raise ConfigError(_one_line(exc, overrides, base)) from None
+
+
+def compose_all(overrides: list[str]) -> list[DictConfig]:
+    """Every config a run (or a sweep) would use, each checked by `check_values`; the first is
+    the sweep's first point. Raises `ConfigError` with one line."""
     from hydra import initialize_config_module
     from hydra.core.global_hydra import GlobalHydra
-    from hydra.errors import HydraException
 
     from visphy_core.plugins import get_registry
 
     get_registry()
     GlobalHydra.instance().clear()
+    configs = []
     with initialize_config_module(config_module=CONFIG_MODULE, version_base="1.3"):
         _check_groups(overrides)
-        try:
-            return hydra_compose(config_name="config", overrides=_first_values(overrides),
-                                 return_hydra_config=False)
-        except (HydraException, Exception) as exc:  # noqa: B014 - Hydra wraps OmegaConf errors
-            base = hydra_compose(config_name="config")
-            raise ConfigError(_one_line(exc, overrides, base)) from None
+        for variant in _variants(overrides):
+            cfg = _compose_one(variant)
+            check_values(cfg)
+            configs.append(cfg)
+    return configs
 
 
-def _one_line(exc: Exception, overrides: list[str], base: DictConfig) -> str:
-    text = str(exc)
-    for ov in overrides:
-        key = ov.split("=", 1)[0].lstrip("+~")
-        if "." in key and OmegaConf.select(base, key, default="__missing__") == "__missing__":
-            parent = key.rsplit(".", 1)[0]
-            valid = _keys_of(base, parent)
-            if valid:
-                return f"unknown key '{key}'; valid keys of '{parent}': {', '.join(valid)}"
-            return f"unknown key '{key}': '{parent}' is not a config section"
-        if "." not in key and key not in base and key not in {
-                "dataset", "model", "engine", "metrics", "judge", "tracking", "experiment"}:
-            return f"unknown key '{key}'; valid top-level keys: {', '.join(_keys_of(base, ''))}"
-    first = " ".join(line.strip() for line in text.splitlines() if line.strip())
-    return first[:400]
+def compose(overrides: list[str]) -> DictConfig:
+    """Compose the run config as the CLI would, raising `ConfigError` with one line."""
+    return compose_all(overrides)[0]
 
 
-def check_overrides(overrides: list[str]) -> None:
-    """Raise `ConfigError` unless the overrides compose into a valid config."""
+def _split_hydra(overrides: list[str]) -> list[str]:
+    return ([o for o in overrides if not o.startswith("hydra.") and not o.startswith("hydra/")]
+            + [o for o in overrides if o.startswith("hydra/")])
+
+
+def check_overrides(overrides: list[str], inputs: bool = False) -> list[DictConfig]:
+    """Raise `ConfigError` unless the overrides (every point of a sweep) compose into valid
+    configs; with ``inputs``, also check the files they name (`check_inputs`)."""
     from hydra.core.global_hydra import GlobalHydra
 
     try:
-        compose([o for o in overrides if not o.startswith("hydra.") and
-                 not o.startswith("hydra/")] + [o for o in overrides if o.startswith("hydra/")])
+        configs = compose_all(_split_hydra(overrides))
     finally:
         GlobalHydra.instance().clear()
+    if inputs:
+        for cfg in configs:
+            check_inputs(cfg)
+    return configs
+
+
+# ------------------------------------------------------------------------------ values
+
+
+def _children(node: DictConfig) -> Iterator[tuple[str, Any]]:
+    for key in node.keys():
+        yield str(key), node._get_node(key)
+
+
+def _walk(node: DictConfig, path: str = "") -> Iterator[tuple[str, DictConfig]]:
+    yield path, node
+    for key, child in _children(node):
+        if isinstance(child, DictConfig) and not child._is_none() and not child._is_missing():
+            yield from _walk(child, f"{path}.{key}" if path else key)
+
+
+def _bounds(meta: dict) -> str:
+    lo, hi = meta.get("min"), meta.get("max")
+    if lo is not None and hi is not None:
+        return f"≥ {_show(lo)} and ≤ {_show(hi)}"
+    return f"≥ {_show(lo)}" if lo is not None else f"≤ {_show(hi)}"
+
+
+def _out_of_range(value: Any, meta: dict) -> bool:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    if isinstance(value, float) and math.isnan(value):
+        return True
+    lo, hi = meta.get("min"), meta.get("max")
+    return (lo is not None and value < lo) or (hi is not None and value > hi)
+
+
+def _range_meta(schema: type, name: str) -> dict:
+    """The range metadata of field ``name``: the most derived dataclass that declares one, so a
+    plugin schema that redefines a core field (``timeout_s: float = 120.0``) keeps its range."""
+    for cls in schema.__mro__:
+        if not dataclasses.is_dataclass(cls):
+            continue
+        for f in dataclasses.fields(cls):
+            if f.name == name and any(k in f.metadata for k in ("min", "max", "min_items")):
+                return dict(f.metadata)
+    return {}
+
+
+def check_ranges(cfg: DictConfig) -> None:
+    """Every field with ``metadata={"min", "max", "min_items"}`` in every node's dataclass (core
+    and plugin schemas), and no key that the node's dataclass lacks (``+engine.foo=1``)."""
+    for path, node in _walk(cfg):
+        schema = OmegaConf.get_type(node)
+        if schema is None or not dataclasses.is_dataclass(schema):
+            continue
+        fields = {f.name: f for f in dataclasses.fields(schema)}
+        for key in node.keys():
+            if str(key) not in fields:
+                full = f"{path}.{key}" if path else str(key)
+                where = f"valid keys of '{path}'" if path else "valid top-level keys"
+                raise ConfigError(f"unknown key '{full}'; {where}: {', '.join(sorted(fields))}")
+        for name in fields:
+            meta = _range_meta(schema, name)
+            if not meta:
+                continue
+            full = f"{path}.{name}" if path else name
+            try:
+                value = node[name]
+            except Exception:  # noqa: BLE001 - MISSING or an unresolvable interpolation
+                continue
+            if value is None:
+                continue
+            if isinstance(value, ListConfig):
+                items = list(value)
+                if "min_items" in meta and len(items) < meta["min_items"]:
+                    raise ConfigError(f"{full}={_show(items)} needs at least {meta['min_items']} "
+                                      f"item{'s' if meta['min_items'] != 1 else ''}")
+                if any(_out_of_range(v, meta) for v in items):
+                    raise ConfigError(f"{full}={_show(items)} is out of range: each item must "
+                                      f"be {_bounds(meta)}")
+            elif ("min" in meta or "max" in meta) and _out_of_range(value, meta):
+                raise ConfigError(f"{full}={_show(value)} is out of range: must be "
+                                  f"{_bounds(meta)}")
+
+
+def check_names(cfg: DictConfig) -> None:
+    """``model.name``, ``engine.name``, ``judge.name`` and ``metrics.names`` name installed
+    plugins (see ``python -m visphy_core plugins``)."""
+    from visphy_core.plugins import get_registry
+
+    registry = get_registry()
+
+    def installed(kind: str, extra: tuple[str, ...] = ()) -> list[str]:
+        return sorted(set(getattr(registry, kind)) | set(extra))
+
+    for key, kind, extra in (("model.name", "models", ()), ("engine.name", "engines", ()),
+                             ("judge.name", "judges", ("none",))):
+        value = OmegaConf.select(cfg, key, default=None)
+        valid = installed(kind, extra)
+        if value is not None and str(value) not in valid:
+            raise ConfigError(f"{key}={value} is not an installed {kind[:-1]}; installed: "
+                              f"{', '.join(valid) or 'none'}")
+    names = OmegaConf.select(cfg, "metrics.names", default=None)
+    if names is not None:
+        valid = installed("metrics")
+        unknown = [str(n) for n in names if str(n) not in valid]
+        if unknown:
+            raise ConfigError(f"metrics.names={_show(list(names))}: {', '.join(unknown)} "
+                              f"{'is not an installed metric' if len(unknown) == 1 else 'are not installed metrics'}; "
+                              f"installed: {', '.join(valid) or 'none'}")
+        if not names:
+            raise ConfigError(f"metrics.names=[] names no metric; installed: {', '.join(valid)}")
+
+
+def _mlflow_schemes() -> list[str]:
+    from importlib.metadata import entry_points
+
+    plugins = {ep.name for ep in entry_points(group="mlflow.tracking_store")}
+    return sorted(set(MLFLOW_SCHEMES) | plugins)
+
+
+def check_tracking(cfg: DictConfig) -> None:
+    """With the MLflow backend, ``tracking.uri`` is a path or a URI of a scheme MLflow knows."""
+    from urllib.parse import urlparse
+
+    if str(OmegaConf.select(cfg, "tracking.backend", default="none")) != "mlflow":
+        return
+    try:
+        uri = OmegaConf.select(cfg, "tracking.uri", default=None)
+    except Exception:  # noqa: BLE001 - an interpolation that only resolves at run time
+        return
+    if not uri:
+        return
+    uri = str(uri)
+    if "://" not in uri and ":" not in uri.split("/", 1)[0]:
+        return  # a local path: MLflow's file store
+    parsed = urlparse(uri)
+    scheme = parsed.scheme.split("+", 1)[0].lower()
+    valid = _mlflow_schemes()
+    if scheme not in valid:
+        raise ConfigError(f"tracking.uri={uri} has an unknown scheme {scheme or '(none)'!r}; "
+                          f"valid: a local path or {', '.join(s + ':' for s in valid)}")
+    if scheme == "sqlite" and (parsed.netloc or not parsed.path.strip("/")):
+        raise ConfigError(f"tracking.uri={uri} is not a sqlite URI; use sqlite:///relative.db "
+                          f"or sqlite:////absolute/path.db")
+    if scheme in ("http", "https") and not parsed.netloc:
+        raise ConfigError(f"tracking.uri={uri} names no host; e.g. http://localhost:5000")
+
+
+def check_values(cfg: DictConfig) -> None:
+    """Ranges, unknown keys, plugin names and the tracking URI of a composed config."""
+    check_ranges(cfg)
+    check_names(cfg)
+    check_tracking(cfg)
+
+
+def check_inputs(cfg: DictConfig) -> None:
+    """The files a config names exist (cheap checks only; the run loads them later)."""
+    source = str(OmegaConf.select(cfg, "dataset.source", default=""))
+    if source == "original":
+        try:
+            root = OmegaConf.select(cfg, "dataset.root", default=None)
+        except Exception as exc:  # noqa: BLE001
+            raise ConfigError(f"dataset.root: {exc}".splitlines()[0]) from None
+        if not root:
+            raise ConfigError("dataset=original needs dataset.root (the folder holding "
+                              "<split>/videos), or set VISPHYBENCH_ROOT")
+        if not Path(str(root)).is_dir():
+            raise ConfigError(f"dataset.root={root} is not a directory (the folder holding "
+                              f"<split>/videos; or set VISPHYBENCH_ROOT)")
+        split = OmegaConf.select(cfg, "dataset.split", default=None) or "sub"
+        if not (Path(str(root)) / str(split)).is_dir():
+            present = sorted(p.name for p in Path(str(root)).iterdir() if p.is_dir()
+                             and not p.name.startswith("."))
+            raise ConfigError(f"dataset.split={split}: no folder {Path(str(root)) / str(split)}; "
+                              f"folders in dataset.root: {_listing(present)}")
+    elif source == "generated":
+        _check_generated_selection(cfg)
+
+
+def _listing(names: list[str], most: int = 12) -> str:
+    if not names:
+        return "none"
+    more = f", … ({len(names) - most} more)" if len(names) > most else ""
+    return ", ".join(names[:most]) + more
+
+
+def _check_generated_selection(cfg: DictConfig) -> None:
+    """Where the generated benchmark's catalogue is already on disk, ``dataset.split`` and
+    ``dataset.scenes`` are checked against it (else the run checks them once it is built)."""
+    import json
+
+    from visphy_core.bench.build import BUILDER_VERSION, dataset_root
+
+    try:
+        data_dir = OmegaConf.select(cfg, "paths.data_dir")
+        seed = int(OmegaConf.select(cfg, "dataset.seed", default=0) or 0)
+        path = dataset_root(Path(str(data_dir)), seed) / "catalogue.json"
+        if not path.is_file():
+            return
+        data = json.loads(path.read_text())
+        if data.get("builder") != BUILDER_VERSION or data.get("seed") != seed:
+            return
+        splits = {str(k): [str(i) for i in v] for k, v in data["splits"].items()}
+        all_ids = sorted({str(s["spec"]["scene_id"]) for s in data["scenes"]})
+    except Exception:  # noqa: BLE001 - anything odd: the run's own loading reports it
+        return
+    split = OmegaConf.select(cfg, "dataset.split", default=None)
+    if split is not None and str(split) not in splits:
+        raise ConfigError(f"dataset.split={split} is not a split of the generated benchmark; "
+                          f"valid: {', '.join(sorted(splits))}")
+    wanted = OmegaConf.select(cfg, "dataset.scenes", default=None)
+    if wanted:
+        valid = sorted(splits[str(split)]) if split is not None else all_ids
+        missing = [str(s) for s in wanted if str(s) not in valid]
+        if missing:
+            where = f"split {split!r}" if split is not None else "the generated benchmark"
+            raise ConfigError(f"dataset.scenes: {where} has no scene(s) {', '.join(missing)}; "
+                              f"valid: {_listing(valid)}")

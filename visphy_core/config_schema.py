@@ -3,16 +3,37 @@
 Each YAML entry starts with ``defaults: [schema_<group>]``; plugins with extra settings register a
 subclass under their own name through ``visphy_register_configs``. Registered through the same
 ``visphy`` entry-point group as every other plugin.
+
+Value conventions, checked by `visphy_core.config_check` before any work (plugin schemas too):
+
+* a key with a fixed set of choices is a `StrEnum` whose member names equal their values
+  (OmegaConf rejects anything else when the config is composed; members compare equal to str);
+* a number with a range declares it in the field's metadata,
+  ``field(default=60.0, metadata={"min": 1, "max": 3600})`` (either bound optional, inclusive);
+  on a list of numbers the bounds apply to every item, and ``"min_items"`` bounds its length;
+* ``model.name``, ``engine.name``, ``judge.name`` and ``metrics.names`` are checked against the
+  installed plugins.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Any, Optional
 
 from omegaconf import MISSING
 
 from visphy_core.hookspecs import hookimpl
+
+
+class DatasetSource(StrEnum):
+    generated = "generated"   # visphy's builder (VisPhyBench regenerated from its templates)
+    original = "original"     # the original VisPhyBench-Data layout on disk
+
+
+class TrackingBackend(StrEnum):
+    mlflow = "mlflow"
+    none = "none"
 
 
 @dataclass
@@ -25,7 +46,8 @@ class PathsConfig:
 
 @dataclass
 class PromptConfig:
-    frames: list[int] = field(default_factory=lambda: [1, 10])
+    frames: list[int] = field(default_factory=lambda: [1, 10],
+                              metadata={"min": 1, "min_items": 1})  # 1-based key frames
     detection: bool = True
     forecast_only: bool = False
     timed: bool = False
@@ -35,7 +57,7 @@ class PromptConfig:
 class RunConfig:
     retry: bool = True
     fallback: bool = True
-    seed: int = 0
+    seed: int = field(default=0, metadata={"min": 0, "max": 2**32 - 1})
     cache: bool = True
     progress: bool = True
 
@@ -43,12 +65,12 @@ class RunConfig:
 @dataclass
 class DatasetConfig:
     name: str = MISSING
-    source: str = "generated"          # "generated" (visphy's builder) or "original"
-    seed: int = 0                      # generated: the benchmark's seed
+    source: DatasetSource = DatasetSource.generated
+    seed: int = field(default=0, metadata={"min": 0})  # generated: the benchmark's seed
     root: Optional[str] = None         # original layout: folder holding <split>/
     split: Optional[str] = None
     scenes: Optional[list[str]] = None  # explicit scene ids
-    limit: Optional[int] = None         # first N scenes
+    limit: Optional[int] = field(default=None, metadata={"min": 1})  # first N scenes
 
 
 @dataclass
@@ -59,7 +81,7 @@ class ModelConfig:
 @dataclass
 class EngineConfig:
     name: str = MISSING
-    timeout_s: float = 60.0
+    timeout_s: float = field(default=60.0, metadata={"min": 1, "max": 3600})  # per scene
 
 
 @dataclass
@@ -74,10 +96,17 @@ class JudgeConfig:
 
 @dataclass
 class TrackingConfig:
-    backend: str = "mlflow"            # "mlflow" or "none"
+    backend: TrackingBackend = TrackingBackend.mlflow
     experiment: str = "visphy"
     uri: Optional[str] = None
     artifact_root: Optional[str] = None
+
+
+@dataclass
+class SandboxConfig:
+    # Untrusted (model-written) programs run only inside namespaces (bubblewrap); where the kernel
+    # refuses them visphy refuses to run such programs unless this is set.
+    allow_unisolated: bool = False
 
 
 @dataclass
@@ -91,6 +120,7 @@ class RootConfig:
     paths: PathsConfig = field(default_factory=PathsConfig)
     prompt: PromptConfig = field(default_factory=PromptConfig)
     run: RunConfig = field(default_factory=RunConfig)
+    sandbox: SandboxConfig = field(default_factory=SandboxConfig)
 
 
 GROUP_SCHEMAS = {
