@@ -88,7 +88,7 @@ def test_two_failures_give_a_fallback_that_is_not_a_model_success(run_with):
     assert not row["model_success"] and row["system_success"] and row["fallback"]
     assert row["failure_class"] == "no_code" and row["first_failure_class"] == "runtime_error"
     assert summary["model_success"] == 0 and summary["fallbacks"] == 1
-    assert summary["failures"] == {"no_code": 1}
+    assert summary["failures"] == {"model": {"no_code": 1}, "infra_or_data": {}}
     psnr = summary["metrics"]["psnr"]
     assert psnr["n_model_success"] == 0 and psnr["mean_model_success"] is None
     assert psnr["n_with_fallbacks"] == 1 and psnr["mean_with_fallbacks"] > 0

@@ -78,13 +78,22 @@ def print_summary(summary: dict, results: list) -> None:
                       f"{_fmt(m['mean_with_fallbacks'])} (n={m['n_with_fallbacks']})")
     console.print(means)
     n = summary["n_scenes"]
+    n_eval = summary.get("n_evaluable", n)
+    failures = summary.get("failures") or {}
+    model_f, other_f = failures.get("model") or {}, failures.get("infra_or_data") or {}
     console.print(
-        f"model success {summary['model_success']}/{n} · system success "
-        f"{summary['system_success']}/{n} · fallbacks {summary['fallbacks']} · repaired "
-        f"{summary['repaired']}" + (f" · failures {summary['failures']}" if summary["failures"]
-                                     else ""))
+        f"model success {summary['model_success']}/{n}"
+        + (f" ({summary['model_success']}/{n_eval} evaluable)" if n_eval != n else "")
+        + f" · system success {summary['system_success']}/{n} · fallbacks "
+        f"{summary['fallbacks']} · repaired {summary['repaired']}"
+        + (f" · model failures {model_f}" if model_f else "")
+        + (f" · not counted (infrastructure/data) {other_f}" if other_f else ""))
     cache = summary["cache"]
     render = cache.get("render", {"hits": 0, "misses": 0})
+    dropped = sum(v.get("dropped", 0) for v in cache.values())
+    if dropped:
+        console.print(f"cache: {dropped} corrupt entr{'y' if dropped == 1 else 'ies'} dropped "
+                      "and recomputed (see the warnings above)")
     console.print(f"cache: renders {render['hits']} hit / {render['misses']} rendered · "
                   f"replies {cache.get('response', {}).get('hits', 0)} hit · "
                   f"scores {cache.get('score', {}).get('hits', 0)} hit")

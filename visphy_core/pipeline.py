@@ -5,20 +5,22 @@ fallback → score. Every outcome, failures included, becomes one `SceneResult` 
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from visphy_core.cache import Cache, content_key
+from visphy_core.cache import Cache, CorruptEntry, content_key, read_json
 from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
-                                classify_frames)
+                                RenderResult, classify_frames)
 from visphy_core.extract import extract_analysis
 from visphy_core.metrics import Metric
 from visphy_core.model import Model, ModelRequest, ModelResponse
 from visphy_core.prompts.build import PromptSettings, build_prompt, build_repair_prompt
-from visphy_core.scene import Scene
+from visphy_core.scene import Scene, SceneDataError
 from visphy_core.scoring import score_scene
+from visphy_core.secrets import redact, redact_obj
 from visphy_core.video import decode_video, encode_video, frame_digest
 
 
@@ -42,19 +44,46 @@ class SceneResult:
     render_wall_s: float | None = None
     model_latency_s: float = 0.0
     cost_usd: float = 0.0
+    model_calls: int = 0                 # calls actually sent to the model (cache misses)
+    infra_retries: int = 0               # renders repeated after an infra_error
+    isolation: str | None = None         # how the program was isolated (RenderResult.isolation)
     frame_digests: list[str] = field(default_factory=list)
     scores: dict[str, float | None] = field(default_factory=dict)
     unavailable: dict[str, str] = field(default_factory=dict)
 
+    @property
+    def evaluable(self) -> bool:
+        """False when the scene could not be evaluated through no fault of the model
+        (``infra_error``: our side failed; ``data_error``: a bad input of the scene)."""
+        return self.failure_class not in NOT_EVALUABLE
+
     def row(self) -> dict:
         d = asdict(self)
         scores = d.pop("scores")
-        d.pop("unavailable")
+        d["unavailable"] = json.dumps(self.unavailable, sort_keys=True)
         d["flags"] = ",".join(self.flags)
         d["frame_digests"] = json.dumps(self.frame_digests)
         for name, value in scores.items():
             d[f"score_{name}"] = value
         return d
+
+    @classmethod
+    def from_row(cls, row: dict) -> "SceneResult":
+        """Inverse of `row` (a resumed run reads its finished scenes back from results.jsonl)."""
+        d = dict(row)
+        scores = {k[len("score_"):]: d.pop(k) for k in list(d) if k.startswith("score_")}
+        known = {f for f in cls.__dataclass_fields__}
+        d = {k: v for k, v in d.items() if k in known}
+        d["flags"] = [f for f in (d.get("flags") or "").split(",") if f]
+        d["frame_digests"] = json.loads(d.get("frame_digests") or "[]")
+        d["unavailable"] = json.loads(d.get("unavailable") or "{}")
+        return cls(**d, scores=scores)
+
+
+#: Failure classes that say nothing about the model: not counted against it.
+NOT_EVALUABLE = (FailureClass.INFRA_ERROR.value, FailureClass.DATA_ERROR.value)
+#: Render failures never replayed from the cache: they depend on the time limit or the machine.
+UNCACHED_FAILURES = (FailureClass.TIMEOUT, FailureClass.INFRA_ERROR, FailureClass.RESOURCE_LIMIT)
 
 
 @dataclass
@@ -67,48 +96,98 @@ class RenderOutcome:
     video_path: Path | None
     cached: bool
     wall_s: float
+    isolation: str | None = None
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _safe_render(engine: Engine, program: Program, contract: RenderContract) -> RenderResult:
+    """``engine.render``; an exception (an engine bug, a browser that will not start) is our
+    side's failure: an ``infra_error`` result carrying the exception type and message."""
+    try:
+        return engine.render(program, contract)
+    except Exception as exc:  # noqa: BLE001 - engines must not abort the run
+        return RenderResult(frames=None, failure=FailureClass.INFRA_ERROR,
+                            error=_one_line(f"{type(exc).__name__}: {exc}")[:2000])
 
 
 def render_cached(engine: Engine, program: Program, contract: RenderContract,
                   cache: Cache) -> RenderOutcome:
-    """Render through the content-addressed cache; failures are cached too (a program that
-    timed out once times out again)."""
+    """Render through the content-addressed cache.
+
+    Deterministic program failures (syntax or runtime errors, blank output...) are cached: the
+    same program fails the same way. Timeouts, resource limits and infrastructure errors are not:
+    they depend on the time limit and the machine, so they are rendered again next time. Error
+    text and logs are redacted before they are cached.
+    """
     key = content_key("render", engine.cache_identity(), program.digest, contract.key())
-    entry = cache.get("render", key)
-    if entry is None:
-        result = engine.render(program, contract)
-        meta = {"failure": result.failure.value if result.failure else None, "error": result.error,
-                "logs": result.logs[-200:], "wall_s": result.wall_s,
-                "frame_digests": [frame_digest(f) for f in result.frames]
-                if result.frames is not None else []}
-        files: dict = {"meta.json": json.dumps(meta, indent=1)}
-        if result.frames is not None:
-            tmp_video = cache.root / "tmp" / f"{key}.mp4"
-            encode_video(result.frames, tmp_video, contract.fps)
-            files["video.mp4"] = tmp_video
+
+    def parse(entry: Path) -> RenderOutcome:
+        meta = read_json(entry / "meta.json")
+        failure = FailureClass(meta["failure"]) if meta["failure"] else None
+        if failure in UNCACHED_FAILURES:
+            raise CorruptEntry(f"{failure.value} entries are never replayed")
+        video = entry / "video.mp4"
+        frames = None
+        if failure is None:
+            if not video.is_file():
+                raise CorruptEntry(f"missing {video}")
+            frames = decode_video(video)[0]
+            if len(frames) != len(meta["frame_digests"]) or len(frames) != contract.n_frames:
+                raise CorruptEntry(f"{video} has {len(frames)} frames, expected "
+                                   f"{contract.n_frames}")
+        return RenderOutcome(frames=frames, failure=failure, error=meta["error"],
+                             logs=list(meta["logs"]), frame_digests=list(meta["frame_digests"]),
+                             video_path=video if frames is not None else None, cached=True,
+                             wall_s=float(meta["wall_s"]), isolation=meta.get("isolation"))
+
+    outcome = cache.load("render", key, parse)
+    if outcome is not None:
+        return outcome
+    result = _safe_render(engine, program, contract)
+    ok = result.failure is None and result.frames is not None
+    failure = result.failure or (None if ok else FailureClass.INFRA_ERROR)
+    meta = {"failure": failure.value if failure else None,
+            "error": redact(result.error), "logs": redact_obj(list(result.logs[-200:])),
+            "wall_s": result.wall_s, "isolation": result.isolation,
+            "frame_digests": [frame_digest(f) for f in result.frames] if ok else []}
+    if failure in UNCACHED_FAILURES:
+        return RenderOutcome(frames=None, failure=failure, error=meta["error"], logs=meta["logs"],
+                             frame_digests=[], video_path=None, cached=False,
+                             wall_s=result.wall_s, isolation=result.isolation)
+    files: dict = {"meta.json": json.dumps(meta, indent=1)}
+    tmp_video = cache.root / "tmp" / f"{key}.{os.getpid()}.mp4"
+    if ok:
+        encode_video(result.frames, tmp_video, contract.fps)
+        files["video.mp4"] = tmp_video
+    try:
         entry = cache.put("render", key, files)
-        if result.frames is not None:
-            tmp_video.unlink(missing_ok=True)
-        cached = False
-    else:
-        cached = True
-    meta = json.loads((entry / "meta.json").read_text())
-    video = entry / "video.mp4"
-    frames = decode_video(video)[0] if video.is_file() else None
-    failure = FailureClass(meta["failure"]) if meta["failure"] else None
-    return RenderOutcome(frames=frames, failure=failure, error=meta["error"], logs=meta["logs"],
-                         frame_digests=meta["frame_digests"],
-                         video_path=video if video.is_file() else None, cached=cached,
-                         wall_s=meta["wall_s"])
+    finally:
+        tmp_video.unlink(missing_ok=True)
+    # Read back what was stored: a fresh render and a cached one give the same decoded frames.
+    outcome = parse(entry)
+    outcome.cached = False
+    return outcome
 
 
 def call_model_cached(model: Model, request: ModelRequest, cache: Cache
                       ) -> tuple[ModelResponse, bool]:
+    """The model's reply, from the cache when this exact request was answered before. A reply is
+    stored right after the call, so a run killed later never pays for it again."""
     key = request.cache_key(model.identity())
-    entry = cache.get("response", key)
-    if entry is not None:
-        data = json.loads((entry / "response.json").read_text())
-        return ModelResponse(**data), True
+
+    def parse(entry: Path) -> ModelResponse:
+        data = read_json(entry / "response.json")
+        response = ModelResponse(**data)
+        if not isinstance(response.text, str):
+            raise CorruptEntry("response text is not a string")
+        return response
+
+    cached = cache.load("response", key, parse)
+    if cached is not None:
+        return cached, True
     response = model.generate(request)
     if response.error is None:  # provider errors are not cached: a later run may succeed
         cache.put("response", key, {"response.json": json.dumps(asdict(response), default=str)})
@@ -131,17 +210,61 @@ class PipelineSettings:
 
 
 def _write(path: Path, content: str | bytes) -> None:
+    """Atomic write; text passes through `redact` first (no secret value reaches the run dir)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(content.encode() if isinstance(content, str) else content)
+    tmp.write_bytes(redact(content).encode() if isinstance(content, str) else content)
     tmp.replace(path)
+
+
+def _fail(result: SceneResult, failure: FailureClass, detail: str) -> None:
+    """Mark a scene that could not be evaluated (data_error / infra_error): no clip, no scores."""
+    result.model_success = result.system_success = result.fallback = False
+    result.failure_class = failure.value
+    result.failure_detail = redact(_one_line(detail))[:2000]
+    if result.first_failure_class is None:
+        result.first_failure_class = failure.value
+    result.frame_digests = []
+    result.scores = {name: None for name in result.scores}
+    result.unavailable = {}
 
 
 def process_scene(scene: Scene, model: Model, engine: Engine, metrics: list[Metric],
                   settings: PipelineSettings, cache: Cache, scene_dir: Path) -> SceneResult:
-    """Run one scene end to end and write its artifacts under ``scene_dir``."""
+    """Run one scene end to end and write its artifacts under ``scene_dir``.
+
+    Never raises for a fault of this scene: a bad input of the scene is a ``data_error`` row
+    (checked before the model is called), any other exception an ``infra_error`` row with the
+    exception type and message. Only `BaseException`s that are not `Exception`s (an interrupted
+    run, Ctrl-C) propagate.
+    """
     result = SceneResult(scene_id=scene.scene_id, dim=scene.dim, difficulty=scene.difficulty,
                          scores={m.name: None for m in metrics})  # same columns for every row
+    try:
+        frames = (settings.prompt.frames[:1] if settings.prompt.forecast_only
+                  else settings.prompt.frames)
+        reference = scene.check_inputs(tuple(frames) or (1,))
+        _evaluate(scene, reference, model, engine, metrics, settings, cache, scene_dir, result)
+    except SceneDataError as exc:
+        _fail(result, FailureClass.DATA_ERROR, str(exc))
+    except Exception as exc:  # noqa: BLE001 - one scene's fault never aborts the run
+        _fail(result, FailureClass.INFRA_ERROR, f"{type(exc).__name__}: {exc}")
+    try:
+        _write(scene_dir / "scores.json", json.dumps(
+            {"scores": result.scores, "unavailable": result.unavailable,
+             "fallback": result.fallback, "failure_class": result.failure_class}, indent=1))
+        _write(scene_dir / "frames_meta.json", json.dumps(
+            {"fps": scene.clip.fps, "n_frames": scene.clip.n_frames, "width": scene.clip.width,
+             "height": scene.clip.height, "frame_digests": result.frame_digests}, indent=1))
+    except OSError as exc:
+        if result.failure_class is None or result.evaluable:
+            _fail(result, FailureClass.INFRA_ERROR, f"{type(exc).__name__}: {exc}")
+    return result
+
+
+def _evaluate(scene: Scene, reference: np.ndarray, model: Model, engine: Engine,
+              metrics: list[Metric], settings: PipelineSettings, cache: Cache, scene_dir: Path,
+              result: SceneResult) -> None:
     contract = RenderContract.for_scene(scene, timeout_s=settings.timeout_s, seed=settings.seed)
     prompt, images = build_prompt(scene, engine.instructions(scene.dim), engine.language,
                                   settings.prompt)
@@ -150,7 +273,8 @@ def process_scene(scene: Scene, model: Model, engine: Engine, metrics: list[Metr
     outcome: RenderOutcome | None = None
     text_prompt = prompt
     analysis, spec = None, None
-    for attempt in (1, 2) if settings.retry else (1,):
+    attempts = (1, 2) if settings.retry else (1,)
+    for attempt in attempts:
         result.attempts = attempt
         request = ModelRequest(scene_id=scene.scene_id, prompt=text_prompt, images=images,
                                detection=scene.detection if settings.prompt.detection else None,
@@ -158,13 +282,16 @@ def process_scene(scene: Scene, model: Model, engine: Engine, metrics: list[Metr
                                engine=engine)
         response, cached = call_model_cached(model, request, cache)
         result.response_cached = cached
+        result.model_calls += 0 if cached else 1
         result.model_latency_s += response.latency_s
         result.cost_usd += response.cost_usd or 0.0
         suffix = "" if attempt == 1 else f".attempt{attempt}"
         _write(scene_dir / f"response{suffix}.txt", response.text)
         if response.error:
             result.failure_class = FailureClass.MODEL_ERROR.value
-            result.failure_detail = response.error
+            result.failure_detail = redact(_one_line(response.error))[:2000]
+            if attempt == 1:
+                result.first_failure_class = result.failure_class
             break
         analysis = extract_analysis(response.text)
         try:
@@ -177,27 +304,39 @@ def process_scene(scene: Scene, model: Model, engine: Engine, metrics: list[Metr
             _write(scene_dir / f"program{suffix}.{'html' if program.language == 'html' else 'py'}",
                    program.source)
             outcome = render_cached(engine, program, contract, cache)
+            log_lines = []
+            if outcome.failure is FailureClass.INFRA_ERROR:
+                # Our side failed, not the program: render once more (never cached, so this is a
+                # real second render), with no repair call to the model.
+                result.infra_retries += 1
+                log_lines += [f"infra_error (retrying the render once): {outcome.error or ''}",
+                              *outcome.logs, "--- retry ---"]
+                outcome = render_cached(engine, program, contract, cache)
             _write(scene_dir / f"render{suffix}.log", "\n".join(
-                [f"failure: {outcome.failure.value if outcome.failure else 'none'}",
+                [*log_lines, f"failure: {outcome.failure.value if outcome.failure else 'none'}",
+                 f"isolation: {outcome.isolation or 'unknown'}",
                  f"error: {outcome.error or ''}", *outcome.logs]))
             result.render_cached = outcome.cached
             result.render_wall_s = outcome.wall_s
+            result.isolation = outcome.isolation
             if outcome.failure is None:
                 break
             failure, detail, failed_source, logs = (outcome.failure, outcome.error or "",
                                                     program.source, outcome.logs)
             outcome = None
-        result.failure_class, result.failure_detail = failure.value, detail
+        result.failure_class, result.failure_detail = failure.value, redact(detail)
         if attempt == 1:
             result.first_failure_class = failure.value
-        text_prompt = build_repair_prompt(prompt, engine.language, failed_source, failure.value,
-                                          error_summary(detail, logs))
+        if not failure.blames_program or attempt == attempts[-1]:
+            break  # no repair call for our own or the provider's failures
+        text_prompt = redact(build_repair_prompt(prompt, engine.language, failed_source,
+                                                 failure.value, error_summary(detail, logs)))
+        _write(scene_dir / "repair_prompt.txt", text_prompt)
     if analysis is not None:
         _write(scene_dir / "analysis.txt", analysis)
     if spec is not None:
         _write(scene_dir / "spec.json", json.dumps(spec, indent=1))
 
-    reference = scene.reference_frames()
     if outcome is not None:
         result.model_success = result.system_success = True
         result.failure_class = result.failure_detail = None
@@ -207,6 +346,10 @@ def process_scene(scene: Scene, model: Model, engine: Engine, metrics: list[Metr
         flag = classify_frames(generated)
         if flag is FailureClass.STATIC_OUTPUT:
             result.flags.append(flag.value)
+    elif result.failure_class == FailureClass.INFRA_ERROR.value:
+        # Not evaluable (our side failed twice): no fallback clip, nothing counted for the model.
+        result.scores = {name: None for name in result.scores}
+        return
     elif settings.fallback:
         # Fallback: the first key frame held for the whole clip ("nothing moves"). It uses only
         # what the model was given, keeps every metric defined, and is never a model success.
@@ -220,10 +363,3 @@ def process_scene(scene: Scene, model: Model, engine: Engine, metrics: list[Metr
         scores, unavailable = score_scene(scene, reference, generated, metrics, analysis, spec,
                                           cache)
         result.scores, result.unavailable = scores, unavailable
-    _write(scene_dir / "scores.json", json.dumps(
-        {"scores": result.scores, "unavailable": result.unavailable,
-         "fallback": result.fallback}, indent=1))
-    _write(scene_dir / "frames_meta.json", json.dumps(
-        {"fps": contract.fps, "n_frames": contract.n_frames, "width": contract.width,
-         "height": contract.height, "frame_digests": result.frame_digests}, indent=1))
-    return result

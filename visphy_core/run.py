@@ -1,19 +1,28 @@
 """One run: a dataset split × model × engine × prompt mode × metric set, end to end.
 
-The run directory is written as the run goes (``results.jsonl`` grows one row per scene), so a
-crash loses nothing; the content-addressed cache makes a re-run resume without re-querying or
-re-rendering.
+The run directory is written as the run goes (``results.jsonl`` grows one row per scene, flushed
+and fsynced), so a crash loses at most the scene in progress. Rerunning the same command resumes
+the newest unfinished run directory with the same config hash: its finished rows are kept (a
+truncated last line is dropped), only the remaining scenes are processed, and the cache answers
+every model call already made. SIGINT/SIGTERM close the run: results and a partial summary
+(``"status": "interrupted"``) are written, tracking is marked KILLED, and the process exits with
+128 + the signal number (130 / 143).
 """
 
 from __future__ import annotations
 
 import datetime as dt
 import json
+import logging
+import os
 import platform
+import signal
 import sys
+import threading
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
@@ -22,10 +31,25 @@ from visphy_core.cache import Cache, content_key
 from visphy_core.console import print_summary, scene_progress
 from visphy_core.dataset import load_dataset
 from visphy_core.metrics import Metric
-from visphy_core.pipeline import PipelineSettings, SceneResult, process_scene
+from visphy_core.pipeline import NOT_EVALUABLE, PipelineSettings, SceneResult, process_scene
 from visphy_core.plugins import get_plugin_manager, get_registry
 from visphy_core.prompts.build import PromptSettings
 from visphy_core.scene import Scene
+
+
+log = logging.getLogger("visphy.run")
+
+#: Manifest statuses; every one but "finished" can be resumed by rerunning the same command.
+FINISHED, RUNNING, INTERRUPTED, FAILED = "finished", "running", "interrupted", "failed"
+
+
+class RunInterrupted(SystemExit):
+    """SIGINT/SIGTERM during a run. A `SystemExit` (exit status 128 + signal number), so no
+    ``except Exception`` in a scene's code swallows it and the CLI exits without a traceback."""
+
+    def __init__(self, signum: int):
+        super().__init__(128 + signum)
+        self.signum = signum
 
 
 @dataclass
@@ -44,13 +68,142 @@ class RunContext:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
+def config_hash(cfg: DictConfig) -> str:
+    """Hash of everything that changes a run's rows: the config without where things are written
+    (``paths``) and without the keys that only change how the run looks (``run.progress``,
+    ``run.cache``). Two commands with the same hash produce the same rows."""
+    resolved = OmegaConf.to_container(cfg, resolve=True)
+    resolved.pop("paths", None)
+    run = dict(resolved.pop("run", None) or {})
+    for key in ("progress", "cache"):
+        run.pop(key, None)
+    resolved["run"] = run
+    return content_key(resolved)
+
+
 def _run_dir(cfg: DictConfig, runs_dir: Path) -> Path:
     resolved = OmegaConf.to_container(cfg, resolve=True)
     for key in ("paths", "run"):
         resolved.pop(key, None)
     digest = content_key(resolved)[:8]
     stamp = dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
-    return runs_dir / f"{stamp}_{cfg.model.name}_{cfg.engine.name}_{digest}"
+    path = runs_dir / f"{stamp}_{cfg.model.name}_{cfg.engine.name}_{digest}"
+    n = 1
+    while path.exists():  # two runs started in the same second
+        n += 1
+        path = runs_dir / f"{stamp}_{cfg.model.name}_{cfg.engine.name}_{digest}.{n}"
+    return path
+
+
+class _RunLock:
+    """An exclusive ``flock`` on ``<run dir>/.lock`` held while a process works in the run dir,
+    so a run still going in another process is never resumed under its feet."""
+
+    def __init__(self, run_dir: Path):
+        self.path = run_dir / ".lock"
+        self.fh = None
+
+    def acquire(self) -> bool:
+        import fcntl
+
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fh = open(self.path, "a")
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            fh.close()
+            return False
+        self.fh = fh
+        return True
+
+    def release(self) -> None:
+        if self.fh is not None:
+            self.fh.close()
+            self.fh = None
+
+
+def find_resumable(runs_dir: Path, chash: str) -> tuple[Path, _RunLock] | None:
+    """The newest run dir with this config hash that did not finish and is not in use."""
+    if not runs_dir.is_dir():
+        return None
+    for run_dir in sorted((p for p in runs_dir.iterdir() if p.is_dir()), reverse=True):
+        try:
+            manifest = json.loads((run_dir / "manifest.json").read_text())
+        except (OSError, ValueError):
+            continue
+        if not isinstance(manifest, dict) or manifest.get("config_hash") != chash:
+            continue
+        if manifest.get("status", FINISHED) == FINISHED:
+            continue
+        lock = _RunLock(run_dir)
+        if lock.acquire():
+            return run_dir, lock
+    return None
+
+
+def read_rows(path: Path, scene_ids: list[str]) -> list[SceneResult]:
+    """Finished rows of an interrupted run, one per selected scene (first wins). A line that
+    does not parse (the half-written last line of a killed run) is dropped and the file is
+    rewritten without it."""
+    if not path.is_file():
+        return []
+    wanted = set(scene_ids)
+    kept: dict[str, tuple[str, SceneResult]] = {}
+    dirty = False
+    raw = path.read_bytes()
+    for line in raw.decode("utf-8", errors="replace").splitlines():
+        if not line.strip():
+            dirty = True
+            continue
+        try:
+            row = json.loads(line)
+            result = SceneResult.from_row(row)
+        except (ValueError, TypeError, KeyError):
+            dirty = True
+            continue
+        if result.scene_id not in wanted or result.scene_id in kept:
+            dirty = True
+            continue
+        kept[result.scene_id] = (line, result)
+    if not raw.endswith(b"\n") and raw:
+        dirty = True
+    if dirty:
+        tmp = path.with_name(f".{path.name}.tmp")
+        with open(tmp, "w") as fh:
+            fh.writelines(line + "\n" for line, _ in kept.values())
+            fh.flush()
+            os.fsync(fh.fileno())
+        tmp.replace(path)
+    return [result for _, result in kept.values()]
+
+
+def _isolation(cfg: DictConfig) -> dict[str, Any]:
+    """Configure the sandboxes (``sandbox.allow_unisolated``) and record what they provide.
+
+    Called defensively: sandboxes without ``configure``/``isolation_level`` report "unknown".
+    """
+    sandbox_cfg = cfg.get("sandbox", None) or {}
+    allow = bool(sandbox_cfg.get("allow_unisolated", False)) if sandbox_cfg else False
+    out: dict[str, Any] = {"allow_unisolated": allow}
+    for key, module_name, probe in (("process", "visphy_core.sandbox.process", "isolation_level"),
+                                    ("browser", "visphy_core.sandbox.browser",
+                                     "browser_isolation_level")):
+        import importlib
+
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError:
+            out[key] = "unknown"
+            continue
+        configure = getattr(module, "configure", None)
+        if callable(configure):
+            configure(allow_unisolated=allow)
+        level = getattr(module, probe, None)
+        try:
+            out[key] = str(level()) if callable(level) else "unknown"
+        except Exception as exc:  # noqa: BLE001 - a probe must not stop the run
+            out[key] = f"unknown ({type(exc).__name__}: {exc})"
+    return out
 
 
 def _manifest(ctx: RunContext) -> dict:
@@ -63,6 +216,9 @@ def _manifest(ctx: RunContext) -> dict:
         "platform": platform.platform(),
         "argv": sys.argv,
         "started": dt.datetime.now().isoformat(timespec="seconds"),
+        "status": RUNNING,
+        "config_hash": ctx.extra.get("config_hash"),
+        "isolation": ctx.extra.get("isolation"),
         "plugins": {p.name: {"distribution": p.distribution, "version": p.version}
                     for p in describe_plugins(pm)},
         "scenes": [s.scene_id for s in ctx.scenes],
@@ -80,14 +236,21 @@ def _version() -> str:
 
 
 def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache) -> dict:
-    """Means with honest denominators: model successes only, and all scenes with fallbacks."""
+    """Means with honest denominators: model successes only, and all scenes with fallbacks.
+
+    Success rates are given over all scenes and over the evaluable ones (scenes that ended in
+    ``infra_error`` or ``data_error`` say nothing about the model); ``failures`` splits the
+    model's failures from infrastructure/data failures.
+    """
     n = len(results)
     ok = [r for r in results if r.model_success]
     scored = [r for r in results if r.system_success]
-    failures: dict[str, int] = {}
+    evaluable = [r for r in results if r.evaluable]
+    failures: dict[str, dict[str, int]] = {"model": {}, "infra_or_data": {}}
     for r in results:
         if not r.model_success and r.failure_class:
-            failures[r.failure_class] = failures.get(r.failure_class, 0) + 1
+            side = "infra_or_data" if r.failure_class in NOT_EVALUABLE else "model"
+            failures[side][r.failure_class] = failures[side].get(r.failure_class, 0) + 1
     per_metric = {}
     for m in metrics:
         def mean(rows):
@@ -104,14 +267,19 @@ def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache) -
         }
     return {
         "n_scenes": n,
+        "n_evaluable": len(evaluable),
         "model_success": len(ok), "model_success_rate": len(ok) / n if n else None,
+        "model_success_rate_evaluable": len(ok) / len(evaluable) if evaluable else None,
         "system_success": len(scored), "system_success_rate": len(scored) / n if n else None,
         "fallbacks": sum(r.fallback for r in results),
         "repaired": sum(r.model_success and r.attempts > 1 for r in results),
         "failures": failures,
+        "infra_retries": sum(r.infra_retries for r in results),
         "flags": {f: sum(f in r.flags for r in results) for r in results for f in r.flags},
+        "isolation": sorted({r.isolation for r in results if r.isolation}),
         "metrics": per_metric,
         "cache": cache.stats(),
+        "model_calls": sum(r.model_calls for r in results),
         "renders_done": sum(1 for r in results if r.render_wall_s is not None
                             and not r.render_cached),
     }
@@ -119,53 +287,165 @@ def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache) -
 
 def _write_json(path: Path, data: Any) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=1, default=str))
+    with open(tmp, "w") as fh:
+        fh.write(json.dumps(data, indent=1, default=str))
+        fh.flush()
+        os.fsync(fh.fileno())
     tmp.replace(path)
 
 
-def run_experiment(cfg: DictConfig) -> dict:
-    """Evaluate every selected scene; returns the summary (also in ``summary.json``)."""
-    import pandas as pd
+@contextmanager
+def _signals_close_the_run() -> Iterator[None]:
+    """SIGINT/SIGTERM raise `RunInterrupted` in the main thread (the scene in progress is
+    abandoned: it is redone on resume); a second signal while the run closes exits at once."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    state: dict[str, int | None] = {"signum": None}
 
+    def handler(signum, frame):
+        if state["signum"] is None:
+            state["signum"] = signum
+            raise RunInterrupted(signum)
+        os._exit(128 + signum)
+
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        state["signum"] = state["signum"] or -1  # closing: a further signal exits at once
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+@contextmanager
+def _deferred_signals() -> Iterator[list[int]]:
+    """Hold SIGINT/SIGTERM while the run's files are closed; re-delivered afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        yield []
+        return
+    pending: list[int] = []
+    previous = {sig: signal.signal(sig, lambda s, f: pending.append(s))
+                for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield pending
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+def run_experiment(cfg: DictConfig) -> dict:
+    """Evaluate every selected scene; returns the summary (also in ``summary.json``).
+
+    Resumes the newest unfinished run of the same config (see the module docstring). Raises
+    `RunInterrupted` (exit status 130/143) after closing the run on SIGINT/SIGTERM.
+    """
     registry = get_registry()
     pm = get_plugin_manager()
     root = Path(cfg.paths.root).resolve()
     data_dir, runs_dir = Path(cfg.paths.data_dir).resolve(), Path(cfg.paths.runs_dir).resolve()
     cache = Cache(Path(cfg.paths.cache_dir).resolve(), enabled=bool(cfg.run.cache))
     scenes = load_dataset(cfg.dataset, data_dir, progress=bool(cfg.run.progress))
+    isolation = _isolation(cfg)
     model = registry.get("models", cfg.model.name)(cfg.model)
     engine = registry.get("engines", cfg.engine.name)(cfg.engine)
     metrics = [registry.get("metrics", name) for name in cfg.metrics.names]
-    run_dir = _run_dir(cfg, runs_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
+    chash = config_hash(cfg)
+    found = find_resumable(runs_dir, chash)
+    if found is not None:
+        run_dir, lock = found
+        restored = read_rows(run_dir / "results.jsonl", [s.scene_id for s in scenes])
+        print(f"resuming {run_dir} ({len(restored)}/{len(scenes)} scenes already done)",
+              file=sys.stderr)
+    else:
+        run_dir = _run_dir(cfg, runs_dir)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        lock = _RunLock(run_dir)
+        lock.acquire()
+        restored = []
+    try:
+        return _run(cfg, pm, root, cache, scenes, model, engine, metrics, run_dir, restored,
+                    {"config_hash": chash, "isolation": isolation})
+    finally:
+        lock.release()
+
+
+def _run(cfg, pm, root, cache, scenes, model, engine, metrics, run_dir, restored, extra) -> dict:
+    import pandas as pd
+
     (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     ctx = RunContext(cfg=cfg, run_dir=run_dir, root=root, scenes=scenes,
                      model_name=cfg.model.name, engine_name=cfg.engine.name, metrics=metrics,
-                     cache=cache)
-    _write_json(run_dir / "manifest.json", _manifest(ctx))
+                     cache=cache, extra=dict(extra))
+    manifest = _manifest(ctx)
+    if restored:
+        manifest["resumed_rows"] = len(restored)
+    _write_json(run_dir / "manifest.json", manifest)
+    ctx.results.extend(restored)
+    done = {r.scene_id for r in restored}
+    pending = [s for s in scenes if s.scene_id not in done]
     settings = PipelineSettings(prompt=PromptSettings.from_cfg(cfg.prompt), retry=cfg.run.retry,
                                 fallback=cfg.run.fallback, timeout_s=cfg.engine.timeout_s,
                                 seed=cfg.run.seed)
-    pm.hook.visphy_run_start(run=ctx)
+    status, raised = FINISHED, None
     rows_path = run_dir / "results.jsonl"
     try:
-        with scene_progress(len(scenes), enabled=bool(cfg.run.progress)) as advance:
-            for scene in scenes:
-                advance(scene.scene_id)
-                result = process_scene(scene, model, engine, metrics, settings, cache,
-                                       run_dir / "scenes" / scene.scene_id)
-                ctx.results.append(result)
-                with rows_path.open("a") as fh:
-                    fh.write(json.dumps(result.row(), default=str) + "\n")
-                pm.hook.visphy_scene_done(run=ctx, scene=scene, result=result)
-    finally:
-        engine.close()
-    pd.DataFrame([r.row() for r in ctx.results]).to_parquet(run_dir / "results.parquet",
-                                                           index=False)
-    summary = summarise(ctx.results, metrics, cache)
-    summary.update({"run_dir": str(run_dir), "model": cfg.model.name, "engine": cfg.engine.name,
-                    "dataset": cfg.dataset.name})
-    _write_json(run_dir / "summary.json", summary)
-    pm.hook.visphy_run_end(run=ctx, summary=summary)
-    print_summary(summary, ctx.results)
+        with _signals_close_the_run():
+            pm.hook.visphy_run_start(run=ctx)
+            with scene_progress(len(pending), enabled=bool(cfg.run.progress)) as advance, \
+                    rows_path.open("a") as rows:
+                for scene in pending:
+                    advance(scene.scene_id)
+                    result = process_scene(scene, model, engine, metrics, settings, cache,
+                                           run_dir / "scenes" / scene.scene_id)
+                    rows.write(json.dumps(result.row(), default=str) + "\n")
+                    rows.flush()
+                    os.fsync(rows.fileno())
+                    ctx.results.append(result)
+                    pm.hook.visphy_scene_done(run=ctx, scene=scene, result=result)
+    except RunInterrupted as exc:
+        status, raised = INTERRUPTED, exc
+    except Exception as exc:  # noqa: BLE001 - close the run, then re-raise
+        status, raised = FAILED, exc
+    with _deferred_signals() as pending_signals:
+        try:
+            engine.close()
+        except Exception as exc:  # noqa: BLE001
+            log.warning("closing engine %s failed: %s: %s", cfg.engine.name,
+                        type(exc).__name__, exc)
+        order = {s.scene_id: i for i, s in enumerate(scenes)}
+        ctx.results.sort(key=lambda r: order.get(r.scene_id, len(order)))
+        pd.DataFrame([r.row() for r in ctx.results]).to_parquet(run_dir / "results.parquet",
+                                                               index=False)
+        summary = summarise(ctx.results, metrics, cache)
+        summary.update({"status": status, "run_dir": str(run_dir), "model": cfg.model.name,
+                        "engine": cfg.engine.name, "dataset": cfg.dataset.name,
+                        "n_selected": len(scenes), "resumed_rows": len(restored),
+                        "config_hash": extra["config_hash"],
+                        "isolation_levels": extra["isolation"]})
+        if cache.warnings:
+            summary["cache_warnings"] = list(cache.warnings)
+        if status == INTERRUPTED:
+            summary["interrupted_by"] = signal.Signals(raised.signum).name
+        elif status == FAILED:
+            summary["error"] = f"{type(raised).__name__}: {raised}"
+        _write_json(run_dir / "summary.json", summary)
+        manifest.update(status=status, ended=dt.datetime.now().isoformat(timespec="seconds"))
+        _write_json(run_dir / "manifest.json", manifest)
+        try:
+            pm.hook.visphy_run_end(run=ctx, summary=summary)
+        except Exception as exc:  # noqa: BLE001
+            if raised is None:
+                raise
+            log.warning("visphy_run_end failed while closing a %s run: %s", status, exc)
+        _write_json(run_dir / "summary.json", summary)
+    if status == FINISHED:
+        print_summary(summary, ctx.results)
+    else:
+        print(f"run {status} after {len(ctx.results)}/{len(scenes)} scenes; partial results in "
+              f"{run_dir} (rerun the same command to resume)", file=sys.stderr)
+    if raised is not None:
+        raise raised
+    if pending_signals:
+        raise RunInterrupted(pending_signals[0])
     return summary

@@ -17,6 +17,9 @@ from omegaconf import OmegaConf
 from visphy_core.hookspecs import hookimpl
 
 _ACTIVE: dict[int, Any] = {}
+#: visphy run status (``summary["status"]``) → MLflow run status. An interrupted run (SIGINT,
+#: SIGTERM) ends KILLED, a run that raised ends FAILED: never left RUNNING.
+_MLFLOW_STATUS = {"finished": "FINISHED", "interrupted": "KILLED", "failed": "FAILED"}
 
 
 def tracking_uris(cfg, root: Path) -> tuple[str, str]:
@@ -91,7 +94,8 @@ def visphy_run_end(run, summary):
             client.log_metric(run_id, name, m["mean_model_success"])
         if m["mean_with_fallbacks"] is not None:
             client.log_metric(run_id, f"{name}_with_fallbacks", m["mean_with_fallbacks"])
-    for key in ("model_success_rate", "system_success_rate", "fallbacks", "n_scenes"):
+    for key in ("model_success_rate", "model_success_rate_evaluable", "system_success_rate",
+                "fallbacks", "n_scenes", "n_evaluable"):
         if summary.get(key) is not None:
             client.log_metric(run_id, key, float(summary[key]))
     for name in ("config.yaml", "manifest.json", "summary.json", "results.parquet",
@@ -99,5 +103,6 @@ def visphy_run_end(run, summary):
         path = run.run_dir / name
         if path.is_file():
             client.log_artifact(run_id, str(path))
-    client.set_terminated(run_id, status="FINISHED")
-    summary["mlflow"] = run.extra["mlflow"]
+    status = _MLFLOW_STATUS.get(summary.get("status", "finished"), "FAILED")
+    client.set_terminated(run_id, status=status)
+    summary["mlflow"] = dict(run.extra["mlflow"], status=status)

@@ -207,7 +207,8 @@ def _read_metadata(path: Path, split: str) -> list[tuple[str, dict, str]]:
     return rows
 
 
-def load_original(root: Path, split: str, scene_ids: list[str] | None = None) -> list[Scene]:
+def load_original(root: Path, split: str, scene_ids: list[str] | None = None,
+                  strict: bool = True) -> list[Scene]:
     """Scenes of one split of the original VisPhyBench-Data layout under ``root``.
 
     Order: metadata.jsonl order, or the sorted videos listing when there is no metadata.
@@ -256,20 +257,26 @@ def load_original(root: Path, split: str, scene_ids: list[str] | None = None) ->
     scenes: list[Scene] = []
     for sid, meta, where in rows:
         video = videos_dir / f"{sid}.mp4"
-        if not video.is_file():
-            raise FileNotFoundError(f"missing video for scene {sid} ({where}): {video}")
-        clip = probe_clip(video)
         detection = det_dir / f"{sid}_frame_01.json"
-        if has_detection and not detection.is_file():
-            raise FileNotFoundError(f"missing detection JSON for scene {sid}: {detection}")
-        if sid in difficulty:
-            label = difficulty[sid]
-        else:
-            try:
-                label = difficulty_label(next((meta[k] for k in DIFFICULTY_KEYS if k in meta),
-                                              None))
-            except ValueError as exc:
-                raise ValueError(_one_line(f"{where}: {exc}")) from None
+        clip, label, load_error = ClipInfo(fps=0.0, n_frames=0, width=0, height=0), None, None
+        try:
+            if not video.is_file():
+                raise FileNotFoundError(f"missing video for scene {sid} ({where}): {video}")
+            clip = probe_clip(video)
+            if has_detection and not detection.is_file():
+                raise FileNotFoundError(f"missing detection JSON for scene {sid}: {detection}")
+            if sid in difficulty:
+                label = difficulty[sid]
+            else:
+                try:
+                    label = difficulty_label(next((meta[k] for k in DIFFICULTY_KEYS
+                                                   if k in meta), None))
+                except ValueError as exc:
+                    raise ValueError(_one_line(f"{where}: {exc}")) from None
+        except (OSError, ValueError) as exc:
+            if strict:
+                raise
+            load_error = _one_line(str(exc))
         template = meta.get("template_id", meta.get("template"))
         scenes.append(Scene(
             scene_id=sid, dim=dims[sid], clip=clip, video_path=video,
@@ -277,5 +284,5 @@ def load_original(root: Path, split: str, scene_ids: list[str] | None = None) ->
             spec_path=None, trajectory_path=None, keyframe_paths={},
             difficulty=label,
             template_id=str(template) if template is not None else default_template_id(sid),
-            dataset=f"visphybench/{split}"))
+            dataset=f"visphybench/{split}", load_error=load_error))
     return scenes
