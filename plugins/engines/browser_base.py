@@ -50,8 +50,11 @@ if (typeof window !== 'undefined' && window.__visphyConstrain2D) window.__visphy
 """
 CONSTRAINT_2D_URL = "/vendor/visphy/constraint2d.js"
 
-#: Requests a program makes on its own (script-driven), as opposed to passive resources.
-ACTIVE_REQUESTS = ("fetch", "xhr", "websocket", "eventsource")
+#: Attempts a program makes on its own (script-driven), as opposed to passive resources (an
+#: ``<img>`` or a ``<script>`` from another host is refused and logged, not a violation): any of
+#: these, or any attempt on a ``file:`` URL, is a sandbox violation.
+ACTIVE_REQUESTS = ("fetch", "xhr", "websocket", "eventsource", "ping", "webrtc", "navigation",
+                   "popup", "file")
 
 _SHARED_POOL: BrowserPool | None = None
 
@@ -340,24 +343,34 @@ def _resize(frames: list[np.ndarray], contract: RenderContract) -> np.ndarray:
 
 def classify_capture(cap: PageCapture, contract: RenderContract) -> RenderResult:
     """Turn what the page did into frames or a failure class, with the evidence in the logs."""
+    from visphy_core.secrets import redact, redact_obj
+
     logs = list(cap.errors) + list(cap.console)
     logs += [f"blocked request: {url}" for url in cap.blocked_requests]
-    result = RenderResult(frames=None, logs=logs, blocked_requests=list(cap.blocked_requests),
-                          wall_s=cap.wall_s)
-    active = [u for u in cap.blocked_requests if u.split(" ", 1)[0] in ACTIVE_REQUESTS]
+    result = RenderResult(frames=None, logs=redact_obj(logs),
+                          blocked_requests=redact_obj(list(cap.blocked_requests)),
+                          wall_s=cap.wall_s, isolation=cap.isolation)
+    active = [u for u in result.blocked_requests
+              if u.split(" ", 1)[0] in ACTIVE_REQUESTS or u.split(" ", 1)[-1].startswith("file:")]
     if cap.infra_error:
-        result.failure, result.error = FailureClass.INFRA_ERROR, cap.infra_error
+        result.failure, result.error = FailureClass.INFRA_ERROR, redact(cap.infra_error)
+    elif cap.resource_limit:
+        result.failure, result.error = FailureClass.RESOURCE_LIMIT, cap.resource_limit
     elif cap.timed_out:
         result.failure = FailureClass.TIMEOUT
         result.error = f"no result within {contract.timeout_s:g} s (infinite loop?)"
+    elif cap.navigations:
+        result.failure = FailureClass.SANDBOX_VIOLATION
+        result.error = f"the page tried to leave: {redact(cap.navigations[0])}"
     elif active:
         result.failure = FailureClass.SANDBOX_VIOLATION
-        result.error = f"network access attempted: {active[0]}"
+        what = "network or file access" if not active[0].startswith("webrtc") else "WebRTC"
+        result.error = f"{what} attempted: {active[0]}"
     elif cap.errors:
         first = cap.errors[0]
         syntax = "SyntaxError" in first
         result.failure = FailureClass.SYNTAX_ERROR if syntax else FailureClass.RUNTIME_ERROR
-        result.error = first
+        result.error = redact(first)
     elif cap.no_canvas or len(cap.frames) < contract.n_frames:
         result.failure = FailureClass.BLANK_OUTPUT
         result.error = "the page has no canvas (or <svg>) to record"

@@ -4,9 +4,26 @@ Why async Playwright on a private thread: a model-written page can hang its rend
 infinite loop, and the sync API cannot time out a blocked ``evaluate``. The pool runs one event
 loop in a background thread; callers use the blocking ``render_page`` and get a watchdog for free.
 
-Isolation: the page is served from a fixed fake origin through request interception, so Chromium
-opens no socket for it; every other request (any host, any scheme that reaches the network stack)
-is aborted and logged. DNS is mapped to nothing, background networking is off.
+Isolation, in layers (the first is the one that holds; the others make attempts visible):
+
+* **Network namespace**: Chromium itself runs in a fresh, empty network namespace (``unshare -n``
+  as root, ``unshare -rn`` otherwise): not even loopback is up, so no socket of the browser, its
+  renderers, workers or WebRTC can reach the host or anything else. Playwright talks to Chromium
+  over a pipe and the page's own files are fulfilled by request interception, without sockets.
+  Whether the kernel grants the namespace is probed once; without it untrusted pages are refused
+  (`SandboxUnavailable`) unless the user opted out (`configure(allow_unisolated=True)`, config key
+  ``sandbox.allow_unisolated``, or ``VISPHY_ALLOW_UNISOLATED=1``). `browser_isolation_level()`
+  says which level applies; every `PageCapture` records it.
+* **Request interception**: the page is served from a fixed fake origin; every other request
+  (any host, WebSocket, EventSource, beacons, navigations away, pop-ups) is refused and logged.
+  WebRTC is off (Chromium policy: no non-proxied UDP; ``RTCPeerConnection`` throws), and the
+  virtual-time script logs script-level attempts the network layer never sees (``file://``).
+* **Resource caps**: a JavaScript heap limit (``--max-old-space-size``) and a watchdog on the
+  resident memory of the page's renderer (and the GPU process) that kills it above the cap; either
+  ends the page as ``resource_limit``. Every wait has the page's deadline; at the deadline a stuck
+  renderer is killed so the pool stays usable.
+* **Environment**: Chromium starts from an allow-listed environment (no secrets) with a private
+  ``HOME``.
 
 Capture modes: ``"canvas"`` reads the page's main canvas back as PNG (``toDataURL``) at each
 virtual time; ``"screenshot"`` advances virtual time, seeks the document's animations (SMIL, CSS,
@@ -22,7 +39,11 @@ import io
 import json
 import mimetypes
 import os
+import re
 import shutil
+import signal
+import subprocess
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -38,6 +59,16 @@ VIRTUAL_TIME_JS = (Path(__file__).with_name("virtual_time.js")).read_text()
 CAPTURE_MODES = ("canvas", "screenshot")
 #: Real seconds a page may take, after its load event, to become ready (e.g. p5's preload()).
 READY_WAIT_S = 10.0
+#: Per-page memory cap (MB): resident memory of the page's renderer (and of the GPU process).
+DEFAULT_MEMORY_MB = 2048
+#: Seconds between two looks of the memory watchdog at the renderer processes.
+WATCH_INTERVAL_S = 0.1
+#: Environment variable that allows running untrusted pages without a network namespace.
+ALLOW_UNISOLATED_ENV = "VISPHY_ALLOW_UNISOLATED"
+#: Isolation level recorded when Chromium runs in its own empty network namespace.
+ISOLATION_NETNS = "chromium:netns,no-egress"
+#: Isolation level recorded when the user opted out and no namespace could be had.
+ISOLATION_NONE = "none"
 
 #: What the fake origin serves for a path: a file, or the content itself (generated wrappers).
 Asset = Union[Path, bytes, str]
@@ -60,11 +91,98 @@ CHROMIUM_ARGS = [
     # animations pick their raster scale by timing). Canvas readback is unaffected by both.
     "--disable-partial-raster",
     "--disable-threaded-animation",
+    # WebRTC: no UDP that does not go through a proxy (there is none), no local addresses.
+    "--force-webrtc-ip-handling-policy=disable_non_proxied_udp",
+    "--webrtc-ip-handling-policy=disable_non_proxied_udp",
+    "--disable-breakpad",
+    "--disable-crash-reporter",
+    "--no-pings",
+    "--deny-permission-prompts",
+    "--block-new-web-contents",
 ]
+
+#: Chromium's stderr lines that mean the page exhausted the JavaScript heap (V8 / Blink OOM).
+_OOM_MARKERS = ("javascript OOM", "Reached heap limit", "Last few GCs",
+                "Fatal JavaScript out of memory", "Fatal process out of memory",
+                "Out of memory: ", "OOM in ")
 
 
 class BrowserUnavailable(RuntimeError):
     """Chromium or Playwright is missing or would not start."""
+
+
+class SandboxUnavailable(BrowserUnavailable):
+    """The kernel grants no network namespace and the user did not allow unisolated pages."""
+
+
+# ------------------------------------------------------------------------------ isolation config
+
+_CONFIG: dict = {"allow_unisolated": None, "memory_mb": None}
+
+
+def configure(allow_unisolated: bool | None = None, memory_mb: int | None = None) -> None:
+    """Settings of the browser sandbox for this process (the run loop calls this from the config:
+    ``sandbox.allow_unisolated``). ``None`` leaves a setting as it is. ``memory_mb`` applies to
+    pools started afterwards."""
+    if allow_unisolated is not None:
+        _CONFIG["allow_unisolated"] = bool(allow_unisolated)
+    if memory_mb is not None:
+        if int(memory_mb) < 64:
+            raise ValueError(f"memory_mb must be at least 64, not {memory_mb}")
+        _CONFIG["memory_mb"] = int(memory_mb)
+
+
+def unisolated_allowed() -> bool:
+    """True when the user opted out of isolation (configure() or $VISPHY_ALLOW_UNISOLATED)."""
+    if _CONFIG["allow_unisolated"] is not None:
+        return _CONFIG["allow_unisolated"]
+    return os.environ.get(ALLOW_UNISOLATED_ENV, "").strip().lower() in ("1", "true", "yes", "on")
+
+
+_NETNS_PROBE: dict = {}
+
+
+def netns_prefix() -> tuple[list[str] | None, str]:
+    """The command prefix that runs a program in a fresh, empty network namespace, and a note.
+
+    Probed once per process: ``unshare -n`` (root) or ``unshare -rn`` (user namespace), accepted
+    only if the namespace really holds nothing but a loopback interface. (None, why) when the
+    kernel or the container refuses."""
+    if "result" in _NETNS_PROBE:
+        return _NETNS_PROBE["result"]
+    unshare = shutil.which("unshare") or "/usr/bin/unshare"
+    candidates = ([[unshare, "-n", "--"]] if os.geteuid() == 0 else []) + [[unshare, "-rn", "--"]]
+    why = f"{unshare} not found" if not Path(unshare).exists() else ""
+    result: tuple[list[str] | None, str] = (None, why)
+    if Path(unshare).exists():
+        for prefix in candidates:
+            try:
+                proc = subprocess.run(prefix + ["cat", "/proc/self/net/dev"], capture_output=True,
+                                      text=True, timeout=10, env={"PATH": "/usr/bin:/bin"})
+            except (OSError, subprocess.SubprocessError) as exc:
+                why = f"{' '.join(prefix)} failed: {exc}"
+                continue
+            ifaces = {line.split(":", 1)[0].strip() for line in proc.stdout.splitlines()[2:]
+                      if ":" in line}
+            if proc.returncode == 0 and ifaces <= {"lo"}:
+                result = (prefix, " ".join(prefix[:-1]))
+                break
+            why = (f"{' '.join(prefix[:-1])} refused: "
+                   f"{(proc.stderr.strip() or f'interfaces {sorted(ifaces)}')[:200]}")
+        else:
+            result = (None, why)
+    _NETNS_PROBE["result"] = result
+    return result
+
+
+def browser_isolation_level() -> str:
+    """What untrusted pages run under now: ``chromium:netns,no-egress``; ``none`` when no
+    namespace is available and the user opted out; ``unavailable: <why>`` when pages would be
+    refused. For the run manifest."""
+    prefix, why = netns_prefix()
+    if prefix is not None:
+        return ISOLATION_NETNS
+    return ISOLATION_NONE if unisolated_allowed() else f"unavailable: {why}"
 
 
 def find_chromium() -> str:
@@ -91,7 +209,16 @@ class PageCapture:
     timed_out: bool = False
     no_canvas: bool = False
     infra_error: str | None = None
+    #: The page hit the memory cap (JS heap exhausted, or renderer killed by the watchdog).
+    resource_limit: str | None = None
+    #: The page tried to leave (navigation of the main frame, a pop-up): a sandbox violation.
+    navigations: list[str] = field(default_factory=list)
+    isolation: str | None = None
     wall_s: float = 0.0
+
+    def block(self, entry: str) -> None:
+        if len(self.blocked_requests) < 200 and entry not in self.blocked_requests[-20:]:
+            self.blocked_requests.append(entry)
 
 
 def _png_to_rgb(data_url: str) -> np.ndarray:
@@ -115,22 +242,126 @@ def _png_bytes_to_rgb(png: bytes) -> np.ndarray:
     return np.asarray(img.convert("RGB"))
 
 
+# ------------------------------------------------------------------------- process inspection
+
+_PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
+
+
+def _children(pid: int) -> list[int]:
+    out: list[int] = []
+    try:
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for tid in tasks:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/children") as f:
+                out += [int(x) for x in f.read().split()]
+        except (OSError, ValueError):
+            pass
+    return out
+
+
+def _descendants(pid: int) -> list[int]:
+    seen, todo = [], [pid]
+    while todo:
+        for child in _children(todo.pop()):
+            if child not in seen:
+                seen.append(child)
+                todo.append(child)
+    return seen
+
+
+def _proc_type(pid: int) -> str:
+    # Chromium rewrites its children's command lines (one string, spaces, no NULs).
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            m = re.search(rb"(?:^|[\s\0])--type=([\w-]+)", f.read())
+    except OSError:
+        return ""
+    return m.group(1).decode() if m else "browser"
+
+
+def _rss_bytes(pid: int) -> int:
+    try:
+        with open(f"/proc/{pid}/statm") as f:
+            return int(f.read().split()[1]) * _PAGE
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
+@dataclass
+class _Chromium:
+    """One launched browser: Playwright's handle, its process id, its stderr log."""
+
+    browser: object
+    pid: int | None
+    stderr: Path
+    kinds: dict = field(default_factory=dict)  # pid -> process type ("renderer", "gpu-process")
+
+    def processes(self, kinds: tuple[str, ...]) -> list[int]:
+        if self.pid is None:
+            return []
+        out = []
+        for pid in _descendants(self.pid):
+            if self.kinds.get(pid, "browser") == "browser":  # a fresh fork is renamed later
+                self.kinds[pid] = _proc_type(pid)
+            if self.kinds[pid] in kinds:
+                out.append(pid)
+        if len(self.kinds) > 500:
+            self.kinds.clear()
+        return out
+
+    def stderr_size(self) -> int:
+        try:
+            return self.stderr.stat().st_size
+        except OSError:
+            return 0
+
+    def stderr_since(self, offset: int, limit: int = 1 << 20) -> str:
+        try:
+            with open(self.stderr, "rb") as f:
+                f.seek(offset)
+                return f.read(limit).decode(errors="replace")
+        except OSError:
+            return ""
+
+
+def _kill(pids) -> None:
+    for pid in pids:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except OSError:
+            pass
+
+
 class BrowserPool:
-    """Reusable Chromium processes; a fresh browser context per page; restart after a crash."""
+    """Reusable Chromium processes; a fresh browser context per page; restart after a crash.
+
+    ``memory_mb`` caps each page (default: `configure`'s value, else `DEFAULT_MEMORY_MB`): the
+    JavaScript heap gets three quarters of it, and a watchdog kills the page's renderer (or the
+    GPU process) when its resident memory goes above it. ``untrusted=False`` is for visphy's own
+    pages (reference clips): they run without a namespace when none can be had."""
 
     def __init__(self, size: int = 1, extra_args: list[str] | None = None,
-                 restart_every: int = 200):
+                 restart_every: int = 200, memory_mb: int | None = None,
+                 untrusted: bool = True):
         self.size = size
         self.extra_args = extra_args or []
         self.restart_every = restart_every
+        self.memory_mb = int(memory_mb or _CONFIG["memory_mb"] or DEFAULT_MEMORY_MB)
+        self.untrusted = untrusted
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, daemon=True,
                                         name="visphy-browser-pool")
         self._thread.start()
         self._playwright = None
-        self._browsers: list = []
+        self._browsers: list[_Chromium] = []
         self._uses = 0
         self._next = 0
+        self._launches = 0
+        self._home: Path | None = None
+        self.isolation: str | None = None
         self.restarts = 0
 
     # ---------------------------------------------------------------- lifecycle
@@ -138,29 +369,80 @@ class BrowserPool:
     def _run(self, coro, timeout: float | None = None):
         return asyncio.run_coroutine_threadsafe(coro, self._loop).result(timeout)
 
+    def _wrapper(self, executable: str) -> Path:
+        """A private launcher script: records Chromium's pid, sends its stderr to a file, and
+        execs it inside a fresh network namespace when one can be had."""
+        prefix, why = netns_prefix()
+        if prefix is None:
+            if self.untrusted and not unisolated_allowed():
+                raise SandboxUnavailable(
+                    f"cannot isolate the browser: no network namespace ({why}); refusing to run "
+                    f"model-written pages without one. Run as root or where unprivileged user "
+                    f"namespaces are allowed, or opt out explicitly with sandbox.allow_unisolated="
+                    f"true (or {ALLOW_UNISOLATED_ENV}=1)")
+            self.isolation = ISOLATION_NONE
+        else:
+            self.isolation = ISOLATION_NETNS
+        if self._home is None:
+            self._home = Path(tempfile.mkdtemp(prefix="visphy-chromium-"))
+        script = self._home / "chromium-launcher"
+        cmd = " ".join(_sh_quote(a) for a in (prefix or []) + [executable])
+        script.write_text("#!/bin/sh\n"
+                          'echo $$ > "$VISPHY_CHROMIUM_PIDFILE"\n'
+                          f'exec {cmd} "$@" 2>>"$VISPHY_CHROMIUM_STDERR"\n')
+        script.chmod(0o700)
+        return script
+
     async def _start(self) -> None:
         from playwright.async_api import async_playwright
 
         executable = find_chromium()
+        launcher = self._wrapper(executable)
         if self._playwright is None:
             self._playwright = await async_playwright().start()
+        heap_mb = max(64, self.memory_mb * 3 // 4)
         while len(self._browsers) < self.size:
+            self._launches += 1
+            pidfile = self._home / f"browser-{self._launches}.pid"
+            stderr = self._home / f"browser-{self._launches}.stderr"
+            env = _scrubbed_env(self._home)
+            env["VISPHY_CHROMIUM_PIDFILE"] = str(pidfile)
+            env["VISPHY_CHROMIUM_STDERR"] = str(stderr)
             try:
-                browser = await self._playwright.chromium.launch(
-                    executable_path=executable, headless=True,
-                    args=CHROMIUM_ARGS + self.extra_args, env=_scrubbed_env())
+                browser = await asyncio.wait_for(self._playwright.chromium.launch(
+                    executable_path=str(launcher), headless=True, timeout=60_000,
+                    args=CHROMIUM_ARGS + [f"--js-flags=--max-old-space-size={heap_mb}"]
+                    + self.extra_args, env=env), 90)
             except Exception as exc:
+                tail = ""
+                if stderr.exists():
+                    tail = stderr.read_text(errors="replace")[-500:]
                 raise BrowserUnavailable(
-                    f"Chromium at {executable} failed to start: {exc}") from exc
-            self._browsers.append(browser)
-
-    async def _restart(self) -> None:
-        browsers, self._browsers = self._browsers, []
-        for browser in browsers:
+                    f"Chromium at {executable} failed to start: {exc} {tail}".strip()) from exc
             try:
-                await asyncio.wait_for(browser.close(), 10)
+                pid = int(pidfile.read_text().strip())
+            except (OSError, ValueError):
+                pid = None
+            self._browsers.append(_Chromium(browser, pid, stderr))
+
+    async def _close_browsers(self) -> None:
+        browsers, self._browsers = self._browsers, []
+        for proc in browsers:
+            try:
+                await asyncio.wait_for(proc.browser.close(), 10)
             except Exception:
                 pass
+            if proc.pid is not None:  # whatever did not go with close()
+                _kill(proc.processes(("renderer", "gpu-process", "utility", "zygote", "browser"))
+                      + [proc.pid])
+            for path in (proc.stderr, proc.stderr.with_suffix(".pid")):
+                try:
+                    path.unlink()
+                except OSError:
+                    pass
+
+    async def _restart(self) -> None:
+        await self._close_browsers()
         if self._playwright is not None:
             try:
                 await asyncio.wait_for(self._playwright.stop(), 10)
@@ -172,14 +454,12 @@ class BrowserPool:
 
     def close(self) -> None:
         async def _close():
-            for browser in self._browsers:
+            await self._close_browsers()
+            if self._playwright is not None:
                 try:
-                    await asyncio.wait_for(browser.close(), 10)
+                    await asyncio.wait_for(self._playwright.stop(), 10)
                 except Exception:
                     pass
-            self._browsers = []
-            if self._playwright is not None:
-                await self._playwright.stop()
                 self._playwright = None
 
         if self._thread.is_alive():
@@ -188,6 +468,9 @@ class BrowserPool:
             finally:
                 self._loop.call_soon_threadsafe(self._loop.stop)
                 self._thread.join(timeout=5)
+        if self._home is not None:
+            shutil.rmtree(self._home, ignore_errors=True)
+            self._home = None
 
     def __enter__(self) -> "BrowserPool":
         return self
@@ -206,7 +489,10 @@ class BrowserPool:
         ``assets`` maps URL paths (``vendor/...``) to files or to their content (bytes/str).
         ``capture``: ``"canvas"`` reads back the main canvas; ``"screenshot"`` screenshots the
         viewport (0, 0, width, height) after seeking document animations to the virtual time.
-        ``inject_fault="crash"`` (tests only) crashes the renderer after the first frame.
+        ``inject_fault`` (tests only): ``"crash"`` crashes the renderer after the first frame;
+        ``"real-webrtc"`` leaves the page the browser's own ``RTCPeerConnection`` (to show that
+        the network namespace and Chromium's WebRTC policy hold on their own).
+        Raises `SandboxUnavailable` when the page cannot be isolated (and no opt-out is set).
         """
         if capture not in CAPTURE_MODES:
             raise ValueError(f"capture must be one of {CAPTURE_MODES}, not {capture!r}")
@@ -215,96 +501,188 @@ class BrowserPool:
 
     async def _render(self, html, assets, times_ms, width, height, timeout_s, seed, tick_ms,
                       capture="canvas", inject_fault=None):
+        from playwright.async_api import TimeoutError as PlaywrightTimeout
+
+        start = time.perf_counter()
+        deadline = start + timeout_s
         if not self._browsers or self._uses >= self.restart_every:
             if self._uses >= self.restart_every:
                 await self._restart()
                 self._uses = 0
             else:
                 await self._start()
-        browser = self._browsers[self._next % len(self._browsers)]
+        proc = self._browsers[self._next % len(self._browsers)]
         self._next += 1
-        if not browser.is_connected():
+        if not proc.browser.is_connected():
             await self._restart()
-            browser = self._browsers[0]
+            proc = self._browsers[0]
+        browser = proc.browser
         self._uses += 1
-        cap = PageCapture()
-        start = time.perf_counter()
+        cap = PageCapture(isolation=self.isolation)
         context = None
         crashed: list[bool] = []
+        killed: list[str] = []
         cdp = None
+        stderr_at = proc.stderr_size()
+        if stderr_at > (32 << 20):  # keep the log file small; only new lines matter
+            try:
+                proc.stderr.write_bytes(b"")
+            except OSError:
+                pass
+            stderr_at = 0
+        cap_bytes = self.memory_mb << 20
+        watchdog = asyncio.ensure_future(self._watch(proc, cap_bytes, killed))
+
+        def left() -> float:
+            return max(0.05, deadline - time.perf_counter())
+
+        def left_ms() -> float:
+            return left() * 1000
+
         try:
-            context = await browser.new_context(
+            context = await asyncio.wait_for(browser.new_context(
                 viewport={"width": width, "height": height}, device_scale_factor=1,
-                service_workers="block", accept_downloads=False)
-            await context.route("**/*", self._router(html, assets, cap))
-            config = {"tickMs": tick_ms, "seed": seed, "capture": capture}
-            await context.add_init_script(
-                f"window.__VISPHY_CONFIG__ = {json.dumps(config)};\n{VIRTUAL_TIME_JS}")
-            page = await context.new_page()
+                service_workers="block", accept_downloads=False), left())
+            context.set_default_timeout(left_ms())
+            context.set_default_navigation_timeout(left_ms())
+            await asyncio.wait_for(context.route("**/*", self._router(html, assets, cap)), left())
+            await asyncio.wait_for(context.route_web_socket("**/*", self._ws_router(cap)), left())
+            config = {"tickMs": tick_ms, "seed": seed, "capture": capture, "origin": ORIGIN,
+                      "realWebRTC": inject_fault == "real-webrtc"}
+            await asyncio.wait_for(context.add_init_script(
+                f"window.__VISPHY_CONFIG__ = {json.dumps(config)};\n{VIRTUAL_TIME_JS}"), left())
+            page = await asyncio.wait_for(context.new_page(), left())
             page.on("crash", lambda _page: crashed.append(True))
-            deadline = start + timeout_s
+            page.on("popup", lambda popup: self._on_popup(popup, cap))
+            page.on("console", lambda msg: self._on_console(msg, cap))
 
-            def left() -> float:
-                return max(0.1, deadline - time.perf_counter())
-
-            await asyncio.wait_for(page.goto(f"{ORIGIN}/index.html", wait_until="load"), left())
+            await asyncio.wait_for(page.goto(f"{ORIGIN}/index.html", wait_until="load",
+                                             timeout=left_ms()), left())
             await asyncio.wait_for(self._wait_ready(
                 page, cap, min(READY_WAIT_S, deadline - time.perf_counter())), left())
             for i, t in enumerate(times_ms):
+                if cap.navigations:
+                    break  # the page tried to leave: what is left of it is not the program's
                 if i == 1 and inject_fault == "crash":
                     await self._crash_renderer(context, page, crashed)
                 if capture == "canvas":
                     shot = await asyncio.wait_for(
                         page.evaluate("t => window.__visphy.captureAt(t)", t), left())
-                    if not shot or not shot.get("png"):
+                    png = shot.get("png") if isinstance(shot, dict) else None
+                    if not isinstance(png, str) or not png.startswith("data:image/png"):
                         cap.no_canvas = True
                         break
-                    cap.frames.append(_png_to_rgb(shot["png"]))
+                    cap.frames.append(_png_to_rgb(png))
                 else:
                     info = await asyncio.wait_for(
                         page.evaluate("t => window.__visphy.prepareScreenshot(t)", t), left())
-                    if not info or not info.get("drawable"):
+                    if not isinstance(info, dict) or not info.get("drawable"):
                         cap.no_canvas = True
                         break
                     if cdp is None:
-                        cdp = await context.new_cdp_session(page)
+                        cdp = await asyncio.wait_for(context.new_cdp_session(page), left())
                     # CDP directly: Playwright's page.screenshot adds round trips (fonts, caret).
                     shot = await asyncio.wait_for(cdp.send("Page.captureScreenshot", {
                         "format": "png", "fromSurface": True,
                         "clip": {"x": 0, "y": 0, "width": width, "height": height, "scale": 1}}),
                         left())
                     cap.frames.append(_png_bytes_to_rgb(base64.b64decode(shot["data"])))
-            state = await asyncio.wait_for(
-                page.evaluate("() => [window.__visphy.errors(), window.__visphy.logs()]"),
-                max(0.1, deadline - time.perf_counter()))
-            cap.errors.extend(state[0])
-            cap.console.extend(state[1])
-        except asyncio.TimeoutError:
-            if crashed:
-                cap.infra_error = "browser failure: the renderer crashed"
-            else:
+            state = await asyncio.wait_for(page.evaluate(
+                "() => [window.__visphy.errors(), window.__visphy.logs(),"
+                " window.__visphy.attempts()]"), left())
+            if isinstance(state, list) and len(state) == 3:
+                cap.errors.extend(str(e)[:2000] for e in list(state[0])[:200])
+                cap.console.extend(str(e)[:600] for e in list(state[1])[:600])
+                for entry in list(state[2])[:200]:
+                    cap.block(str(entry)[:300])
+        except (asyncio.TimeoutError, PlaywrightTimeout):
+            if not crashed and not killed:
                 cap.timed_out = True
-        except Exception as exc:  # crash of the renderer or of the browser: infra, not the program
+        except Exception as exc:  # a crash of the renderer or the browser, or a page failure
             msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            if (crashed or "crash" in msg.lower() or "has been closed" in msg
-                    or not browser.is_connected()):
-                cap.infra_error = f"browser failure: {msg}"
-            else:
-                cap.errors.append(f"page failure: {msg}")
+            if crashed or killed or "crash" in msg.lower():
+                crashed.append(True)  # classified below: the program's memory, or ours
+            elif "has been closed" in msg or not browser.is_connected():
+                cap.infra_error = f"browser failure: {msg[:500]}"
+            elif not cap.navigations:  # (a page that navigated away is classified as such)
+                cap.errors.append(f"page failure: {msg[:500]}")
         finally:
+            watchdog.cancel()
+            died = bool(crashed or killed)
+            if cap.timed_out:
+                # A renderer stuck in a loop may not let its context close: end it first.
+                _kill(proc.processes(("renderer",)))
+            if died and not cap.infra_error:
+                await asyncio.sleep(0.05)  # let the renderer's last words reach the log
+                self._classify_crash(cap, proc, stderr_at, killed)
             restart = False
             if context is not None:
                 try:
-                    await asyncio.wait_for(context.close(), 10)
+                    await asyncio.wait_for(context.close(), 5)
                 except Exception:
                     restart = True
             # A crashed renderer takes only its page down; restart when the browser went too.
-            if cap.infra_error and not browser.is_connected():
+            if (cap.infra_error or cap.resource_limit) and not browser.is_connected():
                 restart = True
             if restart:
                 await self._restart()
         cap.wall_s = time.perf_counter() - start
         return cap
+
+    def _classify_crash(self, cap: PageCapture, proc: _Chromium, stderr_at: int,
+                        killed: list[str]) -> None:
+        """A renderer that died: the program's memory (our kill, or V8 out of heap), else ours."""
+        cap.timed_out = False
+        if killed:
+            cap.resource_limit = killed[0]
+            return
+        tail = proc.stderr_since(stderr_at)
+        if any(marker in tail for marker in _OOM_MARKERS):
+            cap.resource_limit = (f"memory limit: the page exhausted its JavaScript heap "
+                                  f"({max(64, self.memory_mb * 3 // 4)} MB)")
+        else:
+            cap.infra_error = "browser failure: the renderer crashed"
+
+    async def _watch(self, proc: _Chromium, cap_bytes: int, killed: list[str]) -> None:
+        """Kill a renderer (or the GPU process) whose resident memory goes above the cap."""
+        pids: list[int] = []
+        n = 0
+        try:
+            while True:
+                if n % 5 == 0 or not pids:  # new processes appear rarely; memory grows fast
+                    pids = await asyncio.to_thread(proc.processes, ("renderer", "gpu-process"))
+                n += 1
+                for pid in pids:
+                    rss = _rss_bytes(pid)
+                    if rss > cap_bytes:
+                        _kill([pid])
+                        kind = proc.kinds.get(pid, "renderer")
+                        killed.append(f"memory limit: the page's {kind} process used "
+                                      f"{rss >> 20} MB, above the cap of {cap_bytes >> 20} MB; "
+                                      f"it was stopped")
+                await asyncio.sleep(WATCH_INTERVAL_S)
+        except asyncio.CancelledError:
+            return
+
+    @staticmethod
+    def _on_popup(popup, cap: PageCapture) -> None:
+        cap.navigations.append(f"popup {popup.url[:300]}")
+        cap.block(f"popup {popup.url[:300]}")
+        asyncio.ensure_future(_close_quietly(popup))
+
+    @staticmethod
+    def _on_console(msg, cap: PageCapture) -> None:
+        """Chromium's own console messages about refused loads (``file://`` and the like),
+        which no request handler sees."""
+        try:
+            if msg.type != "error":
+                return
+            text = msg.text
+        except Exception:
+            return
+        m = re.search(r"Not allowed to load local resource: (\S+)", text)
+        if m:
+            cap.block(f"file {m.group(1)[:300]}")
 
     @staticmethod
     async def _crash_renderer(context, page, crashed: list) -> None:
@@ -339,13 +717,36 @@ class BrowserPool:
             await asyncio.sleep(0.01)
 
     @staticmethod
+    def _ws_router(cap: PageCapture):
+        def handle(ws):
+            cap.block(f"websocket {ws.url[:300]}")
+            asyncio.ensure_future(_close_quietly(ws, code=1008, reason="blocked by visphy"))
+
+        return handle
+
+    @staticmethod
     def _router(html: str, assets: Mapping[str, Asset], cap: PageCapture):
+        served = []
+
         async def handle(route):
-            url = route.request.url
+            request = route.request
+            url = request.url
+            try:
+                navigation = request.is_navigation_request()
+                main = navigation and request.frame.parent_frame is None
+            except Exception:
+                navigation = main = False
             parsed = urlparse(url)
-            if parsed.hostname == ORIGIN_HOST:
+            if main and served:
+                # The main document was served once: anything else is the page leaving.
+                cap.navigations.append(f"navigation {url[:300]}")
+                cap.block(f"navigation {url[:300]}")
+                await route.abort("blockedbyclient")
+                return
+            if parsed.hostname == ORIGIN_HOST and parsed.scheme == "https":
                 path = parsed.path.lstrip("/")
-                if path == "index.html":
+                if path == "index.html" and main:
+                    served.append(url)
                     await route.fulfill(status=200, body=html.encode(),
                                         content_type="text/html; charset=utf-8")
                     return
@@ -361,19 +762,39 @@ class BrowserPool:
                         body = item.encode() if isinstance(item, str) else bytes(item)
                     await route.fulfill(status=200, body=body, content_type=ctype)
                     return
-                cap.blocked_requests.append(f"{route.request.resource_type} {url[:300]}")
+                cap.block(f"{request.resource_type} {url[:300]}")
                 await route.fulfill(status=404, body=b"not vendored", content_type="text/plain")
                 return
-            if len(cap.blocked_requests) < 200:
-                cap.blocked_requests.append(f"{route.request.resource_type} {url[:300]}")
+            cap.block(f"{request.resource_type} {url[:300]}")
             await route.abort("blockedbyclient")
 
         return handle
 
 
-def _scrubbed_env() -> dict[str, str]:
-    """Chromium sees no API keys or tokens from the parent environment."""
-    keep = ("PATH", "HOME", "LANG", "LC_ALL", "TZ", "FONTCONFIG_PATH", "XDG_RUNTIME_DIR", "TMPDIR")
-    env = {k: v for k, v in os.environ.items() if k in keep}
+async def _close_quietly(obj, **kwargs) -> None:
+    try:
+        await asyncio.wait_for(obj.close(**kwargs), 5)
+    except Exception:
+        pass
+
+
+def _sh_quote(arg: str) -> str:
+    return "'" + arg.replace("'", "'\"'\"'") + "'"
+
+
+def _scrubbed_env(home: Path | None = None) -> dict[str, str]:
+    """Chromium's environment: an allow-list (no API keys or tokens), with a private HOME."""
+    from visphy_core.secrets import is_secret_name, secret_values
+
+    keep = ("PATH", "LANG", "LC_ALL", "TZ", "FONTCONFIG_PATH", "FONTCONFIG_FILE")
+    secrets = secret_values()
+    env = {k: v for k, v in os.environ.items()
+           if k in keep and not is_secret_name(k) and v not in secrets}
+    env.setdefault("PATH", "/usr/local/bin:/usr/bin:/bin")
     env.setdefault("TZ", "UTC")
+    if home is not None:
+        env["HOME"] = str(home)
+        env["XDG_CONFIG_HOME"] = str(home / ".config")
+        env["XDG_CACHE_HOME"] = str(home / ".cache")
+        env["TMPDIR"] = str(home)
     return env

@@ -5,6 +5,9 @@
 // screenshot (pages without a canvas: SVG, DOM). Document animations (SMIL, CSS animations and
 // transitions, Web Animations) are paused and seeked to the virtual time in screenshot mode.
 // Same program + same config => same sequence of callbacks => same frames.
+// It also logs the page's attempts to reach outside its origin (fetch/XHR of file:// and other
+// hosts, beacons, WebRTC, pop-ups) for the scene log: the network namespace and the request
+// interception of the host are what block them; WebRTC and window.open are refused here too.
 (() => {
   const CONFIG = window.__VISPHY_CONFIG__ || {};
   const TICK_MS = CONFIG.tickMs || 1000 / 60;
@@ -20,6 +23,64 @@
   let rafQueue = new Map();  // id -> callback
   const errors = [];
   const logs = [];
+  const attempts = [];
+  const ORIGIN = CONFIG.origin || location.origin;
+  const RealURL = URL;
+
+  // Record an attempt to reach `url` (relative URLs resolve against the page); the page's own
+  // origin and data:/blob: URLs are not attempts.
+  function attempt(kind, url) {
+    let u = '';
+    try { u = String(url); } catch (e) { u = '?'; }
+    try { u = new RealURL(u, location.href).href; } catch (e) { /* keep it as written */ }
+    if (u.startsWith(ORIGIN + '/') || u.startsWith('data:') || u.startsWith('blob:') ||
+        u === 'about:blank') return;
+    record(`${kind} ${u.slice(0, 300)}`);
+  }
+  // Same-origin frames report to the top page, whose log the host reads.
+  function record(entry) {
+    if (window !== window.top) {
+      try { window.top.__visphy.reportAttempt(entry); return; } catch (e) { /* not reachable */ }
+    }
+    if (attempts.length < 200) attempts.push(String(entry).slice(0, 310));
+  }
+  function lock(obj, name, value) {
+    try { Object.defineProperty(obj, name, { value, writable: false, configurable: false }); }
+    catch (e) { /* already locked */ }
+  }
+
+  const realFetch = window.fetch;
+  window.fetch = function (input, init) {
+    attempt('fetch', input && typeof input === 'object' && 'url' in input ? input.url : input);
+    return realFetch.apply(this, arguments);
+  };
+  const realOpen = XMLHttpRequest.prototype.open;
+  XMLHttpRequest.prototype.open = function (method, url) {
+    attempt('xhr', url);
+    return realOpen.apply(this, arguments);
+  };
+  if (navigator.sendBeacon) {
+    const realBeacon = navigator.sendBeacon.bind(navigator);
+    navigator.sendBeacon = (url, data) => { attempt('ping', url); return realBeacon(url, data); };
+  }
+  // WebRTC is off: the constructor logs what it was asked to reach and throws.
+  function NoPeerConnection(config) {
+    const urls = [];
+    try {
+      for (const s of (config && config.iceServers) || []) urls.push(...[].concat(s.urls || s.url || []));
+    } catch (e) { /* a hostile config object */ }
+    record(`webrtc ${urls.map(String).join(',').slice(0, 300) || 'RTCPeerConnection'}`);
+    throw new DOMException('WebRTC is disabled in the visphy sandbox', 'NotSupportedError');
+  }
+  if (!CONFIG.realWebRTC) {  // (tests only: show that the browser's own policy holds too)
+    for (const name of ['RTCPeerConnection', 'webkitRTCPeerConnection']) lock(window, name, NoPeerConnection);
+  }
+  // Pop-ups and dialogs: no new windows; dialogs answer at once.
+  lock(window, 'open', function (url) { attempt('popup', url === undefined ? 'about:blank#popup' : url); return null; });
+  window.alert = () => undefined;
+  window.confirm = () => false;
+  window.prompt = () => null;
+  window.print = () => undefined;
 
   // Seeded PRNG (mulberry32) so Math.random is reproducible.
   let seed = (CONFIG.seed >>> 0) || 12345;
@@ -60,7 +121,7 @@
 
   function report(where, e) {
     const msg = (e && e.stack) ? String(e.stack) : String(e);
-    errors.push(`${where} at t=${now.toFixed(1)}ms: ${msg}`.slice(0, 2000));
+    if (errors.length < 200) errors.push(`${where} at t=${now.toFixed(1)}ms: ${msg}`.slice(0, 2000));
   }
   window.addEventListener('error', (ev) => report('uncaught error', ev.error || ev.message));
   window.addEventListener('unhandledrejection', (ev) => report('unhandled rejection', ev.reason));
@@ -186,6 +247,7 @@
 
   // WebGL canvases keep their drawing buffer so a capture always sees the last rendered frame.
   const realGetContext = HTMLCanvasElement.prototype.getContext;
+  const realToDataURL = HTMLCanvasElement.prototype.toDataURL;
   HTMLCanvasElement.prototype.getContext = function (type, attrs) {
     if (typeof type === 'string' && type.startsWith('webgl')) {
       attrs = Object.assign({}, attrs || {}, { preserveDrawingBuffer: true });
@@ -194,15 +256,22 @@
   };
 
   for (const level of ['log', 'info', 'warn', 'error']) {
-    const real = console[level].bind(console);
     console[level] = (...args) => {
-      if (logs.length < 500) logs.push(`[${level}] ` + args.map(String).join(' ').slice(0, 500));
-      real(...args);
+      // Kept here only (bounded): nothing goes to Chromium's console, so a page that logs
+      // without end costs no host time.
+      if (logs.length < 500) {
+        let line = '';
+        try { line = args.map((a) => String(a).slice(0, 500)).join(' ').slice(0, 500); }
+        catch (e) { line = '(unprintable)'; }
+        logs.push(`[${level}] ` + line);
+      }
     };
   }
 
-  window.__visphy = {
+  const api = {
     advanceTo,
+    attempts: () => attempts.slice(),
+    reportAttempt: (entry) => record(entry),
     now: () => now,
     errors: () => errors.slice(),
     logs: () => logs.slice(),
@@ -229,7 +298,9 @@
       advanceTo(t);
       const c = pickCanvas();
       if (!c) return { png: null, width: 0, height: 0 };
-      return { png: c.toDataURL('image/png'), width: c.width, height: c.height };
+      return { png: realToDataURL.call(c, 'image/png'), width: c.width, height: c.height };
     },
   };
+  // The host's handle cannot be replaced or deleted by the page.
+  lock(window, '__visphy', Object.freeze(api));
 })();
