@@ -28,6 +28,23 @@ HYDRA_FLAGS = ("--help", "-h", "--hydra-help", "--info", "--cfg", "-c", "--resol
                "--package", "-p", "--shell-completion", "-sc")
 
 
+#: Hydra flags followed by a value that is not an override.
+VALUE_FLAGS = ("--config-path", "-cp", "--config-name", "-cn", "--config-dir", "-cd",
+               "--experimental-rerun")
+
+
+def _overrides_of(argv: list[str]) -> list[str]:
+    out, skip = [], False
+    for arg in argv:
+        if skip:
+            skip = False
+        elif arg in VALUE_FLAGS:
+            skip = True
+        elif not arg.startswith("-"):
+            out.append(arg)
+    return out
+
+
 def _traceback_wanted() -> bool:
     return os.environ.get("VISPHY_TRACEBACK", "").strip().lower() not in ("", "0", "false", "no")
 
@@ -172,7 +189,7 @@ def run_hydra(argv: list[str]) -> int:
     try:
         get_registry()  # plugins store their structured configs before Hydra composes
         if not any(a in HYDRA_FLAGS or a.startswith("--info") for a in argv):
-            check_overrides([a for a in argv if not a.startswith("-")], inputs=True)
+            check_overrides(_overrides_of(argv), inputs=True)
     except Exception as exc:  # noqa: BLE001
         if show_traceback or not is_user_error(exc):
             raise
