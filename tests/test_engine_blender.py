@@ -222,14 +222,52 @@ def test_an_endless_script_times_out(engine):
 
 @needs_blender
 def test_network_access_is_a_sandbox_violation(engine):
-    from visphy_core.sandbox.process import network_isolation_available
+    from visphy_core.sandbox.process import isolation_available
 
-    if not network_isolation_available()[0]:
-        pytest.skip("no network namespaces on this kernel")
+    if not isolation_available()[0]:
+        pytest.skip("no bubblewrap sandbox here")
     result = engine.render(bpy_program(
         "import socket\nsocket.create_connection(('10.1.2.3', 80), timeout=3)\n"), CONTRACT)
     assert result.failure is FailureClass.SANDBOX_VIOLATION, result.error
     assert "network access attempted" in result.error
+    assert result.isolation.startswith("bwrap:") and "netns" in result.isolation
+    assert result.logs[0].startswith(f"sandbox: {result.isolation};")
+
+
+@needs_blender
+def test_memory_limit_is_a_resource_limit():
+    eng = BlenderEngine({"memory_mb": 1500})
+    result = eng.render(bpy_program("x = bytearray(8 * 1024 ** 3)\n"),
+                        RenderContract(fps=5, n_frames=3, width=32, height=32, timeout_s=30))
+    assert result.failure is FailureClass.RESOURCE_LIMIT, (result.error, result.logs[-3:])
+    assert "memory limit" in result.error
+
+
+@needs_blender
+def test_planted_symlinks_are_not_followed(engine, tmp_path):
+    secret = tmp_path / "secret.json"
+    secret.write_text('{"status": "runtime_error", "error": "HOST-SECRET"}')
+    secret.chmod(0o644)
+    body = (f"import os, json\nos.symlink({str(secret)!r}, 'result.json')\n"
+            "os._exit(0)\n")
+    result = engine.render(bpy_program(body), CONTRACT)
+    assert result.failure is not None and "HOST-SECRET" not in (result.error or "")
+    assert not any("HOST-SECRET" in line for line in result.logs)
+
+
+def test_render_engine_is_an_enum_in_the_schema():
+    from omegaconf import OmegaConf
+    from omegaconf.errors import ValidationError
+
+    from visphy_plugins.engines.blender import BlenderConfig, RenderEngine, _engine_name
+
+    cfg = OmegaConf.structured(BlenderConfig)
+    cfg.render_engine = "cycles"
+    assert cfg.render_engine is RenderEngine.cycles and _engine_name(cfg) == "cycles"
+    with pytest.raises(ValidationError):
+        cfg.render_engine = "cyclez"
+    assert "disk_mb" in cfg
+    assert BlenderEngine(cfg).cache_identity().startswith("blender@1:cycles:")
 
 
 # ------------------------------------------------------------------------ reference program

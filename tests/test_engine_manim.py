@@ -100,7 +100,9 @@ def test_renders_exact_frame_count_size_and_timing(engine):
     assert res.ok, (res.failure, res.error, res.logs[-10:])
     assert res.frames.shape == (12, 120, 160, 3) and res.frames.dtype == np.uint8
     assert tuple(res.frames[0, 0, 0]) == (255, 255, 255)  # white background
-    assert res.logs[0].startswith("sandbox: network isolated=")
+    assert res.logs[0].startswith(f"sandbox: {res.isolation};")
+    from visphy_core.sandbox.process import isolation_level
+    assert res.isolation == isolation_level()
     px_per_unit = 120 / 8.0  # frame 8 units tall
     xs = [red_centre_x(f) for f in res.frames]
     for k in range(11):  # frame k shows scene time k / fps
@@ -139,7 +141,9 @@ def test_same_program_same_frames(engine):
     ("        self.add(MathTex('x^2'))\n        self.wait(1)\n", FailureClass.RUNTIME_ERROR,
      "use Text"),
     ("        import numpy as np\n        a = np.ones(10 ** 10, dtype=np.uint8)\n",
-     FailureClass.RUNTIME_ERROR, "memory limit"),
+     FailureClass.RESOURCE_LIMIT, "memory limit"),
+    ("        open('big.bin', 'wb').write(b'x' * (600 << 20))\n",
+     FailureClass.RESOURCE_LIMIT, "file size limit"),
     ("        self.add(Circle(color=RED))\n", FailureClass.BLANK_OUTPUT, "no frame"),
     ("        self.wait(1)\n", FailureClass.BLANK_OUTPUT, "flat colour"),
 ])
@@ -167,8 +171,54 @@ def test_program_has_no_network(engine):
             "        s.connect(('127.0.0.1', 9))\n")
     res = engine.render(program(HEADER + body), contract())
     assert res.failure is FailureClass.RUNTIME_ERROR
-    if "network isolated=True" in res.logs[0]:
-        assert "unreachable" in res.error.lower()
+    if res.isolation and res.isolation.startswith("bwrap:"):
+        assert "netns" in res.isolation
+        # its own loopback only: nothing listens there
+        assert "refused" in res.error.lower() or "unreachable" in res.error.lower()
+
+
+def test_program_runs_as_nobody_and_sees_no_host_file(engine, tmp_path):
+    from visphy_core.sandbox.process import isolation_available
+
+    if not isolation_available()[0]:
+        pytest.skip("no bubblewrap sandbox here")
+    host = tmp_path / "host.txt"
+    host.write_text("host")
+    host.chmod(0o644)
+    body = (f"        import os\n        assert os.getuid() == 65534, os.getuid()\n"
+            f"        open({str(host)!r}).read()\n")
+    res = engine.render(program(HEADER + body), contract())
+    assert res.failure is FailureClass.RUNTIME_ERROR and "FileNotFoundError" in res.error
+
+
+def test_disk_quota_is_a_resource_limit():
+    eng = ManimEngine({"disk_mb": 70, "file_size_mb": 8})
+    body = ("        import os, time\n        for i in range(100):\n"
+            "            open(f'f{i}', 'wb').write(os.urandom(4 << 20))\n"
+            "        time.sleep(30)\n")
+    res = eng.render(program(HEADER + body), contract(timeout_s=20))
+    assert res.failure is FailureClass.RESOURCE_LIMIT and "disk quota" in res.error, res.error
+    assert res.wall_s < 15
+
+
+def test_refused_sandbox_is_an_infra_error(engine, monkeypatch):
+    from visphy_core.sandbox import process as sp
+
+    monkeypatch.setattr(sp, "_probe", lambda: (None, "bubblewrap (bwrap) is not installed"))
+    monkeypatch.delenv(sp.ALLOW_UNISOLATED_ENV, raising=False)
+    res = engine.render(program(MOVING.format(hold=0)), contract())
+    assert res.failure is FailureClass.INFRA_ERROR
+    assert "bubblewrap" in res.error and "allow_unisolated" in res.error
+
+
+def test_config_schema_is_registered_and_typed():
+    from dataclasses import fields
+
+    from visphy_plugins.engines.manim import ManimConfig
+
+    names = {f.name: f for f in fields(ManimConfig)}
+    assert {"timeout_s", "memory_mb", "file_size_mb", "disk_mb", "keep_workdir"} <= set(names)
+    assert names["timeout_s"].metadata["min"] >= 1 and names["memory_mb"].metadata["min"] > 0
 
 
 # ------------------------------------------------------------------------- reference program

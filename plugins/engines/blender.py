@@ -6,8 +6,14 @@ every scene runs as one subprocess of that environment's interpreter:
 
     <blender venv>/bin/python -s -B blender_runner.py job.json
 
-inside a private work directory, through `visphy_core.sandbox.process.run_sandboxed` (scrubbed
-environment, rlimits, no network when the kernel allows it, wall-clock kill). The trusted runner
+inside a private work directory, through `visphy_core.sandbox.process.run_sandboxed`
+(bubblewrap: uid 65534, fresh network/PID/IPC/UTS/mount namespaces, a read-only view of ``/usr``
+and of only the Blender venv and its base Python, the work dir as the only writable place,
+scrubbed environment, rlimits, a work-dir disk quota, wall-clock kill of the whole PID
+namespace). The isolation is recorded in ``RenderResult.isolation`` and the render log; memory,
+file-size, disk and process-count hits are ``resource_limit``, wall/CPU ``timeout``, a sandbox
+that cannot start ``infra_error`` with the reason. Files the script leaves in the work dir are
+read without following symlinks and with size limits. The trusted runner
 (`blender_runner.py`, copied into the work directory) resets Blender to an empty factory scene,
 runs the model's script, forces the render settings (engine, contract size at 100 %, colour
 management "Standard", fixed seeds, PNG output) and renders exactly ``n_frames`` stills; the frame
@@ -31,9 +37,11 @@ import json
 import os
 import re
 import shutil
+import stat
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from enum import Enum
 from pathlib import Path
 from typing import Any, Optional
 
@@ -45,6 +53,7 @@ from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, 
 from visphy_core.extract import extract_code, extract_spec, fenced_blocks
 from visphy_core.hookspecs import hookimpl
 from visphy_core.scene import Scene
+from visphy_core.secrets import redact
 
 HERE = Path(__file__).resolve().parent
 RUNNER = HERE / "blender_runner.py"
@@ -57,18 +66,29 @@ _IMPORTS_BPY = re.compile(r"^[ \t]*(?:import[ \t]+(?:[\w.]+[ \t]*,[ \t]*)*bpy\b|
                           re.M)
 
 
+class RenderEngine(str, Enum):
+    """``engine.render_engine``: OmegaConf checks the value against these names at compose
+    time."""
+
+    workbench = "workbench"   # ≈0.04 s/frame
+    cycles = "cycles"         # CPU path tracer, fixed seed
+    eevee = "eevee"           # slow without a GPU
+
+
 @dataclass
 class BlenderConfig(EngineConfig):
-    """``conf/engine/blender.yaml``: EngineConfig plus Blender's render settings."""
+    """``conf/engine/blender.yaml``: EngineConfig plus Blender's render settings (ranges in the
+    field metadata are checked before any work)."""
 
     name: str = "blender"
-    timeout_s: float = 120.0
-    render_engine: str = "workbench"   # workbench (≈0.04 s/frame) | cycles (CPU) | eevee (slow)
-    samples: int = 16                  # Cycles / EEVEE samples per pixel
+    timeout_s: float = field(default=120.0, metadata={"min": 1, "max": 3600})
+    render_engine: RenderEngine = RenderEngine.workbench
+    samples: int = field(default=16, metadata={"min": 1, "max": 4096})  # Cycles/EEVEE samples
     denoise: bool = False              # Cycles denoiser (off: frames depend on the seed only)
-    threads: int = 0                   # render threads; 0 = all cores (frames do not change)
+    threads: int = field(default=0, metadata={"min": 0, "max": 1024})  # 0 = all cores
     view_transform: str = "Standard"   # colour management; "Standard": sRGB colours 1:1
-    memory_mb: int = 4096              # address-space limit of the Blender process
+    memory_mb: int = field(default=4096, metadata={"min": 256})  # address space (RLIMIT_AS)
+    disk_mb: int = field(default=2048, metadata={"min": 16})     # work dir quota
     python: Optional[str] = None       # Blender venv interpreter (default: see module doc)
     keep_workdir: bool = False         # keep the per-scene work directory (debugging)
 
@@ -81,6 +101,14 @@ def _get(cfg: Any, key: str, default: Any) -> Any:
     else:
         value = getattr(cfg, key, default)
     return default if value is None else value
+
+
+def _engine_name(cfg: Any) -> str:
+    """``render_engine`` as a lower-case string (the config holds a `RenderEngine`)."""
+    value = _get(cfg, "render_engine", "workbench")
+    if isinstance(value, Enum):
+        value = value.value
+    return str(value).lower()
 
 
 def default_venv() -> Path:
@@ -207,8 +235,8 @@ class BlenderEngine(Engine):
         return Program(language=self.language, source=source, spec=spec)
 
     def cache_identity(self) -> str:
-        parts = [f"{self.name}@{self.version}", _get(self.cfg, "render_engine", "workbench")]
-        if _get(self.cfg, "render_engine", "workbench") != "workbench":
+        parts = [f"{self.name}@{self.version}", _engine_name(self.cfg)]
+        if _engine_name(self.cfg) != "workbench":
             parts += [f"s{_get(self.cfg, 'samples', 16)}", f"dn{int(_get(self.cfg, 'denoise', 0))}"]
         parts += [str(_get(self.cfg, "view_transform", "Standard")),
                   f"bpy{bpy_version(find_blender_python(self.cfg)) or '?'}"]
@@ -220,12 +248,12 @@ class BlenderEngine(Engine):
         python = find_blender_python(self.cfg)
         if python is None:
             return RenderResult(frames=None, failure=FailureClass.INFRA_ERROR, error=SETUP_HINT)
-        render_engine = str(_get(self.cfg, "render_engine", "workbench")).lower()
+        render_engine = _engine_name(self.cfg)
         if render_engine not in RENDER_ENGINES:
             return RenderResult(frames=None, failure=FailureClass.INFRA_ERROR,
                                 error=f"engine.render_engine={render_engine!r}; valid: "
                                       f"{', '.join(RENDER_ENGINES)}")
-        from visphy_core.sandbox.process import Limits, run_sandboxed
+        from visphy_core.sandbox.process import Limits, python_ro_paths, run_sandboxed
 
         workdir = Path(tempfile.mkdtemp(prefix="visphy-blender-"))
         try:
@@ -241,51 +269,77 @@ class BlenderEngine(Engine):
                    "seed": int(contract.seed), "dim": contract.dim}
             (workdir / "job.json").write_text(json.dumps(job, indent=1))
             cores = int(_get(self.cfg, "threads", 0)) or (os.cpu_count() or 1)
-            limits = Limits(wall_s=float(contract.timeout_s),
-                            cpu_s=float(contract.timeout_s) * max(1, cores),
-                            memory_mb=int(_get(self.cfg, "memory_mb", 4096)),
-                            network=False)
+            # PNG frames are at most ~4 bytes per pixel (+ headers); keep room for them
+            frames_mb = (contract.n_frames * contract.width * contract.height * 4 >> 20) + 64
+            limits = Limits(
+                wall_s=float(contract.timeout_s),
+                cpu_s=float(contract.timeout_s) * max(1, cores),
+                memory_mb=int(_get(self.cfg, "memory_mb", 4096)),
+                disk_mb=max(int(_get(self.cfg, "disk_mb", 2048)), frames_mb + 64))
             # HOME and TMPDIR are the work dir (run_sandboxed); PYTHONHASHSEED is fixed there
             env = {"PYTHONNOUSERSITE": "1", "PYTHONDONTWRITEBYTECODE": "1"}
             proc = run_sandboxed([str(python), "-s", "-B", RUNNER.name, "job.json"], workdir,
-                                 limits, env_extra=env)
-            result = self._collect(proc, workdir, contract)
+                                 limits, env_extra=env, ro_paths=python_ro_paths(python))
+            result = self._collect(proc, workdir, contract, limits)
+            result.isolation = proc.isolation
+            result.logs.insert(0, f"sandbox: {proc.isolation}; exit {proc.returncode}; "
+                                  f"{proc.wall_s:.2f} s")
         finally:
             if not _get(self.cfg, "keep_workdir", False):
                 shutil.rmtree(workdir, ignore_errors=True)
+        # defence in depth: no configured secret value leaves the engine
+        result.error = redact(result.error)
+        result.logs = [redact(line) for line in result.logs]
         result.wall_s = time.perf_counter() - start
         return result
 
-    def _collect(self, proc: Any, workdir: Path, contract: RenderContract) -> RenderResult:
+    def _collect(self, proc: Any, workdir: Path, contract: RenderContract,
+                 limits: Any = None) -> RenderResult:
         logs = [line for line in _lines(proc.stdout) + _lines(proc.stderr)
                 if not _noise(line)][-200:]
-        if not getattr(proc, "network_isolated", True):
-            logs.append("sandbox: Blender ran WITH network access (no network namespace here)")
         result = RenderResult(frames=None, logs=logs)
-        info: dict = {}
+        from visphy_core.sandbox.process import limit_from_text, read_untrusted
+
+        raw = read_untrusted(workdir / "result.json", 4 << 20)
         try:
-            info = json.loads((workdir / "result.json").read_text())
-        except (OSError, ValueError):
+            info = json.loads(raw.decode("utf-8", "replace")) if raw is not None else {}
+        except ValueError:
+            info = {}
+        if not isinstance(info, dict):
             info = {}
         if info.get("traceback"):
-            result.logs.append(info["traceback"])
+            result.logs.append(str(info["traceback"])[:20000])
         status = info.get("status")
-        frame_files = sorted((workdir / "frames").glob("frame_*.png")) if (
-            workdir / "frames").is_dir() else []
+        frame_files = _frame_files(workdir / "frames")
         fail = FailureClass
-        if proc.timed_out or proc.limit_hit in ("wall", "cpu"):
+        mem_mb = limits.memory_mb if limits else _get(self.cfg, "memory_mb", 4096)
+        detail = f": {str(info['error'])[:1500]}" if info.get("error") else ""
+        hit = proc.limit_hit
+        if hit is None and status in ("runtime_error", "render_error"):
+            # the runner caught the script's exception itself (MemoryError, EFBIG, EAGAIN)
+            hit = limit_from_text(str(info.get("error") or "")[:2000])
+        if proc.refused or (proc.returncode is None and proc.limit_hit is None):
+            result.failure = fail.INFRA_ERROR
+            result.error = f"could not start Blender: {' '.join(_lines(proc.stderr))[-500:]}"
+        elif proc.timed_out or proc.limit_hit in ("wall", "cpu"):
             which = "CPU time" if proc.limit_hit == "cpu" else "time"
             result.failure = fail.TIMEOUT
             result.error = (f"no result within the {which} limit of {contract.timeout_s:g} s "
                             f"({len(frame_files)}/{contract.n_frames} frames rendered; "
                             "infinite loop or too heavy a scene?)")
-        elif proc.limit_hit == "memory":
-            result.failure = fail.RUNTIME_ERROR
-            result.error = (f"memory limit of {_get(self.cfg, 'memory_mb', 4096)} MB exceeded"
-                            + (f": {info['error']}" if info.get("error") else ""))
-        elif proc.limit_hit == "file_size":
-            result.failure = fail.RUNTIME_ERROR
+        elif hit == "memory":
+            result.failure = fail.RESOURCE_LIMIT
+            result.error = f"memory limit of {mem_mb} MB exceeded{detail}"
+        elif hit == "file_size":
+            result.failure = fail.RESOURCE_LIMIT
             result.error = "file size limit exceeded (the script writes too much)"
+        elif hit == "disk":
+            result.failure = fail.RESOURCE_LIMIT
+            result.error = (f"disk quota of the work dir ({limits.disk_mb if limits else '?'} MB)"
+                            " exceeded (the script writes too much)")
+        elif hit == "processes":
+            result.failure = fail.RESOURCE_LIMIT
+            result.error = f"process limit reached (the script starts too many processes){detail}"
         elif status == "syntax_error":
             result.failure, result.error = fail.SYNTAX_ERROR, info.get("error")
         elif status in ("runtime_error", "render_error"):
@@ -294,9 +348,6 @@ class BlenderEngine(Engine):
             result.failure, result.error = fail.SANDBOX_VIOLATION, info.get("error")
         elif status == "infra_error":
             result.failure, result.error = fail.INFRA_ERROR, info.get("error")
-        elif status is None and proc.returncode is None:
-            result.failure = fail.INFRA_ERROR
-            result.error = f"could not start Blender: {' '.join(_lines(proc.stderr))[-500:]}"
         elif status != "ok":
             rc = proc.returncode
             tail = " | ".join(logs[-3:])[-500:]
@@ -311,16 +362,41 @@ class BlenderEngine(Engine):
             result.failure = fail.BLANK_OUTPUT
             result.error = f"{len(frame_files)} frames rendered, {contract.n_frames} expected"
             return result
-        frames = _read_frames(frame_files, contract)
+        try:
+            frames = _read_frames(frame_files, contract)
+        except Exception as exc:  # noqa: BLE001 (the script may have replaced the PNGs)
+            result.failure = fail.RUNTIME_ERROR
+            result.error = f"unreadable frame output: {type(exc).__name__}: {str(exc)[:300]}"
+            return result
         if classify_frames(frames) is FailureClass.BLANK_OUTPUT:
             result.failure, result.error = fail.BLANK_OUTPUT, "every frame is one flat colour"
             return result
         result.frames = frames
         timings = info.get("timings") or {}
-        if timings:
+        if isinstance(timings, dict) and timings:
             result.logs.append("blender timings: " + ", ".join(
-                f"{k} {v:.2f}" for k, v in timings.items()))
+                f"{k} {v:.2f}" if isinstance(v, (int, float)) else f"{k} ?"
+                for k, v in list(timings.items())[:20]))
         return result
+
+
+def _frame_files(frames_dir: Path) -> list[Path]:
+    """The PNG frames the runner wrote: only when ``frames`` is a real directory (not a link the
+    script planted) and only regular files (no links, FIFOs or devices)."""
+    try:
+        if not stat.S_ISDIR(os.lstat(frames_dir).st_mode):
+            return []
+    except OSError:
+        return []
+    out = []
+    for p in sorted(frames_dir.glob("frame_*.png")):
+        try:
+            st = os.lstat(p)
+        except OSError:
+            continue
+        if stat.S_ISREG(st.st_mode) and st.st_size <= 256 << 20:
+            out.append(p)
+    return out
 
 
 def _lines(text: Any) -> list[str]:

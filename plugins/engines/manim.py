@@ -8,9 +8,10 @@ How a program becomes frames:
   scene (else ``no_code``).
 * **Render** (sandbox): the program and a trusted runner (`RUNNER_SOURCE`) are written into a
   private work dir, and the runner is started with the host's own interpreter
-  (``sys.executable``, so the same Manim) under `run_sandboxed`: no network, scrubbed
-  environment, resource limits, wall-clock limit = ``contract.timeout_s``, and - when visphy
-  runs as root and ``nobody`` can run this very interpreter (`sandbox_user`) - as ``nobody``.
+  (``sys.executable``, so the same Manim) under `run_sandboxed` (bubblewrap): uid 65534, fresh
+  network/PID/IPC/UTS/mount namespaces, a read-only view of only ``/usr``, fonts and this
+  interpreter's venv and base installation, the work dir as the only writable place, scrubbed
+  environment, rlimits, a disk quota, wall-clock limit = ``contract.timeout_s``.
   The runner fixes Manim's configuration (``pixel_width/height`` = contract size,
   ``frame_rate`` = contract fps, frame 8 units tall and 8·W/H wide centred on the origin,
   white background, Cairo renderer, caching off, no media files: ``dry_run``), seeds
@@ -28,9 +29,14 @@ How a program becomes frames:
 
 Failure classes: syntax error → ``syntax_error``; any exception while importing or rendering →
 ``runtime_error`` (exception type, message and program line in ``error``); wall-clock or CPU
-limit → ``timeout``; address-space limit → ``runtime_error`` ("memory limit ..."); no frame or
-only one flat colour → ``blank_output``. Whether the child was network-isolated and which user it
-ran as is recorded in ``RenderResult.logs`` (first line, ``sandbox: ...``).
+limit → ``timeout``; address-space, file-size, work-dir disk quota or process-count limit →
+``resource_limit``; no frame or only one flat colour → ``blank_output``; a sandbox that cannot
+start (bubblewrap missing, namespaces refused and no explicit opt-out) → ``infra_error`` with
+the reason. The isolation the program ran under is ``RenderResult.isolation`` and the first line
+of ``RenderResult.logs`` (``sandbox: ...``).
+
+Configuration (``conf/engine/manim.yaml``, schema `ManimConfig`): ``timeout_s``, ``memory_mb``,
+``file_size_mb``, ``disk_mb``, ``keep_workdir``.
 """
 
 from __future__ import annotations
@@ -38,23 +44,23 @@ from __future__ import annotations
 import ast
 import json
 import logging
-import os
 import shutil
-import stat
 import sys
 import tempfile
 import time
-from functools import lru_cache
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from visphy_core.config_schema import EngineConfig
 from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
                                 RenderResult, classify_frames)
 from visphy_core.extract import extract_code, extract_spec
 from visphy_core.hookspecs import hookimpl
-from visphy_core.sandbox.process import (Limits, ProcessResult, run_sandboxed,
-                                         unprivileged_uid)
+from visphy_core.sandbox.process import (Limits, ProcessResult, python_ro_paths, read_untrusted,
+                                         run_sandboxed)
+from visphy_core.secrets import redact
 from visphy_core.scene import Scene
 
 log = logging.getLogger(__name__)
@@ -244,38 +250,6 @@ def _cfg_get(cfg, key: str, default):
     return default if value is None else value
 
 
-@lru_cache(maxsize=1)
-def sandbox_user() -> tuple[int | None, str]:
-    """The uid renders run as, and a one-line reason; probed once per process.
-
-    When visphy runs as root, renders run as ``nobody`` - but only if ``nobody`` runs *this*
-    interpreter (same ``sys.version`` and ``sys.base_prefix``) and can import Manim. An
-    interpreter installed under a private directory (e.g. pyenv in a 0700 ``/root``) fails the
-    probe: the dynamic linker would silently fall back to another libpython and stdlib, which is
-    not reliable, so renders then run as the calling user (network isolation and limits still
-    apply) and the reason is logged with every render.
-    """
-    uid = unprivileged_uid()
-    if uid is None:
-        return None, "runs as the calling user (not root, or setpriv missing)"
-    work = Path(tempfile.mkdtemp(prefix="visphy-manim-probe-"))
-    code = "import sys, manim, PIL, numpy; print(repr((sys.version, sys.base_prefix)))"
-    try:
-        res = run_sandboxed([sys.executable, "-s", "-B", "-c", code], work,
-                            Limits(wall_s=60, cpu_s=60), run_as=uid)
-    except (OSError, ValueError) as exc:
-        return None, f"runs as the calling user: could not drop privileges ({exc})"
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
-    if res.returncode != 0:
-        last = (res.stderr.strip().splitlines() or ["?"])[-1]
-        return None, f"runs as the calling user: uid {uid} cannot import manim ({last})"
-    if res.stdout.strip() != repr((sys.version, sys.base_prefix)):
-        return None, (f"runs as the calling user: uid {uid} cannot reach this interpreter's "
-                      f"installation ({sys.base_prefix}), it would run another Python")
-    return uid, f"runs as uid {uid} (nobody)"
-
-
 def manim_available() -> tuple[bool, str]:
     """(True, version) when Manim CE imports in this interpreter, else (False, reason)."""
     try:
@@ -286,16 +260,30 @@ def manim_available() -> tuple[bool, str]:
     return True, getattr(manim, "__version__", "?")
 
 
+@dataclass
+class ManimConfig(EngineConfig):
+    """``conf/engine/manim.yaml``: EngineConfig plus the sandbox limits of one render (ranges in
+    the field metadata are checked before any work)."""
+
+    name: str = "manim"
+    timeout_s: float = field(default=60.0, metadata={"min": 1, "max": 3600})
+    memory_mb: int = field(default=4096, metadata={"min": 256})   # address space (RLIMIT_AS)
+    file_size_mb: int = field(default=512, metadata={"min": 1})   # largest file written
+    disk_mb: int = field(default=1024, metadata={"min": 16})      # work dir quota
+    keep_workdir: bool = False                                   # keep work dirs (debugging)
+
+
 class ManimEngine(Engine):
     name = "manim"
     language = "python"
     version = "1"
     supports_3d = False  # programs may use ThreeDScene; the reference program is 2D only
 
-    #: Sandbox limits besides the wall clock; an engine config that has keys of these names
-    #: (``memory_mb``, ``file_size_mb``; also ``keep_workdir``) overrides them.
+    #: Sandbox limits besides the wall clock; the engine config (`ManimConfig`: ``memory_mb``,
+    #: ``file_size_mb``, ``disk_mb``, ``keep_workdir``) overrides them.
     memory_mb = 4096
     file_size_mb = 512
+    disk_mb = 1024
 
     def instructions(self, dim: str) -> str:
         return INSTRUCTIONS_3D if dim == "3d" else INSTRUCTIONS
@@ -331,7 +319,6 @@ class ManimEngine(Engine):
     # ------------------------------------------------------------------ render
     def render(self, program: Program, contract: RenderContract) -> RenderResult:
         start = time.monotonic()
-        uid, who = sandbox_user()
         keep = bool(_cfg_get(self.cfg, "keep_workdir", False))
         work = Path(tempfile.mkdtemp(prefix="visphy-manim-"))
         try:
@@ -341,25 +328,30 @@ class ManimEngine(Engine):
                 "width": contract.width, "height": contract.height, "fps": contract.fps,
                 "n_frames": contract.n_frames, "seed": contract.seed,
                 "frame_height": FRAME_HEIGHT_UNITS}))
+            frames_mb = (contract.n_frames * contract.width * contract.height * 3 >> 20) + 64
             limits = Limits(wall_s=contract.timeout_s, cpu_s=contract.timeout_s + 5,
                             memory_mb=int(_cfg_get(self.cfg, "memory_mb", self.memory_mb)),
                             file_size_mb=max(int(_cfg_get(self.cfg, "file_size_mb",
-                                                          self.file_size_mb)),
-                                             (contract.n_frames * contract.width *
-                                              contract.height * 3 >> 20) + 64))
+                                                          self.file_size_mb)), frames_mb),
+                            disk_mb=max(int(_cfg_get(self.cfg, "disk_mb", self.disk_mb)),
+                                        frames_mb + 64))
             env = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
                    "PYTHONDONTWRITEBYTECODE": "1", "PYTHONUNBUFFERED": "1",
                    "XDG_CACHE_HOME": str(work / ".cache")}
             res = run_sandboxed([sys.executable, "-s", "-B", "visphy_runner.py"], work, limits,
-                                env_extra=env, run_as=uid)
+                                env_extra=env, ro_paths=python_ro_paths(sys.executable))
             result = self._classify(res, work, contract, limits)
-            result.logs.insert(0, f"sandbox: network isolated={res.network_isolated}; {who}; "
-                                  f"exit {res.returncode}; {res.wall_s:.2f} s")
+            result.isolation = res.isolation
+            result.logs.insert(0, f"sandbox: {res.isolation}; exit {res.returncode}; "
+                                  f"{res.wall_s:.2f} s")
             if keep:
                 result.logs.append(f"work dir kept: {work}")
         finally:
             if not keep:
                 shutil.rmtree(work, ignore_errors=True)
+        # defence in depth: no configured secret value leaves the engine
+        result.error = redact(result.error)
+        result.logs = [redact(line) for line in result.logs]
         result.wall_s = time.monotonic() - start
         return result
 
@@ -370,31 +362,37 @@ class ManimEngine(Engine):
         logs += [f"[stderr] {line}" for line in res.stderr.splitlines()[-60:]]
         result = RenderResult(frames=None, logs=logs, wall_s=res.wall_s)
         error = _read_json(work / "error.json")
-        if res.timed_out:
+        what = _describe(error) if isinstance(error, dict) else _last_line(res.stderr)
+        if res.refused or (res.returncode is None and res.limit_hit is None):
+            result.failure = FailureClass.INFRA_ERROR
+            result.error = _last_line(res.stderr)
+        elif res.timed_out:
             result.failure = FailureClass.TIMEOUT
             result.error = f"no result within {contract.timeout_s:g} s (infinite loop?)"
         elif res.limit_hit == "cpu":
             result.failure = FailureClass.TIMEOUT
             result.error = f"CPU time limit ({limits.cpu_s:g} s) exceeded"
         elif res.limit_hit == "memory":
-            result.failure = FailureClass.RUNTIME_ERROR
-            what = _describe(error) if error else _last_line(res.stderr)
+            result.failure = FailureClass.RESOURCE_LIMIT
             result.error = f"memory limit ({limits.memory_mb} MB) exceeded: {what}"
+        elif res.limit_hit == "disk":
+            result.failure = FailureClass.RESOURCE_LIMIT
+            result.error = (f"disk quota of the work dir ({limits.disk_mb} MB, "
+                            f"{limits.max_files} files) exceeded")
+        elif res.limit_hit == "file_size":
+            result.failure = FailureClass.RESOURCE_LIMIT
+            result.error = f"file size limit ({limits.file_size_mb} MB) exceeded: {what}"
+        elif res.limit_hit == "processes":
+            result.failure = FailureClass.RESOURCE_LIMIT
+            result.error = f"process limit ({limits.processes} processes) reached: {what}"
         elif res.returncode != 0 and isinstance(error, dict):
             result.failure = (FailureClass.SYNTAX_ERROR if error.get("kind") == "syntax"
                               else FailureClass.INFRA_ERROR if error.get("kind") == "import_manim"
                               else FailureClass.RUNTIME_ERROR)
             result.error = _describe(error)
-            if res.limit_hit == "file_size":
-                result.error = f"file size limit ({limits.file_size_mb} MB) exceeded: " + \
-                    result.error
         elif res.returncode != 0:
             result.failure = FailureClass.RUNTIME_ERROR
-            if res.limit_hit == "file_size":
-                result.error = f"file size limit ({limits.file_size_mb} MB) exceeded"
-            elif res.returncode is None:
-                result.failure, result.error = FailureClass.INFRA_ERROR, _last_line(res.stderr)
-            elif res.returncode < 0:
+            if res.returncode < 0:
                 result.error = f"the program was killed by signal {-res.returncode}"
             else:
                 result.error = f"exit status {res.returncode}: {_last_line(res.stderr)}"
@@ -441,27 +439,7 @@ class ManimEngine(Engine):
 
 
 # ------------------------------------------------------------------------------ helpers
-def _read_untrusted(path: Path, max_bytes: int) -> bytes | None:
-    """A regular file the sandboxed program could have tampered with: no symlinks (a link to a
-    file only the host may read must not leak into the run), no devices, bounded size."""
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | getattr(os, "O_NONBLOCK", 0))
-    except OSError:
-        return None
-    try:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode) or info.st_size > max_bytes:
-            return None
-        chunks, left = [], info.st_size
-        while left > 0:
-            chunk = os.read(fd, min(left, 1 << 24))
-            if not chunk:
-                break
-            chunks.append(chunk)
-            left -= len(chunk)
-        return b"".join(chunks)
-    finally:
-        os.close(fd)
+_read_untrusted = read_untrusted
 
 
 def _read_json(path: Path, max_bytes: int = 1 << 20):
@@ -508,6 +486,11 @@ def _read_frames(work: Path, contract: RenderContract) -> tuple[np.ndarray | Non
         hold = np.repeat(frames[-1:], contract.n_frames - count, axis=0)
         frames = np.concatenate([frames, hold])
     return np.array(frames, copy=True), None  # writable, independent of the buffer
+
+
+@hookimpl
+def visphy_register_configs(config_store):
+    config_store.store(group="engine", name="schema_manim", node=ManimConfig)
 
 
 @hookimpl

@@ -1,64 +1,93 @@
 """Run an untrusted program as a sandboxed child process (shared by the Python engines).
 
 `run_sandboxed` is the one isolation primitive the Python engines (Manim, Blender) use for
-model-written code. What it guarantees, and what it does not:
+model-written code. It runs the program under **bubblewrap** (``bwrap``, Debian package
+``bubblewrap``) and treats every process the program can see as readable by the program.
 
-* **Environment.** The child sees a scrubbed environment: ``PATH``, ``LANG``/``LC_ALL``
-  (``C.UTF-8``), ``TZ=UTC``, ``HOME=<workdir>``, ``TMPDIR=<workdir>/tmp``, ``PYTHONHASHSEED=0``,
-  plus ``env_extra``. A variable whose name contains KEY, TOKEN, SECRET, PASSWORD, PASSWD or
-  CREDENTIAL (case-insensitive) never passes, not even through ``env_extra``, unless the caller
-  names it explicitly in ``allow_secret_env`` (a deliberate, greppable opt-in).
-* **Working directory.** The child runs with ``cwd = workdir`` (created if missing, mode 0700).
-* **Resource limits** (``Limits``), set in the child before ``exec`` (``preexec_fn``):
+What is isolated
+----------------
+* **Namespaces.** Fresh network, PID, IPC, UTS and mount namespaces (and a cgroup namespace when
+  the kernel has one); the network namespace has only a down loopback, so every connect - TCP,
+  UDP, to 127.0.0.1 or anywhere - fails ("Network is unreachable"). In the PID namespace the
+  program sees only its own processes; ``/proc`` is a fresh procfs of that namespace.
+* **User.** The program runs as uid/gid 65534 (nobody) with no capabilities and
+  ``no_new_privs``: as root, bwrap itself sets up the namespaces (no user namespace) and the
+  command it starts inside is ``setpriv --reuid=65534 --regid=65534 --clear-groups
+  --no-new-privs``, so the program is *really* uid 65534 and cannot read the ``environ``,
+  ``mem`` or namespace links of bwrap (PID 1 of its namespace, root) nor ``setns()`` into them.
+  As a non-root user, bwrap uses an unprivileged user namespace (``--unshare-all --uid 65534``).
+  bwrap is started with the scrubbed environment below, so even its own ``/proc/1/environ``
+  holds no secret of the caller.
+* **Filesystem.** A new root (tmpfs) holding read-only binds of ``/usr`` (with ``/bin``,
+  ``/lib``, ``/lib64`` symlinks), ``/etc/fonts``, ``/etc/ld.so.cache`` and the fontconfig cache
+  when present, and only the interpreter installation(s) the program needs (``ro_paths``: for a
+  Python program its venv and the venv's base installation, see `python_ro_paths`). The work dir
+  is the only writable place: it is bound read-write at its own path, ``/tmp`` inside the
+  sandbox is ``<workdir>/tmp``, and ``/dev/shm`` is a small size-limited tmpfs. There is no
+  ``/etc/passwd``, no home directory, no project tree and none of the caller's files.
+* **Environment.** bwrap and the program start from an allow-list: ``PATH`` (the bound
+  interpreters' ``bin`` dirs and ``/usr/bin:/bin``), ``LANG``/``LC_ALL`` (``C.UTF-8``),
+  ``TZ=UTC``, ``HOME=<workdir>``, ``TMPDIR=<workdir>/tmp``, ``PYTHONHASHSEED=0``, plus
+  ``env_extra`` minus every secret-looking name (`visphy_core.secrets.is_secret_name`) unless the
+  caller names it in ``allow_secret_env`` (a deliberate, greppable opt-in).
+* **Resource limits** (``Limits``), set before ``exec`` and inherited through bwrap and setpriv:
   ``RLIMIT_CPU`` (SIGXCPU at ``cpu_s``, SIGKILL one second later), ``RLIMIT_AS`` (address
-  space, ``memory_mb``), ``RLIMIT_FSIZE`` (largest file the child may write), ``RLIMIT_NPROC``
-  (best effort: the kernel counts threads per *user*, so the limit is set to the user's current
-  count plus ``processes``; it is not enforced for root) and ``RLIMIT_CORE = 0``. Limits never
-  exceed the parent's own hard limits.
-* **Wall clock.** The child leads a new session / process group; at ``wall_s`` the whole group
-  gets SIGKILL, and so does whatever is left of the group after a normal exit (background
-  children). A child that deliberately leaves its process group (``setsid``) escapes this kill;
-  running it unprivileged (``run_as``) at least caps how many processes it may create.
-* **Network.** With ``Limits.network = False`` the child runs inside a fresh network namespace
-  (``unshare -n``; ``unshare -rn`` through a user namespace when not root): no interface but a
-  down loopback, so every connect fails with "Network is unreachable". When the kernel refuses
-  namespaces the child runs *with* network access and ``ProcessResult.network_isolated`` is
-  False: the caller must record that (``network_isolation_available`` says why up front).
-* **Output.** stdout and stderr are captured with a size cap (`MAX_OUTPUT_BYTES` per stream:
-  the head and the tail are kept, the middle is replaced by a one-line marker).
-* **Filesystem.** Full filesystem isolation (a private mount namespace / read-only root) is out
-  of scope for now; a later issue hardens it. What exists today: the child starts in its private
-  work dir, and when the caller runs as root it may pass ``run_as`` (`unprivileged_uid()`): the
-  work dir is handed to that user and the child drops to it (``setpriv --reuid/--regid
-  --clear-groups --no-new-privs``) after entering the network namespace, so it can write only
-  to its work dir and to world-writable places (``/tmp``, ``/dev/shm``) and cannot regain root.
-  It still *reads* whatever is world-readable. Without ``run_as`` the child has the caller's
-  own file permissions.
+  space, ``memory_mb``), ``RLIMIT_FSIZE`` (largest file, ``file_size_mb``), ``RLIMIT_NPROC``
+  (counted by the kernel per real uid: the current thread count of uid 65534 plus
+  ``processes``) and ``RLIMIT_CORE = 0``. The work dir's total allocated size (``disk_mb``) and
+  entry count (``max_files``) are watched a few times a second; over either, the sandbox is
+  killed (``limit_hit = "disk"``).
+* **Wall clock.** At ``wall_s`` bwrap's process group and bwrap are SIGKILLed; bwrap runs with
+  ``--die-with-parent`` and owns the PID namespace, so every process of the program dies with
+  it, including ``setsid``-detached grandchildren. A normal exit ends the namespace as well.
+  stdout and stderr are read with a size cap (`MAX_OUTPUT_BYTES` per stream: head and tail
+  kept, the middle replaced by a one-line marker) and never block past the kill.
+
+What is *not* isolated
+----------------------
+* The kernel is shared: a kernel exploit escapes any namespace sandbox (run visphy in a VM or a
+  container for that). There is no seccomp filter.
+* Everything under the read-only binds (``/usr``, the interpreter installations) is readable,
+  CPU time and memory bandwidth are shared, and the wall clock / CPU limits are the only
+  defence against a program that keeps the machine busy until then.
+* Files the program writes into its work dir are untrusted: callers must read them without
+  following symlinks (``O_NOFOLLOW``) and with size limits.
+
+When bwrap is missing or the kernel refuses namespaces, `run_sandboxed` **refuses** to run the
+program (``ProcessResult.refused``, the reason in ``stderr``), unless the user opted out
+explicitly: ``VISPHY_ALLOW_UNISOLATED=1`` or ``configure(allow_unisolated=True)`` (config key
+``sandbox.allow_unisolated``). An unisolated run keeps the scrubbed environment, the rlimits,
+the work dir as cwd and the process-group kill, and records ``isolation = "none"``.
 
 Limit hits are reported in ``ProcessResult.limit_hit``: ``"wall"`` (killed at ``wall_s``),
-``"cpu"`` (SIGXCPU, or SIGKILL after using the CPU budget), ``"memory"`` (the child died of an
-allocation failure: Python ``MemoryError``, ``std::bad_alloc``, "Cannot allocate memory" on
-stderr) or ``"file_size"`` (SIGXFSZ, or ``EFBIG``/"File too large" on stderr; Python ignores
-SIGXFSZ, so a Python child sees ``OSError: [Errno 27] File too large``).
+``"cpu"`` (SIGXCPU, or SIGKILL after using the CPU budget), ``"memory"`` (the program died of
+an allocation failure: Python ``MemoryError``, ``std::bad_alloc``, "Cannot allocate memory" on
+stderr), ``"file_size"`` (SIGXFSZ, or ``EFBIG``/"File too large" on stderr; Python ignores
+SIGXFSZ), ``"disk"`` (the work dir quota) or ``"processes"`` (``fork``/``clone`` refused:
+"Resource temporarily unavailable" / ``BlockingIOError`` on stderr).
 """
 
 from __future__ import annotations
 
-import collections
 import logging
 import math
 import os
 import resource
+import select
 import shutil
 import signal
 import stat
 import subprocess
+import sys
+import tempfile
 import threading
 import time
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Iterable
+from typing import Iterable, Sequence
+
+from visphy_core.secrets import is_secret_name
 
 log = logging.getLogger(__name__)
 
@@ -66,14 +95,21 @@ log = logging.getLogger(__name__)
 #: ``MAX_OUTPUT_BYTES - _HEAD_BYTES``.
 MAX_OUTPUT_BYTES = 1 << 20
 _HEAD_BYTES = 64 << 10
-#: Substrings (upper case) of environment variable names that never reach the child.
-SECRET_MARKERS = ("KEY", "TOKEN", "SECRET", "PASSWORD", "PASSWD", "CREDENTIAL")
-#: The unprivileged user (and group) a root caller can drop the child to: Debian's nobody/nogroup.
+#: The unprivileged user (and group) the program runs as: Debian's nobody/nogroup.
 NOBODY_UID = 65534
+#: Opt-out of isolation (``1``/``true``/``yes``): run untrusted code without a sandbox.
+ALLOW_UNISOLATED_ENV = "VISPHY_ALLOW_UNISOLATED"
+INSTALL_HINT = ("install bubblewrap (`apt-get install bubblewrap`, scripts/setup.sh) on a kernel "
+                "that allows namespaces, or opt out explicitly with sandbox.allow_unisolated=true "
+                f"/ {ALLOW_UNISOLATED_ENV}=1 (model-written code then runs unisolated)")
+#: How often the disk watchdog measures the work dir (seconds).
+DISK_POLL_S = 0.2
 
 _MEMORY_PATTERNS = ("MemoryError", "bad_alloc", "Cannot allocate memory", "out of memory",
                     "Out of memory")
 _FSIZE_PATTERNS = ("File too large", "[Errno 27]")
+_NPROC_PATTERNS = ("Resource temporarily unavailable", "BlockingIOError", "[Errno 11]",
+                   "fork: retry", "Cannot fork", "can't start new thread")
 
 
 @dataclass
@@ -83,79 +119,120 @@ class Limits:
     wall_s: float = 120.0
     cpu_s: float = 120.0
     memory_mb: int = 4096       # address space (RLIMIT_AS), not resident memory
-    file_size_mb: int = 1024    # largest single file the child may write
-    processes: int = 256        # best effort, see the module docstring
-    network: bool = False       # True: no network namespace (the child can reach the network)
+    file_size_mb: int = 1024    # largest single file the program may write
+    disk_mb: int = 2048         # total allocated size of the work dir (watchdog)
+    max_files: int = 20000      # entries in the work dir (watchdog)
+    processes: int = 256        # processes/threads of uid 65534 (RLIMIT_NPROC)
+    shm_mb: int = 64            # size of the private /dev/shm tmpfs
 
 
 @dataclass
 class ProcessResult:
     """What a sandboxed run did.
 
-    ``returncode`` is the child's exit status (negative: killed by that signal), or None when it
-    was killed at the wall-clock limit or could not be started at all (``stderr`` says why).
-    ``network_isolated`` is False when the child ran with network access (asked for, or
-    namespaces unavailable): callers must record it.
+    ``returncode`` is the program's exit status (negative: killed by that signal), or None when
+    it was killed at the wall-clock/disk limit or could not be started at all (``stderr`` says
+    why; ``refused`` is True when the sandbox refused to run untrusted code unisolated).
+    ``isolation`` is the isolation the program ran under (`isolation_level`), ``"none"`` for an
+    opted-out unisolated run.
     """
 
     returncode: int | None
     stdout: str
     stderr: str
     timed_out: bool
-    limit_hit: str | None   # "wall", "cpu", "memory", "file_size" or None
+    limit_hit: str | None   # "wall", "cpu", "memory", "file_size", "disk", "processes" or None
     wall_s: float
-    network_isolated: bool
+    isolation: str
     workdir: Path
+    refused: bool = False
 
 
-# ------------------------------------------------------------------------------ capabilities
+# ------------------------------------------------------------------------------ opt-out
+_allow_unisolated: bool | None = None
+
+
+def configure(*, allow_unisolated: bool | None = None) -> None:
+    """Process-wide settings (the run loop passes config key ``sandbox.allow_unisolated``).
+    None leaves the setting to the environment variable ``VISPHY_ALLOW_UNISOLATED``."""
+    global _allow_unisolated
+    _allow_unisolated = None if allow_unisolated is None else bool(allow_unisolated)
+
+
+def unisolated_allowed() -> bool:
+    """True when the user opted out of isolation explicitly (configure() or the env var)."""
+    if _allow_unisolated is not None:
+        return _allow_unisolated
+    return os.environ.get(ALLOW_UNISOLATED_ENV, "").strip().lower() in ("1", "true", "yes", "on")
+
+
+# ------------------------------------------------------------------------------ the probe
+def _bwrap_path() -> str | None:
+    found = shutil.which("bwrap")
+    if found is None and os.path.exists("/usr/bin/bwrap"):
+        found = "/usr/bin/bwrap"
+    return found
+
+
+def _setpriv_path() -> str | None:
+    found = shutil.which("setpriv")
+    if found is None and os.path.exists("/usr/bin/setpriv"):
+        found = "/usr/bin/setpriv"
+    return found
+
+
 @lru_cache(maxsize=1)
-def _netns_prefix() -> tuple[tuple[str, ...] | None, str]:
-    unshare = shutil.which("unshare")
-    if unshare is None:
-        return None, "unshare (util-linux) is not installed"
-    flags = ("-n",) if os.geteuid() == 0 else ("-rn",)
-    cmd = (unshare, *flags, "--")
+def _probe() -> tuple[str | None, str]:
+    """("root" | "user", isolation level) when bwrap works here, else (None, reason)."""
+    bwrap = _bwrap_path()
+    if bwrap is None:
+        return None, "bubblewrap (bwrap) is not installed"
+    root = os.geteuid() == 0
+    if root and _setpriv_path() is None:
+        return None, "setpriv (util-linux) is not installed"
+    mode = "root" if root else "user"
+    work = Path(tempfile.mkdtemp(prefix="visphy-bwrap-probe-"))
     try:
-        proc = subprocess.run([*cmd, "true"], capture_output=True, text=True, timeout=10,
-                              env={"PATH": os.environ.get("PATH", os.defpath)})
+        _prepare_workdir(work, mode)
+        env = {"PATH": "/usr/bin:/bin", "LANG": "C.UTF-8"}
+        cmd = _bwrap_argv(bwrap, mode, work, [], env, Limits(), ["/bin/sh", "-c", "id -u"])
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=30, env=env,
+                              cwd="/")
     except (OSError, subprocess.TimeoutExpired) as exc:
-        return None, f"`unshare {' '.join(flags)} true` failed to run: {exc}"
-    if proc.returncode != 0:
+        return None, f"bwrap failed to run: {exc}"
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    if proc.returncode != 0 or proc.stdout.strip() != str(NOBODY_UID):
         why = (proc.stderr or proc.stdout).strip().splitlines()
-        return None, (f"the kernel refuses network namespaces (`unshare {' '.join(flags)}`: "
+        return None, ("the kernel refuses the namespaces bwrap needs (bwrap: "
                       f"{why[-1] if why else f'exit {proc.returncode}'})")
-    return cmd, f"unshare {' '.join(flags)}"
+    spaces = "netns,pidns,ipcns,utsns,mountns" if root else "userns,netns,pidns,ipcns,utsns,mountns"
+    return mode, f"bwrap:uid{NOBODY_UID},{spaces}"
 
 
-def network_isolation_available() -> tuple[bool, str]:
-    """(True, "unshare -n") when children can run without any network, else (False, reason).
-
-    Probed once per process (runs ``unshare -n true``; ``unshare -rn`` when not root).
-    """
-    prefix, how = _netns_prefix()
-    return prefix is not None, how
+def isolation_available() -> tuple[bool, str]:
+    """(True, isolation level) when programs can run sandboxed here, else (False, reason).
+    Probed once per process (one trivial bwrap run)."""
+    mode, text = _probe()
+    return mode is not None, text
 
 
-def unprivileged_uid() -> int | None:
-    """The uid a root caller may pass as ``run_as`` (nobody), or None when dropping is impossible
-    (not root, or ``setpriv`` missing)."""
-    if os.geteuid() != 0 or shutil.which("setpriv") is None:
-        return None
-    return NOBODY_UID
+def isolation_level() -> str:
+    """What `run_sandboxed` gives a program here, for the run manifest: the bwrap isolation
+    (``"bwrap:uid65534,netns,pidns,ipcns,utsns,mountns"``), ``"none"`` when it is unavailable
+    and the user opted out, or ``"refused: <reason>"`` when untrusted code will not run."""
+    mode, text = _probe()
+    if mode is not None:
+        return text
+    return "none" if unisolated_allowed() else f"refused: {text}"
 
 
 # ------------------------------------------------------------------------------ environment
-def _is_secret(name: str) -> bool:
-    upper = name.upper()
-    return any(marker in upper for marker in SECRET_MARKERS)
-
-
 def child_env(workdir: Path, env_extra: dict[str, str] | None = None,
-              allow_secret_env: Iterable[str] = ()) -> dict[str, str]:
-    """The scrubbed environment of a sandboxed child (see the module docstring)."""
+              allow_secret_env: Iterable[str] = (), path: str | None = None) -> dict[str, str]:
+    """The scrubbed environment of a sandboxed program (see the module docstring)."""
     env = {
-        "PATH": os.environ.get("PATH") or os.defpath,
+        "PATH": path or os.environ.get("PATH") or os.defpath,
         "LANG": "C.UTF-8",
         "LC_ALL": "C.UTF-8",
         "TZ": "UTC",
@@ -166,7 +243,7 @@ def child_env(workdir: Path, env_extra: dict[str, str] | None = None,
     allowed = set(allow_secret_env)
     dropped = []
     for name, value in (env_extra or {}).items():
-        if _is_secret(name) and name not in allowed:
+        if is_secret_name(str(name)) and name not in allowed:
             dropped.append(name)
             continue
         env[str(name)] = str(value)
@@ -174,6 +251,37 @@ def child_env(workdir: Path, env_extra: dict[str, str] | None = None,
         log.warning("sandbox: not passing secret-looking variables %s (name them in "
                     "allow_secret_env to pass them)", ", ".join(sorted(dropped)))
     return env
+
+
+def python_ro_paths(python: str | os.PathLike) -> list[Path]:
+    """The directories a Python interpreter needs read-only in the sandbox: its venv (when it
+    is one) and the installation the venv is based on. ``sys.executable`` gives this process's
+    own ``sys.prefix`` and ``sys.base_prefix``."""
+    exe = Path(python)
+    if not exe.is_absolute():
+        exe = Path(shutil.which(str(exe)) or exe).absolute()
+    out: list[Path] = []
+    if os.path.realpath(exe) == os.path.realpath(sys.executable) or exe == Path(sys.executable):
+        out += [Path(sys.prefix), Path(sys.base_prefix)]
+    venv = exe.parent.parent
+    cfg = venv / "pyvenv.cfg"
+    if cfg.is_file():
+        out.append(venv)
+        try:
+            for line in cfg.read_text().splitlines():
+                key, _, value = line.partition("=")
+                if key.strip() == "home" and value.strip():
+                    out.append(Path(value.strip()).parent)
+        except OSError:
+            pass
+    real = Path(os.path.realpath(exe))
+    out.append(real.parent.parent)
+    seen: list[Path] = []
+    for p in out:
+        p = Path(os.path.realpath(p))
+        if p not in seen and p.is_dir():
+            seen.append(p)
+    return seen
 
 
 # ------------------------------------------------------------------------------ limits
@@ -243,200 +351,376 @@ def _make_preexec(rlimits: list[tuple[int, tuple[int, int]]]):
 
 # ------------------------------------------------------------------------------ output capture
 class _Capture:
-    """Drain one pipe to EOF, keeping the head and the tail (bounded memory)."""
+    """Drain one pipe (a raw fd we own) to EOF or until told to stop, keeping the head and the
+    tail (bounded memory). Never blocks past `stop`: the fd is polled with a short timeout."""
 
-    def __init__(self, stream, cap: int = MAX_OUTPUT_BYTES):
-        self.stream = stream
+    def __init__(self, fd: int, cap: int = MAX_OUTPUT_BYTES):
+        self.fd = fd
+        os.set_blocking(fd, False)
         self.head = bytearray()
-        self.tail: collections.deque[bytes] = collections.deque()
-        self.tail_len = 0
+        self.tail = bytearray()
         self.dropped = 0
         self.head_cap = min(_HEAD_BYTES, cap)
         self.tail_cap = cap - self.head_cap
+        self.stopping = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
 
+    def _take(self, chunk: bytes) -> None:
+        room = self.head_cap - len(self.head)
+        if room > 0:
+            self.head += chunk[:room]
+            chunk = chunk[room:]
+        if chunk:
+            self.tail += chunk
+            excess = len(self.tail) - self.tail_cap
+            if excess > 0:
+                del self.tail[:excess]
+                self.dropped += excess
+
     def _run(self) -> None:
-        read = self.stream.read1 if hasattr(self.stream, "read1") else self.stream.read
-        try:
-            while True:
-                chunk = read(65536)
-                if not chunk:
-                    break
-                room = self.head_cap - len(self.head)
-                if room > 0:
-                    self.head += chunk[:room]
-                    chunk = chunk[room:]
-                if chunk:
-                    self.tail.append(chunk)
-                    self.tail_len += len(chunk)
-                    while self.tail_len - len(self.tail[0]) >= self.tail_cap:
-                        self.dropped += len(self.tail[0])
-                        self.tail_len -= len(self.tail[0])
-                        self.tail.popleft()
-        except (OSError, ValueError):
-            pass
+        poller = select.poll()
+        poller.register(self.fd, select.POLLIN | select.POLLHUP | select.POLLERR)
+        while True:
+            try:
+                events = poller.poll(100)
+            except InterruptedError:
+                continue
+            except OSError:
+                return
+            if not events:
+                if self.stopping.is_set():
+                    return
+                continue
+            try:
+                chunk = os.read(self.fd, 65536)
+            except BlockingIOError:
+                continue
+            except OSError:
+                return
+            if not chunk:
+                return
+            self._take(chunk)
 
     def text(self, join_timeout: float) -> str:
+        self.stopping.set()
         self.thread.join(join_timeout)
-        tail = b"".join(self.tail)
-        excess = max(0, len(tail) - self.tail_cap)
-        dropped = self.dropped + excess
-        middle = f"\n[... {dropped} bytes of output dropped ...]\n".encode() if dropped else b""
-        return (bytes(self.head) + middle + tail[excess:]).decode("utf-8", "replace")
+        try:
+            os.close(self.fd)
+        except OSError:
+            pass
+        middle = (f"\n[... {self.dropped} bytes of output dropped ...]\n".encode()
+                  if self.dropped else b"")
+        return (bytes(self.head) + middle + bytes(self.tail)).decode("utf-8", "replace")
 
 
-def _feed(stream, data: bytes) -> None:
+def _feed(fd: int, data: bytes) -> None:
     try:
-        stream.write(data)
-    except (BrokenPipeError, OSError, ValueError):
+        view = memoryview(data)
+        while view:
+            n = os.write(fd, view)
+            view = view[n:]
+    except OSError:
         pass
     finally:
         try:
-            stream.close()
+            os.close(fd)
         except OSError:
             pass
 
 
-def _kill_group(pgid: int) -> None:
+def _kill(pid: int, group: bool) -> None:
     try:
-        os.killpg(pgid, signal.SIGKILL)
+        if group:
+            os.killpg(pid, signal.SIGKILL)
+        else:
+            os.kill(pid, signal.SIGKILL)
     except (ProcessLookupError, PermissionError):
         pass
 
 
+# ------------------------------------------------------------------------------ disk watchdog
+def disk_usage(root: Path, stop_at: tuple[int, int] | None = None) -> tuple[int, int]:
+    """(allocated bytes, entries) below ``root``, without following links; stops early once
+    either exceeds ``stop_at``."""
+    total, entries = 0, 0
+    stack = [str(root)]
+    while stack:
+        path = stack.pop()
+        try:
+            it = os.scandir(path)
+        except OSError:
+            continue
+        with it:
+            for entry in it:
+                entries += 1
+                try:
+                    st = entry.stat(follow_symlinks=False)
+                except OSError:
+                    continue
+                total += st.st_blocks * 512
+                if entry.is_dir(follow_symlinks=False):
+                    stack.append(entry.path)
+                if stop_at and (total > stop_at[0] or entries > stop_at[1]):
+                    return total, entries
+    return total, entries
+
+
+def limit_from_text(text: str) -> str | None:
+    """The resource limit an error message points at (``"memory"``, ``"file_size"``,
+    ``"processes"``) or None: for runners that catch the program's exception themselves."""
+    if any(p in text for p in _MEMORY_PATTERNS):
+        return "memory"
+    if any(p in text for p in _FSIZE_PATTERNS):
+        return "file_size"
+    if any(p in text for p in _NPROC_PATTERNS):
+        return "processes"
+    return None
+
+
+# ------------------------------------------------------------------------------ reading results
+def read_untrusted(path: str | os.PathLike, max_bytes: int) -> bytes | None:
+    """A regular file a sandboxed program could have tampered with: no symlinks (a link to a
+    file only the host may read must not leak into the run), no devices or FIFOs, at most
+    ``max_bytes``; None otherwise."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | getattr(os, "O_NONBLOCK", 0))
+    except OSError:
+        return None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode) or info.st_size > max_bytes:
+            return None
+        chunks, left = [], info.st_size
+        while left > 0:
+            chunk = os.read(fd, min(left, 1 << 24))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            left -= len(chunk)
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
+
+
 # ------------------------------------------------------------------------------ work dir
-def _prepare_workdir(workdir: Path, run_as: int | None) -> None:
+def _prepare_workdir(workdir: Path, mode: str | None) -> None:
     workdir.mkdir(parents=True, exist_ok=True)
     (workdir / "tmp").mkdir(exist_ok=True)
     os.chmod(workdir, 0o700)
-    if run_as is None:
+    if mode != "root":
         return
-    for parent in workdir.parents:
-        mode = parent.stat().st_mode
-        if not mode & stat.S_IXOTH:
-            raise ValueError(f"run_as={run_as}: {parent} is not searchable by other users, so "
-                             f"the child could not reach its work dir {workdir}")
     for root, dirs, files in os.walk(workdir):
-        os.chown(root, run_as, run_as)
+        os.chown(root, NOBODY_UID, NOBODY_UID)
         for name in dirs + files:
-            os.chown(os.path.join(root, name), run_as, run_as, follow_symlinks=False)
+            os.chown(os.path.join(root, name), NOBODY_UID, NOBODY_UID, follow_symlinks=False)
+
+
+def _under(path: str, roots: Iterable[str]) -> bool:
+    return any(path == r or path.startswith(r.rstrip("/") + "/") for r in roots)
+
+
+def _bwrap_argv(bwrap: str, mode: str, workdir: Path, ro_paths: Sequence[Path],
+                env: dict[str, str], limits: Limits, argv: Sequence[str]) -> list[str]:
+    """The bwrap command line (see the module docstring)."""
+    cmd = [bwrap]
+    if mode == "root":
+        cmd += ["--unshare-ipc", "--unshare-pid", "--unshare-net", "--unshare-uts",
+                "--unshare-cgroup-try"]
+    else:
+        cmd += ["--unshare-all", "--uid", str(NOBODY_UID), "--gid", str(NOBODY_UID)]
+    cmd += ["--die-with-parent", "--new-session", "--clearenv"]
+    for name, value in env.items():
+        cmd += ["--setenv", name, value]
+    cmd += ["--ro-bind", "/usr", "/usr", "--symlink", "usr/lib", "/lib",
+            "--symlink", "usr/lib64", "/lib64", "--symlink", "usr/bin", "/bin",
+            "--proc", "/proc", "--dev", "/dev"]
+    made: set[str] = {"/", "/usr", "/proc", "/dev", "/tmp"}
+
+    def parents(target: str, mounted: Iterable[str]) -> list[str]:
+        out = []
+        parts = Path(target).parts[1:-1]
+        cur = ""
+        for part in parts:
+            cur += "/" + part
+            if cur in made or _under(cur, mounted):
+                continue
+            made.add(cur)
+            out += ["--perms", "0755", "--dir", cur]
+        return out
+
+    # /tmp is the work dir's tmp/ (mount points below /tmp land there, on the host)
+    work = str(workdir)
+    cmd += ["--bind", str(workdir / "tmp"), "/tmp"]
+    # read-only binds: drop paths below another bound path (nested binds are redundant)
+    ro = sorted({os.path.realpath(p) for p in ro_paths if os.path.isdir(p)})
+    ro = [p for p in ro if not _under(p, ["/usr"]) and
+          not _under(p, [q for q in ro if q != p])]
+    system = [p for p in ("/etc/fonts", "/etc/ld.so.cache", "/var/cache/fontconfig")
+              if os.path.exists(p)]
+    mounted: list[str] = ["/usr"]
+    for p in ro + system:
+        cmd += parents(p, mounted)
+        cmd += ["--ro-bind", p, p]
+        mounted.append(p)
+    if os.path.isdir("/etc") and "/etc/mtab" not in mounted:  # Blender asks for the mount list
+        cmd += parents("/etc/mtab", mounted) + ["--symlink", "/proc/self/mounts", "/etc/mtab"]
+    # the work dir itself, read-write at its own path
+    cmd += parents(work, mounted)
+    cmd += ["--bind", work, work]
+    cmd += ["--perms", "1777", "--size", str(max(1, int(limits.shm_mb)) << 20),
+            "--tmpfs", "/dev/shm"]
+    cmd += ["--chdir", work]
+    if mode == "root":
+        cmd += [_setpriv_path() or "/usr/bin/setpriv", f"--reuid={NOBODY_UID}",
+                f"--regid={NOBODY_UID}", "--clear-groups", "--no-new-privs", "--"]
+    return cmd + [str(a) for a in argv]
+
+
+def _refused(workdir: Path, why: str, refused: bool = True) -> ProcessResult:
+    return ProcessResult(returncode=None, stdout="", stderr=why, timed_out=False, limit_hit=None,
+                         wall_s=0.0, isolation="none", workdir=workdir, refused=refused)
 
 
 # ------------------------------------------------------------------------------ the primitive
 def run_sandboxed(argv: list[str], workdir: Path, limits: Limits,
                   env_extra: dict[str, str] | None = None, stdin: bytes | None = None, *,
-                  allow_secret_env: Iterable[str] = (), run_as: int | None = None
-                  ) -> ProcessResult:
+                  ro_paths: Iterable[str | os.PathLike] | None = None,
+                  allow_secret_env: Iterable[str] = ()) -> ProcessResult:
     """Run ``argv`` in the sandbox described in the module docstring, and wait for it.
 
-    ``workdir`` becomes the child's private cwd, HOME and (``tmp/``) TMPDIR. ``env_extra`` adds
-    variables (secret-looking names are dropped unless listed in ``allow_secret_env``).
-    ``stdin`` is fed to the child (else it reads /dev/null). ``run_as`` (root callers only; see
-    `unprivileged_uid`) chowns the work dir to that uid/gid and runs the child as that user with
-    no way back to root; the caller must make sure that user can reach the program and
-    everything it loads (an interpreter under a 0700 ``/root`` is *not* reachable, and a dynamic
-    linker may then silently pick another libpython): probe once with the real interpreter, as
-    the Manim engine's ``sandbox_user`` does. Never raises for anything the child does; raises
-    ValueError for a bad request (``run_as`` when not root, or a work dir other users cannot
-    reach).
+    ``workdir`` becomes the program's private cwd, HOME and (``tmp/``) TMPDIR, the only writable
+    place; as root it is handed to uid 65534. ``ro_paths`` are the directories the program needs
+    read-only besides ``/usr`` (default: `python_ro_paths` of ``argv[0]`` when that is a Python
+    interpreter). ``env_extra`` adds variables (secret-looking names are dropped unless listed in
+    ``allow_secret_env``). ``stdin`` is fed to the program (else it reads /dev/null). Never
+    raises for anything the program does; a sandbox that cannot start is a result with
+    ``returncode=None`` and the reason in ``stderr`` (``refused=True`` when isolation is
+    unavailable and the user did not opt out).
     """
     workdir = Path(workdir).resolve()
-    if run_as is not None and os.geteuid() != 0:
-        raise ValueError("run_as needs a root caller")
-    if run_as is not None and shutil.which("setpriv") is None:
-        raise ValueError("run_as needs setpriv (util-linux)")
-    _prepare_workdir(workdir, run_as)
-    env = child_env(workdir, env_extra, allow_secret_env)
-
     cmd = [str(a) for a in argv]
     if not cmd:
         raise ValueError("argv is empty")
-    # Resolve the program here: behind unshare/setpriv a missing binary would only show up as
-    # their exit status 127.
+    mode, level = _probe()
+    if mode is None and not unisolated_allowed():
+        return _refused(workdir, f"sandbox unavailable, refusing to run untrusted code: {level}; "
+                                 f"{INSTALL_HINT}")
+    _prepare_workdir(workdir, mode)
+    if ro_paths is None:
+        ro_paths = python_ro_paths(cmd[0]) if "python" in os.path.basename(cmd[0]) else []
+    ro_list = [Path(p) for p in ro_paths]
+    if mode is not None:
+        bins = [str(p / "bin") for p in ro_list if (p / "bin").is_dir()]
+        path = ":".join(dict.fromkeys(bins + ["/usr/local/bin", "/usr/bin", "/bin"]))
+    else:
+        path = None
+    env = child_env(workdir, env_extra, allow_secret_env, path=path)
+
+    # Resolve the program here: behind bwrap a missing binary would only show up as exit 1.
     exe = cmd[0] if os.sep in cmd[0] else shutil.which(cmd[0], path=env["PATH"])
     if exe is None or not os.path.isfile(os.path.join(workdir, exe)) or not os.access(
             os.path.join(workdir, exe), os.X_OK):
-        return ProcessResult(returncode=None, stdout="",
-                             stderr=f"could not start {cmd[0]}: not found or not executable",
-                             timed_out=False, limit_hit=None, wall_s=0.0,
-                             network_isolated=False, workdir=workdir)
-    network_isolated = False
-    if not limits.network:
-        prefix, how = _netns_prefix()
-        if prefix is not None:
-            network_isolated = True
-        else:
-            log.warning("sandbox: running %s WITH network access: %s", cmd[:1], how)
-    if run_as is not None:
-        cmd = [shutil.which("setpriv") or "setpriv", f"--reuid={run_as}", f"--regid={run_as}",
-               "--clear-groups", "--no-new-privs", "--", *cmd]
-    if network_isolated:
-        cmd = [*prefix, *cmd]  # type: ignore[misc]
+        return _refused(workdir, f"could not start {cmd[0]}: not found or not executable",
+                        refused=False)
+    if mode is not None:
+        full = [*_bwrap_argv(_bwrap_path() or "bwrap", mode, workdir, ro_list, env, limits,
+                             cmd)]
+        isolation = level
+        uid = NOBODY_UID if mode == "root" else os.getuid()
+    else:
+        log.warning("sandbox: running %s UNISOLATED (%s; opted out explicitly)", cmd[:1], level)
+        full, isolation, uid = cmd, "none", os.getuid()
 
-    uid = run_as if run_as is not None else os.getuid()
     preexec = _make_preexec(_rlimits(limits, uid))
+    out_r, out_w = os.pipe()
+    err_r, err_w = os.pipe()
+    in_r, in_w = os.pipe() if stdin is not None else (None, None)
     start = time.monotonic()
     try:
         proc = subprocess.Popen(
-            cmd, cwd=workdir, env=env, stdin=subprocess.PIPE if stdin is not None else
-            subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-            start_new_session=True, preexec_fn=preexec, close_fds=True)
+            full, cwd=workdir, env=env, stdin=in_r if in_r is not None else subprocess.DEVNULL,
+            stdout=out_w, stderr=err_w, start_new_session=True, preexec_fn=preexec,
+            close_fds=True)
     except OSError as exc:
-        return ProcessResult(returncode=None, stdout="", stderr=f"could not start {cmd[0]}: {exc}",
-                             timed_out=False, limit_hit=None, wall_s=time.monotonic() - start,
-                             network_isolated=network_isolated, workdir=workdir)
-    out, err = _Capture(proc.stdout), _Capture(proc.stderr)
-    if stdin is not None:
-        threading.Thread(target=_feed, args=(proc.stdin, stdin), daemon=True).start()
+        for fd in (out_r, out_w, err_r, err_w, in_r, in_w):
+            if fd is not None:
+                os.close(fd)
+        res = _refused(workdir, f"could not start {full[0]}: {exc}", refused=False)
+        res.isolation = isolation
+        return res
+    finally:
+        for fd in (out_w, err_w, in_r):
+            if fd is not None:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+    out, err = _Capture(out_r), _Capture(err_r)
+    if in_w is not None:
+        threading.Thread(target=_feed, args=(in_w, stdin), daemon=True).start()
 
-    timed_out = threading.Event()
+    hit: list[str] = []
+    hit_lock = threading.Lock()
+    done = threading.Event()
 
-    def on_wall() -> None:
-        timed_out.set()
-        _kill_group(proc.pid)
+    def kill_all(reason: str) -> None:
+        with hit_lock:
+            if not hit:
+                hit.append(reason)
+        _kill(proc.pid, group=True)
+        _kill(proc.pid, group=False)
 
-    timer = threading.Timer(max(0.0, float(limits.wall_s)), on_wall)
-    timer.daemon = True
-    timer.start()
+    def watch() -> None:
+        deadline = start + max(0.0, float(limits.wall_s))
+        quota = (int(limits.disk_mb) << 20, int(limits.max_files))
+        while not done.is_set():
+            now = time.monotonic()
+            if now >= deadline:
+                kill_all("wall")
+                return
+            used, entries = disk_usage(workdir, stop_at=quota)
+            if used > quota[0] or entries > quota[1]:
+                kill_all("disk")
+                return
+            done.wait(min(DISK_POLL_S, max(0.0, deadline - time.monotonic())))
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
     try:
         try:
             _pid, status, usage = os.wait4(proc.pid, 0)
         except ChildProcessError:  # reaped elsewhere (should not happen)
             status, usage = 0, None
-    except BaseException:  # e.g. KeyboardInterrupt in the host: never leave the child running
-        _kill_group(proc.pid)
-        proc.kill()
+    except BaseException:  # e.g. KeyboardInterrupt in the host: never leave the program running
+        kill_all("interrupted")
         proc.wait()
+        out.text(1.0)
+        err.text(1.0)
         raise
     finally:
-        timer.cancel()
+        done.set()
     wall = time.monotonic() - start
     proc.returncode = os.waitstatus_to_exitcode(status)
-    _kill_group(proc.pid)  # stray background children of a finished program
-    stdout, stderr = out.text(5.0), err.text(5.0)
-    for stream in (proc.stdout, proc.stderr):
-        try:
-            stream.close()
-        except OSError:
-            pass
+    if mode is None:
+        _kill(proc.pid, group=True)  # stray background children of an unisolated program
+    watcher.join(2.0)
+    stdout, stderr = out.text(2.0), err.text(2.0)
 
     returncode: int | None = proc.returncode
-    limit_hit: str | None = None
+    if mode is not None and returncode is not None and 128 < returncode < 128 + 65:
+        returncode = -(returncode - 128)  # bwrap reports a signal death as 128 + signal
+    limit_hit: str | None = hit[0] if hit and hit[0] in ("wall", "disk") else None
     cpu_used = (usage.ru_utime + usage.ru_stime) if usage is not None else 0.0
-    if timed_out.is_set():
-        limit_hit, returncode = "wall", None
+    if limit_hit is not None:
+        returncode = None
     elif returncode == -signal.SIGXCPU or (returncode == -signal.SIGKILL
                                             and cpu_used >= math.ceil(limits.cpu_s) - 0.05):
         limit_hit = "cpu"
     elif returncode == -signal.SIGXFSZ:
         limit_hit = "file_size"
     elif returncode != 0:
-        tail = stderr[-8000:]
-        if any(p in tail for p in _MEMORY_PATTERNS):
-            limit_hit = "memory"
-        elif any(p in tail for p in _FSIZE_PATTERNS):
-            limit_hit = "file_size"
+        limit_hit = limit_from_text(stderr[-8000:])
     return ProcessResult(returncode=returncode, stdout=stdout, stderr=stderr,
                          timed_out=limit_hit == "wall", limit_hit=limit_hit, wall_s=wall,
-                         network_isolated=network_isolated, workdir=workdir)
+                         isolation=isolation, workdir=workdir)
