@@ -171,3 +171,55 @@ def test_oracle_program_of_a_3d_scene_reproduces_the_ground_truth(engine, mini_r
 
     truth = scene.reference_frames()
     assert np.mean([psnr_frame(a, b) for a, b in zip(truth, result.frames)]) > 35
+
+
+# ------------------------------------------------------------------------------ isolation
+
+def test_isolation_level_is_recorded(engine):
+    from visphy_core.sandbox.browser import browser_isolation_level, netns_prefix
+
+    result = engine.render(CLOCK_PROGRAM, CONTRACT)
+    assert result.ok
+    level = browser_isolation_level()
+    assert result.isolation == level
+    if netns_prefix()[0] is not None:
+        assert level == "chromium:netns,no-egress"
+
+
+def test_without_a_namespace_untrusted_pages_are_refused_unless_allowed(monkeypatch):
+    """A kernel that refuses namespaces: no page runs until the user opts out explicitly."""
+    from visphy_core.sandbox import browser
+    from visphy_plugins.engines.browser_base import tick_ms_for
+
+    monkeypatch.setitem(browser._NETNS_PROBE, "result", (None, "unshare -n refused: test"))
+    monkeypatch.setitem(browser._CONFIG, "allow_unisolated", None)
+    monkeypatch.delenv(browser.ALLOW_UNISOLATED_ENV, raising=False)
+    assert browser.browser_isolation_level().startswith("unavailable: ")
+    page_html = CLOCK_PROGRAM.source
+    with browser.BrowserPool() as pool:
+        with pytest.raises(browser.SandboxUnavailable, match="allow_unisolated"):
+            pool.render_page(page_html, {}, [0.0], width=64, height=64, timeout_s=10,
+                             tick_ms=tick_ms_for(5))
+    assert issubclass(browser.SandboxUnavailable, browser.BrowserUnavailable)
+    monkeypatch.setenv(browser.ALLOW_UNISOLATED_ENV, "1")
+    assert browser.browser_isolation_level() == "none"
+    monkeypatch.delenv(browser.ALLOW_UNISOLATED_ENV)
+    browser.configure(allow_unisolated=True)
+    assert browser.browser_isolation_level() == "none"
+    with browser.BrowserPool() as pool:
+        cap = pool.render_page(page_html, {}, [0.0, 200.0], width=128, height=128, timeout_s=20,
+                               tick_ms=tick_ms_for(5))
+    assert cap.isolation == "none" and len(cap.frames) == 2, (cap.errors, cap.infra_error)
+
+
+def test_netns_probe_finds_an_empty_namespace():
+    from visphy_core.sandbox.browser import netns_prefix
+
+    prefix, note = netns_prefix()
+    if prefix is None:
+        pytest.skip(f"no network namespace here: {note}")
+    import subprocess
+
+    out = subprocess.run(prefix + ["cat", "/proc/self/net/dev"], capture_output=True, text=True,
+                         timeout=10).stdout
+    assert [line.split(":")[0].strip() for line in out.splitlines()[2:]] == ["lo"]
