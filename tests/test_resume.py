@@ -1,0 +1,189 @@
+"""A run killed at a random point resumes on rerun: identical rows to an uninterrupted run, no
+duplicate or missing row, zero repeated model calls; SIGTERM/SIGINT close the run with a partial
+summary and exit 143/130."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from conftest import REPO
+
+pytestmark = pytest.mark.browser
+
+ARGS = ["model=oracle", "model.name=counting", "engine=threejs", "dataset=mini",
+        "dataset.limit=4", "tracking=none", "run.progress=false"]
+COMPARED = ("scene_id", "model_success", "system_success", "fallback", "attempts",
+            "failure_class", "first_failure_class", "frame_digests", "flags")
+
+
+@pytest.fixture(scope="module")
+def script(mini_scenes) -> dict:
+    ids = [s.scene_id for s in mini_scenes[:4]]
+    # mixed outcomes: ok, repaired after a runtime error, fallback after two failures, ok
+    return {ids[1]: ["broken", "oracle"], ids[2]: ["broken", "no_code"]}
+
+
+def _env(home: Path, script: dict) -> dict:
+    env = dict(os.environ, VISPHY_HOME=str(home), VISPHY_COUNTER=str(home / "model_calls.txt"),
+               VISPHY_SCRIPT=json.dumps(script), VISPHY_MODEL_DELAY="0.2")
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO / "tests"), env.get("PYTHONPATH", "")])
+    return env
+
+
+def _start(home: Path, script: dict) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, str(REPO / "tests" / "scripted_cli.py"), *ARGS],
+                            cwd=REPO, env=_env(home, script), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+
+
+def _run(home: Path, script: dict) -> subprocess.CompletedProcess:
+    proc = _start(home, script)
+    out, _ = proc.communicate(timeout=600)
+    assert proc.returncode == 0, out[-4000:]
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out)
+
+
+def _rows_done(home: Path) -> int:
+    return sum(len([ln for ln in p.read_text().splitlines() if ln.endswith("}")])
+               for p in (home / "runs").glob("*/results.jsonl")) if (home / "runs").is_dir() else 0
+
+
+def _wait_for_rows(proc: subprocess.Popen, home: Path, n: int, timeout: float = 300) -> None:
+    end = time.monotonic() + timeout
+    while _rows_done(home) < n:
+        assert proc.poll() is None, f"exited {proc.returncode} before {n} row(s)"
+        assert time.monotonic() < end, "no row in time"
+        time.sleep(0.02)
+
+
+def _calls(home: Path) -> list[str]:
+    path = home / "model_calls.txt"
+    return path.read_text().splitlines() if path.is_file() else []
+
+
+def _the_run(home: Path) -> Path:
+    (run_dir,) = (home / "runs").iterdir()  # a resumed run reuses its directory
+    return run_dir
+
+
+def _comparable(run_dir: Path) -> dict[str, dict]:
+    lines = (run_dir / "results.jsonl").read_text().splitlines()
+    rows = [json.loads(line) for line in lines]
+    ids = [r["scene_id"] for r in rows]
+    assert len(ids) == len(set(ids)), f"duplicate rows: {ids}"
+    table = pd.read_parquet(run_dir / "results.parquet")
+    assert sorted(table["scene_id"]) == sorted(ids)
+    out = {}
+    for r in rows:
+        scores = {k: v for k, v in r.items() if k.startswith("score_")}
+        out[r["scene_id"]] = {**{k: r[k] for k in COMPARED}, **scores}
+    return out
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory, mini_root, script):
+    import shutil
+
+    home = tmp_path_factory.mktemp("uninterrupted")
+    shutil.copytree(mini_root, home / "data" / mini_root.name)
+    _run(home, script)
+    run_dir = _the_run(home)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["status"] == "finished" and summary["n_scenes"] == 4
+    rows = _comparable(run_dir)
+    classes = {r["failure_class"] for r in rows.values()}
+    assert {None, "no_code"} <= classes and any(r["attempts"] == 2 for r in rows.values())
+    return rows, _calls(home), summary
+
+
+def _fresh_home(tmp_path, mini_root) -> Path:
+    import shutil
+
+    home = tmp_path / "home"
+    shutil.copytree(mini_root, home / "data" / mini_root.name)
+    return home
+
+
+@pytest.mark.parametrize("attempt", range(2))
+def test_sigkill_at_a_random_point_then_rerun_gives_identical_results(
+        tmp_path, mini_root, script, reference, attempt):
+    ref_rows, ref_calls, ref_summary = reference
+    home = _fresh_home(tmp_path, mini_root)
+    seed = random.randrange(1 << 30)
+    rng = random.Random(seed)
+    proc = _start(home, script)
+    try:
+        _wait_for_rows(proc, home, rng.randint(1, 2))
+        time.sleep(rng.uniform(0.0, 1.5))
+        done_at_kill = _rows_done(home)
+        proc.send_signal(signal.SIGKILL)
+        proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == -signal.SIGKILL
+    assert 1 <= done_at_kill < 4, f"seed {seed}: killed after {done_at_kill} rows"
+    run_dir = _the_run(home)
+    assert json.loads((run_dir / "manifest.json").read_text())["status"] == "running"
+    calls_before = len(_calls(home))
+
+    out = _run(home, script).stdout
+    assert "resuming" in out
+    rows = _comparable(_the_run(home))
+    assert rows == ref_rows, f"seed {seed}"
+    calls = _calls(home)
+    assert len(calls) == len(ref_calls), f"seed {seed}: {calls} vs {ref_calls}"
+    assert len(calls) >= calls_before
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["status"] == "finished" and summary["resumed_rows"] >= 1
+    assert summary["metrics"] == ref_summary["metrics"]
+    assert summary["failures"] == ref_summary["failures"]
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_a_signal_writes_a_partial_summary_and_the_rerun_resumes(
+        tmp_path, mini_root, script, reference, sig, code):
+    ref_rows, ref_calls, _ = reference
+    home = _fresh_home(tmp_path, mini_root)
+    proc = _start(home, script)
+    try:
+        _wait_for_rows(proc, home, 1)
+        proc.send_signal(sig)
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == code, out[-3000:]
+    assert "Traceback" not in out and "rerun the same command to resume" in out
+    run_dir = _the_run(home)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["status"] == "interrupted" and summary["interrupted_by"] == sig.name
+    assert 1 <= summary["n_scenes"] < 4 and summary["n_selected"] == 4
+    assert json.loads((run_dir / "manifest.json").read_text())["status"] == "interrupted"
+    assert len(pd.read_parquet(run_dir / "results.parquet")) == summary["n_scenes"]
+
+    _run(home, script)
+    assert _comparable(_the_run(home)) == ref_rows
+    assert len(_calls(home)) == len(ref_calls)
+    assert json.loads((run_dir / "summary.json").read_text())["status"] == "finished"
+
+
+def test_a_finished_run_is_not_resumed(tmp_path, mini_root, script, reference):
+    """Rerunning after a finished run starts a new run directory (every row recomputed from the
+    cache, no model call repeated)."""
+    _, ref_calls, _ = reference
+    home = _fresh_home(tmp_path, mini_root)
+    _run(home, script)
+    _run(home, script)
+    assert len(list((home / "runs").iterdir())) == 2
+    assert len(_calls(home)) == len(ref_calls)
