@@ -359,9 +359,11 @@ def classify_capture(cap: PageCapture, contract: RenderContract) -> RenderResult
     elif cap.timed_out:
         result.failure = FailureClass.TIMEOUT
         result.error = f"no result within {contract.timeout_s:g} s (infinite loop?)"
-    elif cap.navigations:
+    elif cap.navigations or any(u.split(" ", 1)[0] in ("navigation", "popup") for u in active):
+        leaving = cap.navigations or [u for u in active
+                                      if u.split(" ", 1)[0] in ("navigation", "popup")]
         result.failure = FailureClass.SANDBOX_VIOLATION
-        result.error = f"the page tried to leave: {redact(cap.navigations[0])}"
+        result.error = f"the page tried to leave: {redact(leaving[0])}"
     elif active:
         result.failure = FailureClass.SANDBOX_VIOLATION
         what = "network or file access" if not active[0].startswith("webrtc") else "WebRTC"

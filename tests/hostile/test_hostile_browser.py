@@ -112,8 +112,7 @@ CASES = [
     ("window_open", "p5", f"window.open('{CANARY_URL}/popup');", "", V),
     ("worker_fetch", "threejs",
      "const src = `fetch('" + CANARY_URL + "/worker').catch(() => {}); postMessage(1);`;"
-     "new Worker(URL.createObjectURL(new Blob([src], {type: 'text/javascript'})));", "",
-     (V, OK)),
+     "new Worker(URL.createObjectURL(new Blob([src], {type: 'text/javascript'})));", "", V),
     ("top_level_infinite_loop", "threejs", "for (;;) {}", "", FailureClass.TIMEOUT),
     ("infinite_loop_in_raf", "svg",
      "requestAnimationFrame(function f(t) { if (t > 300) for (;;) {} requestAnimationFrame(f); });",
@@ -124,6 +123,14 @@ CASES = [
     ("unbounded_arraybuffers", "threejs",
      "const hoard = []; for (;;) { const b = new Uint8Array(32 << 20); b.fill(7); hoard.push(b); }",
      "", FailureClass.RESOURCE_LIMIT),
+    ("unbounded_webgl_textures", "threejs",
+     "const gl = document.createElement('canvas').getContext('webgl2'); const texs = [];"
+     "const data = new Uint8Array(2048 * 2048 * 4).fill(9);"
+     "requestAnimationFrame(function f() { for (let i = 0; i < 8; i++) {"
+     " const tx = gl.createTexture(); gl.bindTexture(gl.TEXTURE_2D, tx);"
+     " gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA, 2048, 2048, 0, gl.RGBA, gl.UNSIGNED_BYTE, data);"
+     " texs.push(tx); } gl.finish(); requestAnimationFrame(f); });", "",
+     FailureClass.RESOURCE_LIMIT),
     ("huge_console_output", "svg",
      "const line = 'x'.repeat(100000);"
      "for (let i = 0; i < 20000; i++) { console.log(line); console.error(i, line); }", "", OK),
@@ -214,6 +221,7 @@ def test_attempts_name_what_was_blocked(engines, canary):
         "fetch_file_url": "file:///",
         "navigate_meta_refresh": "navigation http://127.0.0.1:",
         "window_open": "popup http://127.0.0.1:",
+        "worker_fetch": "fetch http://127.0.0.1:",
         "img_script_link_tags": "image http://127.0.0.1:",
     }
     by_id = {c[0]: c for c in CASES}

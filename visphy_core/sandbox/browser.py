@@ -656,7 +656,7 @@ class BrowserPool:
                     rss = _rss_bytes(pid)
                     if rss > cap_bytes:
                         _kill([pid])
-                        kind = proc.kinds.get(pid, "renderer")
+                        kind = {"gpu-process": "GPU"}.get(proc.kinds.get(pid, ""), "renderer")
                         killed.append(f"memory limit: the page's {kind} process used "
                                       f"{rss >> 20} MB, above the cap of {cap_bytes >> 20} MB; "
                                       f"it was stopped")
