@@ -114,6 +114,9 @@ CASES = [
      "const src = `fetch('" + CANARY_URL + "/worker').catch(() => {}); postMessage(1);`;"
      "new Worker(URL.createObjectURL(new Blob([src], {type: 'text/javascript'})));", "", V),
     ("top_level_infinite_loop", "threejs", "for (;;) {}", "", FailureClass.TIMEOUT),
+    ("infinite_loop_on_unload", "svg",
+     "for (const ev of ['pagehide', 'unload', 'beforeunload', 'visibilitychange'])"
+     " window.addEventListener(ev, () => { for (;;) {} });", "", OK),
     ("infinite_loop_in_raf", "svg",
      "requestAnimationFrame(function f(t) { if (t > 300) for (;;) {} requestAnimationFrame(f); });",
      "", FailureClass.TIMEOUT),

@@ -618,9 +618,14 @@ class BrowserPool:
             restart = False
             if context is not None:
                 try:
-                    await asyncio.wait_for(context.close(), 5)
+                    await asyncio.wait_for(context.close(), 3)
                 except Exception:
-                    restart = True
+                    # e.g. an endless loop in an unload handler: end the renderer, try again
+                    _kill(proc.processes(("renderer",)))
+                    try:
+                        await asyncio.wait_for(context.close(), 3)
+                    except Exception:
+                        restart = True
             # A crashed renderer takes only its page down; restart when the browser went too.
             if (cap.infra_error or cap.resource_limit) and not browser.is_connected():
                 restart = True
