@@ -40,14 +40,14 @@ def _env(home: Path, script: dict) -> dict:
     return env
 
 
-def _start(home: Path, script: dict) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, str(REPO / "tests" / "scripted_cli.py"), *ARGS],
+def _start(home: Path, script: dict, args: list[str] = ARGS) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, str(REPO / "tests" / "scripted_cli.py"), *args],
                             cwd=REPO, env=_env(home, script), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
 
 
-def _run(home: Path, script: dict) -> subprocess.CompletedProcess:
-    proc = _start(home, script)
+def _run(home: Path, script: dict, args: list[str] = ARGS) -> subprocess.CompletedProcess:
+    proc = _start(home, script, args)
     out, _ = proc.communicate(timeout=600)
     assert proc.returncode == 0, out[-4000:]
     return subprocess.CompletedProcess(proc.args, proc.returncode, out)
@@ -187,3 +187,29 @@ def test_a_finished_run_is_not_resumed(tmp_path, mini_root, script, reference):
     _run(home, script)
     assert len(list((home / "runs").iterdir())) == 2
     assert len(_calls(home)) == len(ref_calls)
+
+
+def test_a_resumed_run_closes_the_killed_mlflow_run(tmp_path, mini_root, script):
+    import sqlite3
+
+    args = [a for a in ARGS if a != "tracking=none"] + ["dataset.limit=2"]
+    args.remove("dataset.limit=4")
+    home = _fresh_home(tmp_path, mini_root)
+    proc = _start(home, script, args)
+    try:
+        _wait_for_rows(proc, home, 1)
+        proc.kill()
+        proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    with sqlite3.connect(home / "mlflow.db") as con:
+        assert [s for (s,) in con.execute("select status from runs")] == ["RUNNING"]
+    _run(home, script, args)
+    with sqlite3.connect(home / "mlflow.db") as con:
+        statuses = dict(con.execute("select run_uuid, status from runs").fetchall())
+        tags = dict(con.execute("select run_uuid, value from tags "
+                                "where key = 'visphy.resumed_from'").fetchall())
+    assert sorted(statuses.values()) == ["FINISHED", "KILLED"]
+    ((new, old),) = tags.items()
+    assert statuses[new] == "FINISHED" and statuses[old] == "KILLED"

@@ -352,9 +352,16 @@ def run_experiment(cfg: DictConfig) -> dict:
     metrics = [registry.get("metrics", name) for name in cfg.metrics.names]
     chash = config_hash(cfg)
     found = find_resumable(runs_dir, chash)
+    extra: dict[str, Any] = {"config_hash": chash, "isolation": isolation}
     if found is not None:
         run_dir, lock = found
         restored = read_rows(run_dir / "results.jsonl", [s.scene_id for s in scenes])
+        try:  # tracking plugins close the killed process's run (left RUNNING by SIGKILL)
+            previous = json.loads((run_dir / "manifest.json").read_text()).get("tracking")
+        except (OSError, ValueError, AttributeError):
+            previous = None
+        if previous:
+            extra["resumed_from"] = previous
         print(f"resuming {run_dir} ({len(restored)}/{len(scenes)} scenes already done)",
               file=sys.stderr)
     else:
@@ -365,7 +372,7 @@ def run_experiment(cfg: DictConfig) -> dict:
         restored = []
     try:
         return _run(cfg, pm, root, cache, scenes, model, engine, metrics, run_dir, restored,
-                    {"config_hash": chash, "isolation": isolation})
+                    extra)
     finally:
         lock.release()
 
@@ -392,6 +399,9 @@ def _run(cfg, pm, root, cache, scenes, model, engine, metrics, run_dir, restored
     try:
         with _signals_close_the_run():
             pm.hook.visphy_run_start(run=ctx)
+            if ctx.extra.get("mlflow"):  # so a resumed run can close this one if it is killed
+                manifest["tracking"] = {"mlflow": ctx.extra["mlflow"]}
+                _write_json(run_dir / "manifest.json", manifest)
             with scene_progress(len(pending), enabled=bool(cfg.run.progress)) as advance, \
                     rows_path.open("a") as rows:
                 for scene in pending:

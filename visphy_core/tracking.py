@@ -67,6 +67,15 @@ def visphy_run_start(run):
     for key, value in sorted(params.items()):
         client.log_param(mlrun.info.run_id, key[:250], str(value)[:6000])
     _ACTIVE[id(run)] = (client, mlrun.info.run_id)
+    previous = (run.extra.get("resumed_from") or {}).get("mlflow") or {}
+    if previous.get("run_id"):  # the killed process's run: resumed here, so no longer RUNNING
+        client.set_tag(mlrun.info.run_id, "visphy.resumed_from", previous["run_id"])
+        try:
+            if client.get_run(previous["run_id"]).info.status == "RUNNING":
+                client.set_terminated(previous["run_id"], status="KILLED")
+        except Exception as exc:  # noqa: BLE001 - another store, or the run was deleted
+            logging.getLogger("visphy.tracking").warning(
+                "could not close the interrupted MLflow run %s: %s", previous["run_id"], exc)
     run.extra["mlflow"] = {"tracking_uri": uri, "run_id": mlrun.info.run_id,
                            "experiment_id": exp_id}
 
