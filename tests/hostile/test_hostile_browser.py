@@ -38,7 +38,8 @@ PAGES = {
 const renderer = new THREE.WebGLRenderer({{canvas: document.getElementById('c')}});
 const scene = new THREE.Scene(); scene.background = new THREE.Color(0xffffff);
 const camera = new THREE.OrthographicCamera(0, 64, 64, 0, -1, 1);
-const box = new THREE.Mesh(new THREE.PlaneGeometry(8, 8), new THREE.MeshBasicMaterial({{color: 0xf34f46}}));
+const box = new THREE.Mesh(new THREE.PlaneGeometry(8, 8),
+  new THREE.MeshBasicMaterial({{color: 0xf34f46}}));
 scene.add(box);
 function loop(t) {{ box.position.set(4 + t / 40, 32, 0); renderer.render(scene, camera);
   requestAnimationFrame(loop); }}

@@ -503,8 +503,6 @@ class BrowserPool:
                       capture="canvas", inject_fault=None):
         from playwright.async_api import TimeoutError as PlaywrightTimeout
 
-        start = time.perf_counter()
-        deadline = start + timeout_s
         if not self._browsers or self._uses >= self.restart_every:
             if self._uses >= self.restart_every:
                 await self._restart()
@@ -518,6 +516,9 @@ class BrowserPool:
             proc = self._browsers[0]
         browser = proc.browser
         self._uses += 1
+        # The page's clock starts once a browser is up (starting one is ours, not the page's).
+        start = time.perf_counter()
+        deadline = start + timeout_s
         cap = PageCapture(isolation=self.isolation)
         context = None
         crashed: list[bool] = []
