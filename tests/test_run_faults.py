@@ -86,7 +86,7 @@ def _break(kind: str, root: Path, sid: str) -> tuple[Path, str]:
     if kind == "missing_trajectory":
         path = root / "trajectories" / f"{sid}.npz"
         path.unlink()
-        return path, "No such file"
+        return path, "missing file"
     raise AssertionError(kind)
 
 

@@ -7,6 +7,7 @@ split of hundreds of scenes costs nothing until a scene is processed.
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -81,8 +82,18 @@ class Scene:
     def trajectory(self) -> dict[str, np.ndarray] | None:
         if not self.trajectory_path:
             return None
-        with np.load(self.trajectory_path, allow_pickle=False) as npz:
-            return {k: npz[k] for k in npz.files}
+        path = self.trajectory_path
+        if not path.is_file():
+            raise FileNotFoundError(f"missing file: {path}")
+        try:
+            npz = np.load(path, allow_pickle=False)
+            if not isinstance(npz, np.lib.npyio.NpzFile):
+                raise ValueError("not an .npz archive")
+            with npz:
+                return {k: npz[k] for k in npz.files}
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+            reason = "not an .npz archive" if "pickle" in str(exc) else _one_line(str(exc))
+            raise ValueError(f"unreadable trajectory {path}: {reason}") from None
 
     def reference_frames(self) -> np.ndarray:
         """Decoded ground-truth clip (N×H×W×3 uint8)."""
