@@ -235,6 +235,17 @@ def test_network_access_is_a_sandbox_violation(engine):
 
 
 @needs_blender
+def test_refused_sandbox_is_an_infra_error(engine, monkeypatch):
+    from visphy_core.sandbox import process as sp
+
+    monkeypatch.setattr(sp, "_probe", lambda: (None, "bubblewrap (bwrap) is not installed"))
+    monkeypatch.delenv(sp.ALLOW_UNISOLATED_ENV, raising=False)
+    result = engine.render(square_program(), CONTRACT)
+    assert result.failure is FailureClass.INFRA_ERROR
+    assert "bubblewrap" in result.error and "allow_unisolated" in result.error
+
+
+@needs_blender
 def test_memory_limit_is_a_resource_limit():
     eng = BlenderEngine({"memory_mb": 1500})
     result = eng.render(bpy_program("x = bytearray(8 * 1024 ** 3)\n"),

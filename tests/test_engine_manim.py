@@ -142,8 +142,6 @@ def test_same_program_same_frames(engine):
      "use Text"),
     ("        import numpy as np\n        a = np.ones(10 ** 10, dtype=np.uint8)\n",
      FailureClass.RESOURCE_LIMIT, "memory limit"),
-    ("        open('big.bin', 'wb').write(b'x' * (600 << 20))\n",
-     FailureClass.RESOURCE_LIMIT, "file size limit"),
     ("        self.add(Circle(color=RED))\n", FailureClass.BLANK_OUTPUT, "no frame"),
     ("        self.wait(1)\n", FailureClass.BLANK_OUTPUT, "flat colour"),
 ])
@@ -189,6 +187,13 @@ def test_program_runs_as_nobody_and_sees_no_host_file(engine, tmp_path):
             f"        open({str(host)!r}).read()\n")
     res = engine.render(program(HEADER + body), contract())
     assert res.failure is FailureClass.RUNTIME_ERROR and "FileNotFoundError" in res.error
+
+
+def test_file_size_limit_is_a_resource_limit():
+    eng = ManimEngine({"file_size_mb": 8})  # raised to fit the frames: 64 MB here
+    res = eng.render(program(HEADER + "        open('big.bin', 'wb').write(b'x' * (100 << 20))\n"),
+                     contract())
+    assert res.failure is FailureClass.RESOURCE_LIMIT and "file size limit" in res.error, res.error
 
 
 def test_disk_quota_is_a_resource_limit():

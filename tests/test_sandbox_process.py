@@ -239,7 +239,8 @@ def test_proc_1_environ_holds_no_parent_secret(work, monkeypatch):
 def test_wall_timeout_kills_loop_and_children(work):
     marker = "visphy-wall-" + secrets.token_hex(6)
     code = ("import subprocess, sys\n"
-            f"subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(300)', '{marker}'])\n"
+            "subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(300)', "
+            f"'{marker}'])\n"
             "while True: pass\n")
     start = time.monotonic()
     res = run_sandboxed(py(code), work, Limits(wall_s=2, cpu_s=60))

@@ -275,7 +275,8 @@ class BlenderEngine(Engine):
                 wall_s=float(contract.timeout_s),
                 cpu_s=float(contract.timeout_s) * max(1, cores),
                 memory_mb=int(_get(self.cfg, "memory_mb", 4096)),
-                disk_mb=max(int(_get(self.cfg, "disk_mb", 2048)), frames_mb + 64))
+                disk_mb=max(int(_get(self.cfg, "disk_mb", 2048)), frames_mb + 64),
+                max_files=max(20000, contract.n_frames + 1000))
             # HOME and TMPDIR are the work dir (run_sandboxed); PYTHONHASHSEED is fixed there
             env = {"PYTHONNOUSERSITE": "1", "PYTHONDONTWRITEBYTECODE": "1"}
             proc = run_sandboxed([str(python), "-s", "-B", RUNNER.name, "job.json"], workdir,

@@ -119,7 +119,8 @@ def detach(keep_stdout):
 '''
 
 # ------------------------------------------------------------------------------ Manim programs
-M_HEAD = "from manim import *\n" + PROBES + "\nclass GeneratedScene(Scene):\n    def construct(self):\n"
+M_HEAD = ("from manim import *\n" + PROBES
+          + "\nclass GeneratedScene(Scene):\n    def construct(self):\n")
 M_GOOD_BODY = ("        d = Dot(point=LEFT, radius=0.5, color='#f34f46')\n        self.add(d)\n"
                "        self.play(d.animate.shift(RIGHT), run_time=0.3)\n")
 
