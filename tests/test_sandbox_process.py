@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from hostile.conftest import wait_no_survivors  # tests/ is on sys.path (pytest rootdir)
 from visphy_core.sandbox import process as sp
 from visphy_core.sandbox.process import (MAX_OUTPUT_BYTES, NOBODY_UID, Limits, child_env,
                                          isolation_available, isolation_level, python_ro_paths,
@@ -29,30 +30,6 @@ needs_bwrap = pytest.mark.skipif(not ISOLATED, reason=f"no bubblewrap sandbox he
 
 def py(code: str) -> list[str]:
     return [PY, "-s", "-B", "-c", code]
-
-
-def survivors(marker: str) -> list[str]:
-    """Host processes whose command line carries ``marker``."""
-    out = []
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit() or int(entry) == os.getpid():
-            continue
-        try:
-            cmdline = Path(f"/proc/{entry}/cmdline").read_bytes()
-        except OSError:
-            continue
-        if marker.encode() in cmdline:
-            out.append(f"{entry}: {cmdline[:100]!r}")
-    return out
-
-
-def wait_gone(marker: str, timeout_s: float = 3.0) -> list[str]:
-    end = time.monotonic() + timeout_s
-    found = survivors(marker)
-    while found and time.monotonic() < end:
-        time.sleep(0.05)
-        found = survivors(marker)
-    return found
 
 
 @pytest.fixture
@@ -247,7 +224,7 @@ def test_wall_timeout_kills_loop_and_children(work):
     assert time.monotonic() - start < 6
     assert res.timed_out and res.limit_hit == "wall" and res.returncode is None
     assert 1.9 <= res.wall_s < 6
-    assert wait_gone(marker) == []
+    assert wait_no_survivors(marker) == []
 
 
 DETACHED = """
@@ -276,7 +253,7 @@ def test_detached_grandchild_holding_stdout_dies_and_never_blocks(work, tail, wa
         assert res.limit_hit == "wall" and took < wall + 2.5, took
     else:
         assert res.returncode == 0 and took < 5, (took, res)  # did not wait for the sleeper
-    assert wait_gone(marker) == []
+    assert wait_no_survivors(marker) == []
 
 
 # ------------------------------------------------------------------------------ limits
@@ -382,7 +359,7 @@ def test_explicit_opt_out_runs_unisolated(work, no_bwrap, monkeypatch, how):
     res = run_sandboxed(py(code), work, Limits(wall_s=10))
     assert res.returncode == 0 and res.stdout.strip() == "ran" and res.isolation == "none"
     assert isolation_level() == "none"
-    assert wait_gone(marker) == []  # the process group is still killed
+    assert wait_no_survivors(marker) == []  # the process group is still killed
 
 
 def test_configure_false_overrides_the_env_var(work, no_bwrap, monkeypatch):
