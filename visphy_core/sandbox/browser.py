@@ -46,6 +46,7 @@ import subprocess
 import tempfile
 import threading
 import time
+import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Union
@@ -385,6 +386,8 @@ class BrowserPool:
             self.isolation = ISOLATION_NETNS
         if self._home is None:
             self._home = Path(tempfile.mkdtemp(prefix="visphy-chromium-"))
+            # also removed when the pool is never closed (the interpreter exits)
+            weakref.finalize(self, shutil.rmtree, str(self._home), ignore_errors=True)
         script = self._home / "chromium-launcher"
         cmd = " ".join(_sh_quote(a) for a in (prefix or []) + [executable])
         script.write_text("#!/bin/sh\n"
