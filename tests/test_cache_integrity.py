@@ -145,7 +145,8 @@ def test_an_engine_exception_is_an_uncached_infra_error(tmp_path):
 
     cache, engine = Cache(tmp_path), Exploding()
     out = render_cached(engine, Program("html", "x"), _contract(60), cache)
-    assert out.failure is FailureClass.INFRA_ERROR and "RuntimeError: browser went away" in out.error
+    assert out.failure is FailureClass.INFRA_ERROR
+    assert "RuntimeError: browser went away" in out.error
     render_cached(engine, Program("html", "x"), _contract(60), cache)
     assert engine.renders == 2
 

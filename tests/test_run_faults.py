@@ -11,7 +11,6 @@ import signal
 import sqlite3
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from visphy_core.engine import Engine, FailureClass, Program, RenderResult
@@ -217,7 +216,8 @@ def test_an_interrupted_loop_ends_the_mlflow_run(home, how, mlflow_status, statu
 
     expected = RuntimeError if how == "exception" else RunInterrupted
     with pytest.raises(expected) as info:
-        _compose_run(home, "dataset.limit=3", "tracking=mlflow", plugins={"raiser": _Raiser(action)})
+        _compose_run(home, "dataset.limit=3", "tracking=mlflow",
+                     plugins={"raiser": _Raiser(action)})
     if how == "sigterm":
         assert info.value.code == 143
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # handlers restored

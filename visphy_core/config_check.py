@@ -348,8 +348,9 @@ def check_names(cfg: DictConfig) -> None:
         valid = installed("metrics")
         unknown = [str(n) for n in names if str(n) not in valid]
         if unknown:
-            raise ConfigError(f"metrics.names={_show(list(names))}: {', '.join(unknown)} "
-                              f"{'is not an installed metric' if len(unknown) == 1 else 'are not installed metrics'}; "
+            what = ("is not an installed metric" if len(unknown) == 1
+                    else "are not installed metrics")
+            raise ConfigError(f"metrics.names={_show(list(names))}: {', '.join(unknown)} {what}; "
                               f"installed: {', '.join(valid) or 'none'}")
         if not names:
             raise ConfigError(f"metrics.names=[] names no metric; installed: {', '.join(valid)}")

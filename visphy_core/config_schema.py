@@ -107,6 +107,8 @@ class SandboxConfig:
     # Untrusted (model-written) programs run only inside namespaces (bubblewrap); where the kernel
     # refuses them visphy refuses to run such programs unless this is set.
     allow_unisolated: bool = False
+    # Per-page memory cap of the browser engines (renderer/GPU process RSS; JS heap gets 3/4).
+    browser_memory_mb: int = field(default=2048, metadata={"min": 64})
 
 
 @dataclass

@@ -178,32 +178,19 @@ def read_rows(path: Path, scene_ids: list[str]) -> list[SceneResult]:
 
 
 def _isolation(cfg: DictConfig) -> dict[str, Any]:
-    """Configure the sandboxes (``sandbox.allow_unisolated``) and record what they provide.
+    """Configure the sandboxes from ``sandbox.*`` and record the isolation they provide.
 
-    Called defensively: sandboxes without ``configure``/``isolation_level`` report "unknown".
+    ``allow_unisolated=false`` leaves the choice to ``$VISPHY_ALLOW_UNISOLATED`` (either opt-out
+    suffices); the probes run once per process.
     """
-    sandbox_cfg = cfg.get("sandbox", None) or {}
-    allow = bool(sandbox_cfg.get("allow_unisolated", False)) if sandbox_cfg else False
-    out: dict[str, Any] = {"allow_unisolated": allow}
-    for key, module_name, probe in (("process", "visphy_core.sandbox.process", "isolation_level"),
-                                    ("browser", "visphy_core.sandbox.browser",
-                                     "browser_isolation_level")):
-        import importlib
+    from visphy_core.sandbox import browser, process
 
-        try:
-            module = importlib.import_module(module_name)
-        except ImportError:
-            out[key] = "unknown"
-            continue
-        configure = getattr(module, "configure", None)
-        if callable(configure):
-            configure(allow_unisolated=allow)
-        level = getattr(module, probe, None)
-        try:
-            out[key] = str(level()) if callable(level) else "unknown"
-        except Exception as exc:  # noqa: BLE001 - a probe must not stop the run
-            out[key] = f"unknown ({type(exc).__name__}: {exc})"
-    return out
+    allow = bool(cfg.sandbox.allow_unisolated)
+    process.configure(allow_unisolated=True if allow else None)
+    browser.configure(allow_unisolated=True if allow else None,
+                      memory_mb=int(cfg.sandbox.browser_memory_mb))
+    return {"allow_unisolated": allow or process.unisolated_allowed(),
+            "process": process.isolation_level(), "browser": browser.browser_isolation_level()}
 
 
 def _manifest(ctx: RunContext) -> dict:

@@ -120,7 +120,8 @@ def canary(tmp_path_factory):
     secret_dir = tmp_path_factory.mktemp("canary-secret")
     project = tmp_path_factory.mktemp("canary-project")
     c = Canary(port=port, env_value="envcanary-" + secrets.token_hex(12),
-               file_path=secret_dir / "secret.txt", file_value="filecanary-" + secrets.token_hex(12),
+               file_path=secret_dir / "secret.txt",
+               file_value="filecanary-" + secrets.token_hex(12),
                dotenv_path=project / ".env", dotenv_value="dotenvcanary-" + secrets.token_hex(12))
     c.file_path.write_text(c.file_value)
     c.file_path.chmod(0o644)  # readable by anyone on the host: only the sandbox may stop a read

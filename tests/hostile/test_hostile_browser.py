@@ -78,8 +78,8 @@ CASES = [
      f'<link rel="stylesheet" href="{CANARY_URL}/s.css">'
      '<img src="https://tracker.example.net/p.gif">', OK),
     ("websocket", "threejs",
-     f"try {{ const ws = new WebSocket('ws://127.0.0.1:__CANARY_PORT__/ws');"
-     f" ws.onopen = () => ws.send('hello'); }} catch (e) {{}}", "", V),
+     "try { const ws = new WebSocket('ws://127.0.0.1:__CANARY_PORT__/ws');"
+     " ws.onopen = () => ws.send('hello'); } catch (e) {}", "", V),
     ("eventsource", "p5", f"new EventSource('{CANARY_URL}/events');", "", V),
     ("send_beacon", "svg", f"navigator.sendBeacon('{CANARY_URL}/beacon', 'secret');", "", V),
     ("webrtc_stun_turn_udp", "threejs",

@@ -203,7 +203,7 @@ def _render(entries: list[Entry], root: Path, progress: bool, workers: int) -> N
     if three_d:
         from visphy_core.sandbox.browser import BrowserPool
 
-        with BrowserPool() as pool:
+        with BrowserPool(untrusted=False) as pool:  # visphy's own reference pages
             for e in _track(three_d, len(three_d), "rendering 3D scenes", progress):
                 write_scene(e, root, pool)
 

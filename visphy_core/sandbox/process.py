@@ -34,9 +34,9 @@ What is isolated
   ``RLIMIT_CPU`` (SIGXCPU at ``cpu_s``, SIGKILL one second later), ``RLIMIT_AS`` (address
   space, ``memory_mb``), ``RLIMIT_FSIZE`` (largest file, ``file_size_mb``), ``RLIMIT_NPROC``
   (counted by the kernel per real uid - 65534 as root, the caller's uid in a user namespace -
-  so it is set to that uid's current thread count plus ``processes``) and ``RLIMIT_CORE = 0``. The work dir's total allocated size (``disk_mb``) and
-  entry count (``max_files``) are watched a few times a second; over either, the sandbox is
-  killed (``limit_hit = "disk"``).
+  so it is set to that uid's current thread count plus ``processes``) and ``RLIMIT_CORE = 0``.
+  The work dir's total allocated size (``disk_mb``) and entry count (``max_files``) are watched
+  a few times a second; over either, the sandbox is killed (``limit_hit = "disk"``).
 * **Wall clock.** At ``wall_s`` bwrap's process group and bwrap are SIGKILLed; bwrap runs with
   ``--die-with-parent`` and owns the PID namespace, so every process of the program dies with
   it, including ``setsid``-detached grandchildren. A normal exit ends the namespace as well.
