@@ -188,11 +188,11 @@ def test_isolation_level_is_recorded(engine):
 
 def test_without_a_namespace_untrusted_pages_are_refused_unless_allowed(monkeypatch):
     """A kernel that refuses namespaces: no page runs until the user opts out explicitly."""
-    from visphy_core.sandbox import browser
+    from visphy_core.sandbox import browser, chromium, policy
     from visphy_plugins.engines.browser_base import tick_ms_for
 
-    monkeypatch.setitem(browser._NETNS_PROBE, "result", (None, "unshare -n refused: test"))
-    monkeypatch.setitem(browser._CONFIG, "allow_unisolated", None)
+    monkeypatch.setitem(chromium._NETNS_PROBE, "result", (None, "unshare -n refused: test"))
+    monkeypatch.setattr(policy, "_allow_unisolated", None)
     monkeypatch.delenv(browser.ALLOW_UNISOLATED_ENV, raising=False)
     assert browser.browser_isolation_level().startswith("unavailable: ")
     page_html = CLOCK_PROGRAM.source

@@ -279,7 +279,7 @@ def test_top_level_loop_past_playwrights_default_timeout_is_a_timeout(engines, c
 
 def test_chromium_environment_holds_no_secret(engines, canary):
     """Every process of the pool's Chromium starts from the allow-listed environment."""
-    from visphy_core.sandbox.browser import _descendants
+    from visphy_core.sandbox.chromium import descendants
     from visphy_plugins.engines.browser_base import shared_pool
 
     assert_next_page_renders(engines["threejs"], canary)
@@ -288,7 +288,7 @@ def test_chromium_environment_holds_no_secret(engines, canary):
     pids = []
     for proc in pool._browsers:
         assert proc.pid is not None
-        pids += [proc.pid] + _descendants(proc.pid)
+        pids += [proc.pid] + descendants(proc.pid)
     assert pids
     for pid in pids:
         try:

@@ -41,8 +41,6 @@ import mimetypes
 import os
 import re
 import shutil
-import signal
-import subprocess
 import tempfile
 import threading
 import time
@@ -54,6 +52,11 @@ from urllib.parse import urlparse
 
 import numpy as np
 
+from visphy_core.sandbox.chromium import (ChromiumProcess, chromium_env, kill_all,
+                                          netns_prefix, rss_bytes, sh_quote)
+from visphy_core.sandbox.policy import (ALLOW_UNISOLATED_ENV, set_allow_unisolated,
+                                        unisolated_allowed)
+
 ORIGIN_HOST = "visphy.invalid"
 ORIGIN = f"https://{ORIGIN_HOST}"
 VIRTUAL_TIME_JS = (Path(__file__).with_name("virtual_time.js")).read_text()
@@ -64,8 +67,6 @@ READY_WAIT_S = 10.0
 DEFAULT_MEMORY_MB = 2048
 #: Seconds between two looks of the memory watchdog at the renderer processes.
 WATCH_INTERVAL_S = 0.1
-#: Environment variable that allows running untrusted pages without a network namespace.
-ALLOW_UNISOLATED_ENV = "VISPHY_ALLOW_UNISOLATED"
 #: Isolation level recorded when Chromium runs in its own empty network namespace.
 ISOLATION_NETNS = "chromium:netns,no-egress"
 #: Isolation level recorded when the user opted out and no namespace could be had.
@@ -118,7 +119,7 @@ class SandboxUnavailable(BrowserUnavailable):
 
 # ------------------------------------------------------------------------------ isolation config
 
-_CONFIG: dict = {"allow_unisolated": None, "memory_mb": None}
+_CONFIG: dict = {"memory_mb": None}
 
 
 def configure(allow_unisolated: bool | None = None, memory_mb: int | None = None) -> None:
@@ -126,54 +127,11 @@ def configure(allow_unisolated: bool | None = None, memory_mb: int | None = None
     ``sandbox.allow_unisolated``). ``None`` leaves a setting as it is. ``memory_mb`` applies to
     pools started afterwards."""
     if allow_unisolated is not None:
-        _CONFIG["allow_unisolated"] = bool(allow_unisolated)
+        set_allow_unisolated(allow_unisolated)
     if memory_mb is not None:
         if int(memory_mb) < 64:
             raise ValueError(f"memory_mb must be at least 64, not {memory_mb}")
         _CONFIG["memory_mb"] = int(memory_mb)
-
-
-def unisolated_allowed() -> bool:
-    """True when the user opted out of isolation (configure() or $VISPHY_ALLOW_UNISOLATED)."""
-    if _CONFIG["allow_unisolated"] is not None:
-        return _CONFIG["allow_unisolated"]
-    return os.environ.get(ALLOW_UNISOLATED_ENV, "").strip().lower() in ("1", "true", "yes", "on")
-
-
-_NETNS_PROBE: dict = {}
-
-
-def netns_prefix() -> tuple[list[str] | None, str]:
-    """The command prefix that runs a program in a fresh, empty network namespace, and a note.
-
-    Probed once per process: ``unshare -n`` (root) or ``unshare -rn`` (user namespace), accepted
-    only if the namespace really holds nothing but a loopback interface. (None, why) when the
-    kernel or the container refuses."""
-    if "result" in _NETNS_PROBE:
-        return _NETNS_PROBE["result"]
-    unshare = shutil.which("unshare") or "/usr/bin/unshare"
-    candidates = ([[unshare, "-n", "--"]] if os.geteuid() == 0 else []) + [[unshare, "-rn", "--"]]
-    why = f"{unshare} not found" if not Path(unshare).exists() else ""
-    result: tuple[list[str] | None, str] = (None, why)
-    if Path(unshare).exists():
-        for prefix in candidates:
-            try:
-                proc = subprocess.run(prefix + ["cat", "/proc/self/net/dev"], capture_output=True,
-                                      text=True, timeout=10, env={"PATH": "/usr/bin:/bin"})
-            except (OSError, subprocess.SubprocessError) as exc:
-                why = f"{' '.join(prefix)} failed: {exc}"
-                continue
-            ifaces = {line.split(":", 1)[0].strip() for line in proc.stdout.splitlines()[2:]
-                      if ":" in line}
-            if proc.returncode == 0 and ifaces <= {"lo"}:
-                result = (prefix, " ".join(prefix[:-1]))
-                break
-            why = (f"{' '.join(prefix[:-1])} refused: "
-                   f"{(proc.stderr.strip() or f'interfaces {sorted(ifaces)}')[:200]}")
-        else:
-            result = (None, why)
-    _NETNS_PROBE["result"] = result
-    return result
 
 
 def browser_isolation_level() -> str:
@@ -243,99 +201,6 @@ def _png_bytes_to_rgb(png: bytes) -> np.ndarray:
     return np.asarray(img.convert("RGB"))
 
 
-# ------------------------------------------------------------------------- process inspection
-
-_PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
-
-
-def _children(pid: int) -> list[int]:
-    out: list[int] = []
-    try:
-        tasks = os.listdir(f"/proc/{pid}/task")
-    except OSError:
-        return out
-    for tid in tasks:
-        try:
-            with open(f"/proc/{pid}/task/{tid}/children") as f:
-                out += [int(x) for x in f.read().split()]
-        except (OSError, ValueError):
-            pass
-    return out
-
-
-def _descendants(pid: int) -> list[int]:
-    seen, todo = [], [pid]
-    while todo:
-        for child in _children(todo.pop()):
-            if child not in seen:
-                seen.append(child)
-                todo.append(child)
-    return seen
-
-
-def _proc_type(pid: int) -> str:
-    # Chromium rewrites its children's command lines (one string, spaces, no NULs).
-    try:
-        with open(f"/proc/{pid}/cmdline", "rb") as f:
-            m = re.search(rb"(?:^|[\s\0])--type=([\w-]+)", f.read())
-    except OSError:
-        return ""
-    return m.group(1).decode() if m else "browser"
-
-
-def _rss_bytes(pid: int) -> int:
-    try:
-        with open(f"/proc/{pid}/statm") as f:
-            return int(f.read().split()[1]) * _PAGE
-    except (OSError, ValueError, IndexError):
-        return 0
-
-
-@dataclass
-class _Chromium:
-    """One launched browser: Playwright's handle, its process id, its stderr log."""
-
-    browser: object
-    pid: int | None
-    stderr: Path
-    kinds: dict = field(default_factory=dict)  # pid -> process type ("renderer", "gpu-process")
-
-    def processes(self, kinds: tuple[str, ...]) -> list[int]:
-        if self.pid is None:
-            return []
-        out = []
-        for pid in _descendants(self.pid):
-            if self.kinds.get(pid, "browser") == "browser":  # a fresh fork is renamed later
-                self.kinds[pid] = _proc_type(pid)
-            if self.kinds[pid] in kinds:
-                out.append(pid)
-        if len(self.kinds) > 500:
-            self.kinds.clear()
-        return out
-
-    def stderr_size(self) -> int:
-        try:
-            return self.stderr.stat().st_size
-        except OSError:
-            return 0
-
-    def stderr_since(self, offset: int, limit: int = 1 << 20) -> str:
-        try:
-            with open(self.stderr, "rb") as f:
-                f.seek(offset)
-                return f.read(limit).decode(errors="replace")
-        except OSError:
-            return ""
-
-
-def _kill(pids) -> None:
-    for pid in pids:
-        try:
-            os.kill(pid, signal.SIGKILL)
-        except OSError:
-            pass
-
-
 class BrowserPool:
     """Reusable Chromium processes; a fresh browser context per page; restart after a crash.
 
@@ -357,7 +222,7 @@ class BrowserPool:
                                         name="visphy-browser-pool")
         self._thread.start()
         self._playwright = None
-        self._browsers: list[_Chromium] = []
+        self._browsers: list[ChromiumProcess] = []
         self._uses = 0
         self._next = 0
         self._launches = 0
@@ -389,7 +254,7 @@ class BrowserPool:
             # also removed when the pool is never closed (the interpreter exits)
             weakref.finalize(self, shutil.rmtree, str(self._home), ignore_errors=True)
         script = self._home / "chromium-launcher"
-        cmd = " ".join(_sh_quote(a) for a in (prefix or []) + [executable])
+        cmd = " ".join(sh_quote(a) for a in (prefix or []) + [executable])
         script.write_text("#!/bin/sh\n"
                           'echo $$ > "$VISPHY_CHROMIUM_PIDFILE"\n'
                           f'exec {cmd} "$@" 2>>"$VISPHY_CHROMIUM_STDERR"\n')
@@ -408,7 +273,7 @@ class BrowserPool:
             self._launches += 1
             pidfile = self._home / f"browser-{self._launches}.pid"
             stderr = self._home / f"browser-{self._launches}.stderr"
-            env = _scrubbed_env(self._home)
+            env = chromium_env(self._home)
             env["VISPHY_CHROMIUM_PIDFILE"] = str(pidfile)
             env["VISPHY_CHROMIUM_STDERR"] = str(stderr)
             try:
@@ -426,7 +291,7 @@ class BrowserPool:
                 pid = int(pidfile.read_text().strip())
             except (OSError, ValueError):
                 pid = None
-            self._browsers.append(_Chromium(browser, pid, stderr))
+            self._browsers.append(ChromiumProcess(browser, pid, stderr))
 
     async def _close_browsers(self) -> None:
         browsers, self._browsers = self._browsers, []
@@ -436,7 +301,7 @@ class BrowserPool:
             except Exception:
                 pass
             if proc.pid is not None:  # whatever did not go with close()
-                _kill(proc.processes(("renderer", "gpu-process", "utility", "zygote", "browser"))
+                kill_all(proc.processes(("renderer", "gpu-process", "utility", "zygote", "browser"))
                       + [proc.pid])
             for path in (proc.stderr, proc.stderr.with_suffix(".pid")):
                 try:
@@ -615,7 +480,7 @@ class BrowserPool:
             died = bool(crashed or killed)
             if cap.timed_out:
                 # A renderer stuck in a loop may not let its context close: end it first.
-                _kill(proc.processes(("renderer",)))
+                kill_all(proc.processes(("renderer",)))
             if died and not cap.infra_error:
                 await asyncio.sleep(0.05)  # let the renderer's last words reach the log
                 self._classify_crash(cap, proc, stderr_at, killed)
@@ -625,7 +490,7 @@ class BrowserPool:
                     await asyncio.wait_for(context.close(), 3)
                 except Exception:
                     # e.g. an endless loop in an unload handler: end the renderer, try again
-                    _kill(proc.processes(("renderer",)))
+                    kill_all(proc.processes(("renderer",)))
                     try:
                         await asyncio.wait_for(context.close(), 3)
                     except Exception:
@@ -638,7 +503,7 @@ class BrowserPool:
         cap.wall_s = time.perf_counter() - start
         return cap
 
-    def _classify_crash(self, cap: PageCapture, proc: _Chromium, stderr_at: int,
+    def _classify_crash(self, cap: PageCapture, proc: ChromiumProcess, stderr_at: int,
                         killed: list[str]) -> None:
         """A renderer that died: the program's memory (our kill, or V8 out of heap), else ours."""
         cap.timed_out = False
@@ -652,7 +517,7 @@ class BrowserPool:
         else:
             cap.infra_error = "browser failure: the renderer crashed"
 
-    async def _watch(self, proc: _Chromium, cap_bytes: int, killed: list[str]) -> None:
+    async def _watch(self, proc: ChromiumProcess, cap_bytes: int, killed: list[str]) -> None:
         """Kill a renderer (or the GPU process) whose resident memory goes above the cap."""
         pids: list[int] = []
         n = 0
@@ -662,9 +527,9 @@ class BrowserPool:
                     pids = await asyncio.to_thread(proc.processes, ("renderer", "gpu-process"))
                 n += 1
                 for pid in pids:
-                    rss = _rss_bytes(pid)
+                    rss = rss_bytes(pid)
                     if rss > cap_bytes:
-                        _kill([pid])
+                        kill_all([pid])
                         kind = {"gpu-process": "GPU"}.get(proc.kinds.get(pid, ""), "renderer")
                         killed.append(f"memory limit: the page's {kind} process used "
                                       f"{rss >> 20} MB, above the cap of {cap_bytes >> 20} MB; "
@@ -785,25 +650,3 @@ async def _close_quietly(obj, **kwargs) -> None:
         await asyncio.wait_for(obj.close(**kwargs), 5)
     except Exception:
         pass
-
-
-def _sh_quote(arg: str) -> str:
-    return "'" + arg.replace("'", "'\"'\"'") + "'"
-
-
-def _scrubbed_env(home: Path | None = None) -> dict[str, str]:
-    """Chromium's environment: an allow-list (no API keys or tokens), with a private HOME."""
-    from visphy_core.secrets import is_secret_name, secret_values
-
-    keep = ("PATH", "LANG", "LC_ALL", "TZ", "FONTCONFIG_PATH", "FONTCONFIG_FILE")
-    secrets = secret_values()
-    env = {k: v for k, v in os.environ.items()
-           if k in keep and not is_secret_name(k) and v not in secrets}
-    env.setdefault("PATH", "/usr/local/bin:/usr/bin:/bin")
-    env.setdefault("TZ", "UTC")
-    if home is not None:
-        env["HOME"] = str(home)
-        env["XDG_CONFIG_HOME"] = str(home / ".config")
-        env["XDG_CACHE_HOME"] = str(home / ".cache")
-        env["TMPDIR"] = str(home)
-    return env

@@ -87,6 +87,8 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Iterable, Sequence
 
+from visphy_core.sandbox.policy import (ALLOW_UNISOLATED_ENV, set_allow_unisolated,
+                                        unisolated_allowed)
 from visphy_core.secrets import is_secret_name
 
 log = logging.getLogger(__name__)
@@ -97,8 +99,6 @@ MAX_OUTPUT_BYTES = 1 << 20
 _HEAD_BYTES = 64 << 10
 #: The unprivileged user (and group) the program runs as: Debian's nobody/nogroup.
 NOBODY_UID = 65534
-#: Opt-out of isolation (``1``/``true``/``yes``): run untrusted code without a sandbox.
-ALLOW_UNISOLATED_ENV = "VISPHY_ALLOW_UNISOLATED"
 INSTALL_HINT = ("install bubblewrap (`apt-get install bubblewrap`, scripts/setup.sh) on a kernel "
                 "that allows namespaces, or opt out explicitly with sandbox.allow_unisolated=true "
                 f"/ {ALLOW_UNISOLATED_ENV}=1 (model-written code then runs unisolated)")
@@ -149,21 +149,10 @@ class ProcessResult:
 
 
 # ------------------------------------------------------------------------------ opt-out
-_allow_unisolated: bool | None = None
-
-
 def configure(*, allow_unisolated: bool | None = None) -> None:
     """Process-wide settings (the run loop passes config key ``sandbox.allow_unisolated``).
     None leaves the setting to the environment variable ``VISPHY_ALLOW_UNISOLATED``."""
-    global _allow_unisolated
-    _allow_unisolated = None if allow_unisolated is None else bool(allow_unisolated)
-
-
-def unisolated_allowed() -> bool:
-    """True when the user opted out of isolation explicitly (configure() or the env var)."""
-    if _allow_unisolated is not None:
-        return _allow_unisolated
-    return os.environ.get(ALLOW_UNISOLATED_ENV, "").strip().lower() in ("1", "true", "yes", "on")
+    set_allow_unisolated(allow_unisolated)
 
 
 # ------------------------------------------------------------------------------ the probe

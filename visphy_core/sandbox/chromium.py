@@ -1,0 +1,163 @@
+"""Chromium's processes: the network namespace it runs in, the environment it starts with, and
+the process tree the memory watchdog inspects (shared by `visphy_core.sandbox.browser`).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+from dataclasses import dataclass, field
+from pathlib import Path
+
+_NETNS_PROBE: dict = {}
+
+
+def netns_prefix() -> tuple[list[str] | None, str]:
+    """The command prefix that runs a program in a fresh, empty network namespace, and a note.
+
+    Probed once per process: ``unshare -n`` (root) or ``unshare -rn`` (user namespace), accepted
+    only if the namespace really holds nothing but a loopback interface. (None, why) when the
+    kernel or the container refuses."""
+    if "result" in _NETNS_PROBE:
+        return _NETNS_PROBE["result"]
+    unshare = shutil.which("unshare") or "/usr/bin/unshare"
+    candidates = ([[unshare, "-n", "--"]] if os.geteuid() == 0 else []) + [[unshare, "-rn", "--"]]
+    why = f"{unshare} not found" if not Path(unshare).exists() else ""
+    result: tuple[list[str] | None, str] = (None, why)
+    if Path(unshare).exists():
+        for prefix in candidates:
+            try:
+                proc = subprocess.run(prefix + ["cat", "/proc/self/net/dev"], capture_output=True,
+                                      text=True, timeout=10, env={"PATH": "/usr/bin:/bin"})
+            except (OSError, subprocess.SubprocessError) as exc:
+                why = f"{' '.join(prefix)} failed: {exc}"
+                continue
+            ifaces = {line.split(":", 1)[0].strip() for line in proc.stdout.splitlines()[2:]
+                      if ":" in line}
+            if proc.returncode == 0 and ifaces <= {"lo"}:
+                result = (prefix, " ".join(prefix[:-1]))
+                break
+            why = (f"{' '.join(prefix[:-1])} refused: "
+                   f"{(proc.stderr.strip() or f'interfaces {sorted(ifaces)}')[:200]}")
+        else:
+            result = (None, why)
+    _NETNS_PROBE["result"] = result
+    return result
+
+
+# ------------------------------------------------------------------------- process inspection
+
+_PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
+
+
+def _children(pid: int) -> list[int]:
+    out: list[int] = []
+    try:
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for tid in tasks:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/children") as f:
+                out += [int(x) for x in f.read().split()]
+        except (OSError, ValueError):
+            pass
+    return out
+
+
+def descendants(pid: int) -> list[int]:
+    seen, todo = [], [pid]
+    while todo:
+        for child in _children(todo.pop()):
+            if child not in seen:
+                seen.append(child)
+                todo.append(child)
+    return seen
+
+
+def _proc_type(pid: int) -> str:
+    # Chromium rewrites its children's command lines (one string, spaces, no NULs).
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            m = re.search(rb"(?:^|[\s\0])--type=([\w-]+)", f.read())
+    except OSError:
+        return ""
+    return m.group(1).decode() if m else "browser"
+
+
+def rss_bytes(pid: int) -> int:
+    try:
+        with open(f"/proc/{pid}/statm") as f:
+            return int(f.read().split()[1]) * _PAGE
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
+@dataclass
+class ChromiumProcess:
+    """One launched browser: Playwright's handle, its process id, its stderr log."""
+
+    browser: object
+    pid: int | None
+    stderr: Path
+    kinds: dict = field(default_factory=dict)  # pid -> process type ("renderer", "gpu-process")
+
+    def processes(self, kinds: tuple[str, ...]) -> list[int]:
+        if self.pid is None:
+            return []
+        out = []
+        for pid in descendants(self.pid):
+            if self.kinds.get(pid, "browser") == "browser":  # a fresh fork is renamed later
+                self.kinds[pid] = _proc_type(pid)
+            if self.kinds[pid] in kinds:
+                out.append(pid)
+        if len(self.kinds) > 500:
+            self.kinds.clear()
+        return out
+
+    def stderr_size(self) -> int:
+        try:
+            return self.stderr.stat().st_size
+        except OSError:
+            return 0
+
+    def stderr_since(self, offset: int, limit: int = 1 << 20) -> str:
+        try:
+            with open(self.stderr, "rb") as f:
+                f.seek(offset)
+                return f.read(limit).decode(errors="replace")
+        except OSError:
+            return ""
+
+
+def kill_all(pids) -> None:
+    for pid in pids:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except OSError:
+            pass
+
+
+def sh_quote(arg: str) -> str:
+    return "'" + arg.replace("'", "'\"'\"'") + "'"
+
+
+def chromium_env(home: Path | None = None) -> dict[str, str]:
+    """Chromium's environment: an allow-list (no API keys or tokens), with a private HOME."""
+    from visphy_core.secrets import is_secret_name, secret_values
+
+    keep = ("PATH", "LANG", "LC_ALL", "TZ", "FONTCONFIG_PATH", "FONTCONFIG_FILE")
+    secrets = secret_values()
+    env = {k: v for k, v in os.environ.items()
+           if k in keep and not is_secret_name(k) and v not in secrets}
+    env.setdefault("PATH", "/usr/local/bin:/usr/bin:/bin")
+    env.setdefault("TZ", "UTC")
+    if home is not None:
+        env["HOME"] = str(home)
+        env["XDG_CONFIG_HOME"] = str(home / ".config")
+        env["XDG_CACHE_HOME"] = str(home / ".cache")
+        env["TMPDIR"] = str(home)
+    return env
