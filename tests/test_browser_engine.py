@@ -176,14 +176,58 @@ def test_oracle_program_of_a_3d_scene_reproduces_the_ground_truth(engine, mini_r
 # ------------------------------------------------------------------------------ isolation
 
 def test_isolation_level_is_recorded(engine):
-    from visphy_core.sandbox.browser import browser_isolation_level, netns_prefix
+    import os
+
+    from visphy_core.sandbox.browser import (ISOLATION_BWRAP, ISOLATION_NETNS,
+                                             browser_isolation_level, netns_prefix)
+    from visphy_core.sandbox.process import isolation_available
 
     result = engine.render(CLOCK_PROGRAM, CONTRACT)
     assert result.ok
     level = browser_isolation_level()
     assert result.isolation == level
     if netns_prefix()[0] is not None:
-        assert level == "chromium:netns,no-egress"
+        assert level in (ISOLATION_BWRAP, ISOLATION_NETNS)
+    if os.geteuid() == 0 and isolation_available()[0]:
+        assert level == ISOLATION_BWRAP
+
+
+def test_under_bubblewrap_chromium_runs_as_nobody_and_sees_no_host_files(tmp_path):
+    """Root callers: a renderer exploit would find uid 65534, no capabilities, and a root that
+    holds /usr, fonts and Chromium's own config only (no /root, no project, no canary file)."""
+    import os
+
+    from visphy_core.sandbox.browser import BrowserPool
+    from visphy_core.sandbox.chromium import bwrap_for_chromium, descendants
+
+    secret = tmp_path / "secret.txt"
+    secret.write_text("host-only")
+
+    if bwrap_for_chromium()[0] is None:
+        pytest.skip(f"no bubblewrap level for Chromium here: {bwrap_for_chromium()[1]}")
+    with BrowserPool() as pool:
+        cap = pool.render_page(CLOCK_PROGRAM.source, {}, [0.0], width=64, height=64,
+                               timeout_s=20)
+        assert len(cap.frames) == 1, (cap.errors, cap.infra_error)
+        chromium_pids = []
+        for pid in descendants(pool._browsers[0].pid):
+            try:
+                cmdline = open(f"/proc/{pid}/cmdline", "rb").read()
+                status = open(f"/proc/{pid}/status").read()
+            except OSError:
+                continue
+            if b"chromium" in cmdline.split(b"\0")[0] or b"--type=" in cmdline:
+                chromium_pids.append(pid)
+                uid = status.split("Uid:")[1].split()
+                cap_eff = status.split("CapEff:")[1].split()[0]
+                assert uid[:2] == ["65534", "65534"], (pid, uid)
+                assert int(cap_eff, 16) == 0, (pid, cap_eff)
+        assert chromium_pids, "found no Chromium process under the launcher"
+        view = f"/proc/{chromium_pids[0]}/root"
+        assert set(os.listdir(view)) <= {"usr", "etc", "var", "tmp", "dev", "proc", "bin", "lib",
+                                          "lib64", "sbin"}
+        assert not os.path.exists(view + str(secret))
+        assert not os.path.exists(view + "/root") and not os.path.exists(view + "/work")
 
 
 def test_without_a_namespace_untrusted_pages_are_refused_unless_allowed(monkeypatch):
@@ -192,6 +236,7 @@ def test_without_a_namespace_untrusted_pages_are_refused_unless_allowed(monkeypa
     from visphy_plugins.engines.browser_base import tick_ms_for
 
     monkeypatch.setitem(chromium._NETNS_PROBE, "result", (None, "unshare -n refused: test"))
+    monkeypatch.setitem(chromium._BWRAP_PROBE, "result", (None, "no bwrap: test"))
     monkeypatch.setattr(policy, "_allow_unisolated", None)
     monkeypatch.delenv(browser.ALLOW_UNISOLATED_ENV, raising=False)
     assert browser.browser_isolation_level().startswith("unavailable: ")

@@ -188,7 +188,7 @@ def assert_next_page_renders(engine, canary) -> None:
 @pytest.mark.parametrize("case_id, engine_name, attack, head, expected",
                          CASES, ids=[c[0] for c in CASES])
 def test_hostile_page_is_contained(engines, canary, case_id, engine_name, attack, head, expected):
-    from visphy_core.sandbox.browser import ISOLATION_NETNS, netns_prefix
+    from visphy_core.sandbox.browser import browser_isolation_level, netns_prefix
 
     engine = engines[engine_name]
     program = hostile_page(engine_name, attack, head, canary)
@@ -204,7 +204,8 @@ def test_hostile_page_is_contained(engines, canary, case_id, engine_name, attack
     allowed = expected if isinstance(expected, tuple) else (expected,)
     assert result.failure in allowed, (result.failure, result.error, result.logs[:6])
     if netns_prefix()[0] is not None:
-        assert result.isolation == ISOLATION_NETNS
+        assert result.isolation == browser_isolation_level()
+        assert "netns" in result.isolation and "no-egress" in result.isolation
     if result.failure is None:
         assert result.ok and result.frames.shape == (CONTRACT.n_frames, 64, 64, 3)
     if result.failure is V:
@@ -310,5 +311,12 @@ def test_browser_runs_in_its_own_network_namespace(engines, canary):
     if netns_prefix()[0] is None:
         pytest.skip("this kernel grants no network namespace")
     assert_next_page_renders(engines["svg"], canary)
+    from visphy_core.sandbox.chromium import descendants
+
+    host_net = os.readlink("/proc/self/ns/net")
     for proc in shared_pool()._browsers:
-        assert os.readlink(f"/proc/{proc.pid}/ns/net") != os.readlink("/proc/self/ns/net")
+        chromium = [pid for pid in [proc.pid, *descendants(proc.pid)]
+                    if b"chromium" in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[0]]
+        assert chromium, "no Chromium process under the launcher"
+        for pid in chromium:  # the browser and every renderer/GPU/utility process
+            assert os.readlink(f"/proc/{pid}/ns/net") != host_net, pid

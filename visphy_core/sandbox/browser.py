@@ -52,8 +52,9 @@ from urllib.parse import urlparse
 
 import numpy as np
 
-from visphy_core.sandbox.chromium import (ChromiumProcess, chromium_env, kill_all,
-                                          netns_prefix, rss_bytes, sh_quote)
+from visphy_core.sandbox.chromium import (CHROMIUM_UID, ChromiumProcess, bwrap_for_chromium,
+                                          bwrap_launcher, chromium_env, kill_all, netns_prefix,
+                                          rss_bytes, sh_quote)
 from visphy_core.sandbox.policy import (ALLOW_UNISOLATED_ENV, set_allow_unisolated,
                                         unisolated_allowed)
 
@@ -69,6 +70,8 @@ DEFAULT_MEMORY_MB = 2048
 WATCH_INTERVAL_S = 0.1
 #: Isolation level recorded when Chromium runs in its own empty network namespace.
 ISOLATION_NETNS = "chromium:netns,no-egress"
+#: Isolation level when Chromium runs under bubblewrap as uid 65534 (root callers).
+ISOLATION_BWRAP = "chromium:bwrap,uid65534,netns,pidns,ipcns,utsns,mountns,no-egress"
 #: Isolation level recorded when the user opted out and no namespace could be had.
 ISOLATION_NONE = "none"
 
@@ -135,9 +138,11 @@ def configure(allow_unisolated: bool | None = None, memory_mb: int | None = None
 
 
 def browser_isolation_level() -> str:
-    """What untrusted pages run under now: ``chromium:netns,no-egress``; ``none`` when no
-    namespace is available and the user opted out; ``unavailable: <why>`` when pages would be
-    refused. For the run manifest."""
+    """What untrusted pages run under now: `ISOLATION_BWRAP` (root with bubblewrap),
+    `ISOLATION_NETNS` (a network namespace only); ``none`` when no namespace is available and
+    the user opted out; ``unavailable: <why>`` when pages would be refused. For the manifest."""
+    if bwrap_for_chromium()[0] is not None:
+        return ISOLATION_BWRAP
     prefix, why = netns_prefix()
     if prefix is not None:
         return ISOLATION_NETNS
@@ -237,29 +242,43 @@ class BrowserPool:
 
     def _wrapper(self, executable: str) -> Path:
         """A private launcher script: records Chromium's pid, sends its stderr to a file, and
-        execs it inside a fresh network namespace when one can be had."""
-        prefix, why = netns_prefix()
-        if prefix is None:
-            if self.untrusted and not unisolated_allowed():
+        execs it under bubblewrap as uid 65534 (root callers), else inside a fresh network
+        namespace, else (explicit opt-out only) as it is."""
+        self.isolation = browser_isolation_level()
+        if self.isolation.startswith("unavailable: "):
+            if self.untrusted:
                 raise SandboxUnavailable(
-                    f"cannot isolate the browser: no network namespace ({why}); refusing to run "
+                    f"cannot isolate the browser: no network namespace "
+                    f"({self.isolation.removeprefix('unavailable: ')}); refusing to run "
                     f"model-written pages without one. Run as root or where unprivileged user "
                     f"namespaces are allowed, or opt out explicitly with sandbox.allow_unisolated="
                     f"true (or {ALLOW_UNISOLATED_ENV}=1)")
             self.isolation = ISOLATION_NONE
-        else:
-            self.isolation = ISOLATION_NETNS
         if self._home is None:
             self._home = Path(tempfile.mkdtemp(prefix="visphy-chromium-"))
             # also removed when the pool is never closed (the interpreter exits)
             weakref.finalize(self, shutil.rmtree, str(self._home), ignore_errors=True)
         script = self._home / "chromium-launcher"
-        cmd = " ".join(sh_quote(a) for a in (prefix or []) + [executable])
-        script.write_text("#!/bin/sh\n"
-                          'echo $$ > "$VISPHY_CHROMIUM_PIDFILE"\n'
-                          f'exec {cmd} "$@" 2>>"$VISPHY_CHROMIUM_STDERR"\n')
+        bwrap = bwrap_for_chromium()[0]
+        if bwrap is not None:
+            os.chmod(self._home, 0o711)  # uid 65534 must cross it to reach its profile
+            os.chown(self.profile, CHROMIUM_UID, CHROMIUM_UID)
+            script.write_text(bwrap_launcher(bwrap, executable, self.profile))
+        else:
+            prefix = netns_prefix()[0] or []
+            cmd = " ".join(sh_quote(a) for a in [*prefix, executable])
+            script.write_text("#!/bin/sh\n"
+                              'echo $$ > "$VISPHY_CHROMIUM_PIDFILE"\n'
+                              f'exec {cmd} "$@" 2>>"$VISPHY_CHROMIUM_STDERR"\n')
         script.chmod(0o700)
         return script
+
+    @property
+    def profile(self) -> Path:
+        """Chromium's private HOME (and XDG dirs) inside the pool's temp dir."""
+        path = self._home / "profile"
+        path.mkdir(exist_ok=True)
+        return path
 
     async def _start(self) -> None:
         from playwright.async_api import async_playwright
@@ -273,7 +292,7 @@ class BrowserPool:
             self._launches += 1
             pidfile = self._home / f"browser-{self._launches}.pid"
             stderr = self._home / f"browser-{self._launches}.stderr"
-            env = chromium_env(self._home)
+            env = chromium_env(self.profile)
             env["VISPHY_CHROMIUM_PIDFILE"] = str(pidfile)
             env["VISPHY_CHROMIUM_STDERR"] = str(stderr)
             try:

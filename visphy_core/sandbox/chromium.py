@@ -1,5 +1,15 @@
-"""Chromium's processes: the network namespace it runs in, the environment it starts with, and
-the process tree the memory watchdog inspects (shared by `visphy_core.sandbox.browser`).
+"""Chromium's processes: the sandbox it runs in, the environment it starts with, and the process
+tree the memory watchdog inspects (shared by `visphy_core.sandbox.browser`).
+
+Two containment levels, the strongest available is used:
+
+* ``bwrap`` (visphy runs as root and bubblewrap works, as in the process sandbox): Chromium runs
+  under bubblewrap with fresh network, PID, IPC and UTS namespaces, a new root holding read-only
+  ``/usr``, ``/etc/fonts`` and ``/etc/chromium*`` only, its private profile and Playwright's
+  user-data dir as the only writable places, and drops to uid/gid 65534 (``setpriv``, no
+  capabilities, ``no_new_privs``). A renderer exploit then finds no network, no host files and
+  no privileges. (Chromium's own sandbox stays off, as Playwright runs it as root.)
+* ``netns``: Chromium in a fresh, empty network namespace (``unshare -n`` / ``unshare -rn``).
 """
 
 from __future__ import annotations
@@ -13,6 +23,79 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 _NETNS_PROBE: dict = {}
+_BWRAP_PROBE: dict = {}
+#: The uid Chromium runs as under bubblewrap (Debian's nobody).
+CHROMIUM_UID = 65534
+
+
+def bwrap_for_chromium() -> tuple[str | None, str]:
+    """(bwrap path, note) when Chromium can run under bubblewrap as uid 65534, else (None, why).
+
+    Needs a root caller (bwrap builds the namespaces, ``setpriv`` drops privileges inside) and a
+    working bubblewrap: the process sandbox's probe decides. Probed once per process."""
+    if "result" not in _BWRAP_PROBE:
+        from visphy_core.sandbox import process
+
+        ok, why = process.isolation_available()
+        bwrap, setpriv = shutil.which("bwrap"), shutil.which("setpriv")
+        if os.geteuid() != 0:
+            result = (None, "not root: Chromium runs in a network namespace only")
+        elif not ok or bwrap is None or setpriv is None:
+            result = (None, why if not ok else "bwrap or setpriv missing")
+        else:
+            result = (bwrap, why)
+        _BWRAP_PROBE["result"] = result
+    return _BWRAP_PROBE["result"]
+
+
+def _dirs_for(path: Path) -> list[str]:
+    """bwrap arguments creating every ancestor of ``path`` traversable (bwrap would make them
+    0700 and root-owned, which uid 65534 cannot cross)."""
+    out: list[str] = []
+    for parent in reversed(path.parents):
+        if str(parent) != "/":
+            out += ["--perms", "1777" if str(parent) == "/tmp" else "0755", "--dir", str(parent)]
+    return out
+
+
+def bwrap_launcher(bwrap: str, executable: str, profile: Path) -> str:
+    """The body of a /bin/sh launcher that execs ``executable "$@"`` under bubblewrap as uid
+    65534. ``profile`` (Chromium's HOME, owned by 65534) is bound writable; so is the
+    ``--user-data-dir`` Playwright passes, handed to 65534 by the script."""
+    static = [bwrap, "--unshare-net", "--unshare-pid", "--unshare-ipc", "--unshare-uts",
+              "--die-with-parent", "--new-session",
+              "--ro-bind", "/usr", "/usr", "--symlink", "usr/lib", "/lib",
+              "--symlink", "usr/lib64", "/lib64", "--symlink", "usr/bin", "/bin",
+              "--symlink", "usr/sbin", "/sbin",
+              "--perms", "0755", "--dir", "/etc", "--perms", "0755", "--dir", "/var",
+              "--perms", "0755", "--dir", "/var/cache"]
+    for path in ("/etc/fonts", "/etc/chromium", "/etc/chromium.d", "/etc/ld.so.cache",
+                 "/var/cache/fontconfig"):
+        static += ["--ro-bind-try", path, path]
+    static += ["--proc", "/proc", "--dev", "/dev", "--tmpfs", "/dev/shm",
+               *_dirs_for(profile), "--bind", str(profile), str(profile)]
+    drop = ["--", shutil.which("setpriv") or "/usr/bin/setpriv", f"--reuid={CHROMIUM_UID}",
+            f"--regid={CHROMIUM_UID}", "--clear-groups", "--no-new-privs", "--", executable]
+    q = " ".join
+    return f"""#!/bin/sh
+echo $$ > "$VISPHY_CHROMIUM_PIDFILE"
+udd=""
+for a in "$@"; do case "$a" in --user-data-dir=*) udd="${{a#--user-data-dir=}}";; esac; done
+extra=""
+if [ -n "$udd" ]; then
+  case "$udd" in *[!A-Za-z0-9_./-]*) echo "visphy: unexpected user-data-dir $udd" >&2; exit 2;; esac
+  chown -R {CHROMIUM_UID}:{CHROMIUM_UID} "$udd"
+  p=""
+  for c in $(dirname "$udd" | tr / ' '); do
+    p="$p/$c"
+    if [ "$p" = /tmp ]; then m=1777; else m=0755; fi
+    extra="$extra --perms $m --dir $p"
+  done
+  extra="$extra --bind $udd $udd"
+fi
+exec {q(sh_quote(a) for a in static)} $extra {q(sh_quote(a) for a in drop)} "$@" \
+  2>>"$VISPHY_CHROMIUM_STDERR"
+"""
 
 
 def netns_prefix() -> tuple[list[str] | None, str]:
