@@ -286,10 +286,15 @@ def _run(cfg, pm, root, cache, scenes, model, engine, metrics, run_dir, restored
                     advance(scene.scene_id)
                     result = process_scene(scene, model, engine, metrics, settings, cache,
                                            run_dir / "scenes" / scene.scene_id)
-                    rows.write(json.dumps(result.row(), default=str) + "\n")
-                    rows.flush()
-                    os.fsync(rows.fileno())
-                    ctx.results.append(result)
+                    # The row on disk and the row in memory go together: a signal between
+                    # them would leave a summary that misses a row results.jsonl holds.
+                    with _deferred_signals() as held:
+                        rows.write(json.dumps(result.row(), default=str) + "\n")
+                        rows.flush()
+                        os.fsync(rows.fileno())
+                        ctx.results.append(result)
+                    if held:
+                        raise RunInterrupted(held[0])
                     pm.hook.visphy_scene_done(run=ctx, scene=scene, result=result)
     except RunInterrupted as exc:
         status, raised = INTERRUPTED, exc
