@@ -295,11 +295,11 @@ class BlenderEngine(Engine):
         return result
 
     def _collect(self, proc: Any, workdir: Path, contract: RenderContract,
-                 limits: Any = None) -> RenderResult:
+                 limits: Any) -> RenderResult:
         logs = [line for line in _lines(proc.stdout) + _lines(proc.stderr)
                 if not _noise(line)][-200:]
         result = RenderResult(frames=None, logs=logs)
-        from visphy_core.sandbox.process import limit_from_text, read_untrusted
+        from visphy_core.sandbox.process import describe_limit, limit_from_text, read_untrusted
 
         raw = read_untrusted(workdir / "result.json", 4 << 20)
         try:
@@ -313,8 +313,7 @@ class BlenderEngine(Engine):
         status = info.get("status")
         frame_files = _frame_files(workdir / "frames")
         fail = FailureClass
-        mem_mb = limits.memory_mb if limits else _get(self.cfg, "memory_mb", 4096)
-        detail = f": {str(info['error'])[:1500]}" if info.get("error") else ""
+        detail = str(info["error"])[:1500] if info.get("error") else ""
         hit = proc.limit_hit
         if hit is None and status in ("runtime_error", "render_error"):
             # the runner caught the script's exception itself (MemoryError, EFBIG, EAGAIN)
@@ -328,19 +327,8 @@ class BlenderEngine(Engine):
             result.error = (f"no result within the {which} limit of {contract.timeout_s:g} s "
                             f"({len(frame_files)}/{contract.n_frames} frames rendered; "
                             "infinite loop or too heavy a scene?)")
-        elif hit == "memory":
-            result.failure = fail.RESOURCE_LIMIT
-            result.error = f"memory limit of {mem_mb} MB exceeded{detail}"
-        elif hit == "file_size":
-            result.failure = fail.RESOURCE_LIMIT
-            result.error = "file size limit exceeded (the script writes too much)"
-        elif hit == "disk":
-            result.failure = fail.RESOURCE_LIMIT
-            result.error = (f"disk quota of the work dir ({limits.disk_mb if limits else '?'} MB)"
-                            " exceeded (the script writes too much)")
-        elif hit == "processes":
-            result.failure = fail.RESOURCE_LIMIT
-            result.error = f"process limit reached (the script starts too many processes){detail}"
+        elif (limit := describe_limit(hit, limits, detail)) is not None:
+            result.failure, result.error = fail.RESOURCE_LIMIT, limit
         elif status == "syntax_error":
             result.failure, result.error = fail.SYNTAX_ERROR, info.get("error")
         elif status in ("runtime_error", "render_error"):

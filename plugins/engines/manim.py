@@ -58,8 +58,8 @@ from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, 
                                 RenderResult, classify_frames)
 from visphy_core.extract import extract_code, extract_spec
 from visphy_core.hookspecs import hookimpl
-from visphy_core.sandbox.process import (Limits, ProcessResult, python_ro_paths, read_untrusted,
-                                         run_sandboxed)
+from visphy_core.sandbox.process import (Limits, ProcessResult, describe_limit, python_ro_paths,
+                                         read_untrusted, run_sandboxed)
 from visphy_core.secrets import redact
 from visphy_core.scene import Scene
 
@@ -372,19 +372,8 @@ class ManimEngine(Engine):
         elif res.limit_hit == "cpu":
             result.failure = FailureClass.TIMEOUT
             result.error = f"CPU time limit ({limits.cpu_s:g} s) exceeded"
-        elif res.limit_hit == "memory":
-            result.failure = FailureClass.RESOURCE_LIMIT
-            result.error = f"memory limit ({limits.memory_mb} MB) exceeded: {what}"
-        elif res.limit_hit == "disk":
-            result.failure = FailureClass.RESOURCE_LIMIT
-            result.error = (f"disk quota of the work dir ({limits.disk_mb} MB, "
-                            f"{limits.max_files} files) exceeded")
-        elif res.limit_hit == "file_size":
-            result.failure = FailureClass.RESOURCE_LIMIT
-            result.error = f"file size limit ({limits.file_size_mb} MB) exceeded: {what}"
-        elif res.limit_hit == "processes":
-            result.failure = FailureClass.RESOURCE_LIMIT
-            result.error = f"process limit ({limits.processes} processes) reached: {what}"
+        elif (limit := describe_limit(res.limit_hit, limits, what)) is not None:
+            result.failure, result.error = FailureClass.RESOURCE_LIMIT, limit
         elif res.returncode != 0 and isinstance(error, dict):
             result.failure = (FailureClass.SYNTAX_ERROR if error.get("kind") == "syntax"
                               else FailureClass.INFRA_ERROR if error.get("kind") == "import_manim"

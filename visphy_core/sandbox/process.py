@@ -467,6 +467,19 @@ def limit_from_text(text: str) -> str | None:
     return None
 
 
+def describe_limit(hit: str | None, limits: Limits, detail: str = "") -> str | None:
+    """The message of a resource-limit hit (``memory``, ``file_size``, ``disk``, ``processes``:
+    the program's ``resource_limit``), the same for every engine; None for any other hit."""
+    what = f": {detail}" if detail else ""
+    return {
+        "memory": f"memory limit ({limits.memory_mb} MB) exceeded{what}",
+        "file_size": f"file size limit ({limits.file_size_mb} MB) exceeded{what}",
+        "disk": (f"disk quota of the work dir ({limits.disk_mb} MB, {limits.max_files} files) "
+                 f"exceeded{what}"),
+        "processes": f"process limit ({limits.processes} processes) reached{what}",
+    }.get(hit or "")
+
+
 # ------------------------------------------------------------------------------ reading results
 def read_untrusted(path: str | os.PathLike, max_bytes: int) -> bytes | None:
     """A regular file a sandboxed program could have tampered with: no symlinks (a link to a
