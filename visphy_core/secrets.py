@@ -21,6 +21,14 @@ SECRET_MARKERS = ("KEY", "TOKEN", "SECRET", "PASSWORD", "PASSWD", "CREDENTIAL", 
 #: Extra variable names to treat as secrets: ``VISPHY_SECRET_ENV=MY_VAR,OTHER_VAR``.
 SECRET_ENV_LIST = "VISPHY_SECRET_ENV"
 MIN_SECRET_LEN = 6
+#: Secrets that are not in the environment (API keys read from a ``.env`` file): name -> value.
+_REGISTERED: dict[str, str] = {}
+
+
+def register_secret(name: str, value: str) -> None:
+    """Treat ``value`` as a secret named ``name`` from now on (keys read from ``.env``)."""
+    if value and len(value) >= MIN_SECRET_LEN:
+        _REGISTERED[name] = value
 
 
 def is_secret_name(name: str, extra: set[str] | None = None) -> bool:
@@ -46,6 +54,9 @@ def secret_values(environ: Mapping[str, str] | None = None) -> dict[str, str]:
             continue
         if is_secret_name(name, listed):
             out[value] = name
+    if environ is None:
+        for name, value in _REGISTERED.items():
+            out.setdefault(value, name)
     return out
 
 

@@ -346,3 +346,29 @@ def contact_table(spec: dict) -> tuple[dict[str, float], dict[frozenset[str], di
                                            "restitution": float(p["restitution"])}
              for p in contacts["pairs"]}
     return {k: float(v) for k, v in contacts["default"].items()}, pairs
+
+
+#: JSON Schema of the scene specification S a model writes for a 2D scene: the ground truth's
+#: schema for bodies and contacts, with only what a model can infer from the frames required
+#: (no scene id, difficulty, solver or ground-truth sections).
+REPLY_SCHEMA_2D: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "visphy scene specification S written by a model (2D)",
+    "type": "object",
+    "properties": {
+        "schema": {"const": SPEC_SCHEMA},
+        "dim": {"const": "2d"},
+        "world": {"type": "object",
+                  "properties": {"gravity_m_s2": _VEC2,
+                                 "units": {"type": "object", "properties": {"px_per_m": _POS}}},
+                  "required": ["gravity_m_s2"]},
+        "bodies": {"type": "array", "items": _BODY, "minItems": 1},
+        "contacts": {"type": "object", "properties": {
+            "default": _CONTACT,
+            "pairs": {"type": "array", "items": _obj({"a": {"type": "string"},
+                                                      "b": {"type": "string"},
+                                                      "friction": _NONNEG,
+                                                      "restitution": _NONNEG})}}},
+    },
+    "required": ["world", "bodies"],
+}

@@ -467,3 +467,26 @@ def contact_table_3d(spec: dict
                                            "restitution": float(p["restitution"])}
              for p in contacts["pairs"]}
     return {k: float(v) for k, v in contacts["default"].items()}, pairs
+
+
+#: JSON Schema of the scene specification S a model writes for a 3D scene (see
+#: `visphy_core.bench.spec.REPLY_SCHEMA_2D`): the ground truth's bodies and contacts.
+REPLY_SCHEMA_3D: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "visphy scene specification S written by a model (3D)",
+    "type": "object",
+    "properties": {
+        "schema": {"const": SPEC_SCHEMA},
+        "dim": {"const": "3d"},
+        "world": {"type": "object", "properties": {"gravity_m_s2": _VEC3},
+                  "required": ["gravity_m_s2"]},
+        "bodies": {"type": "array", "items": _BODY, "minItems": 1},
+        "contacts": {"type": "object", "properties": {
+            "default": _CONTACT,
+            "pairs": {"type": "array", "items": _obj({"a": {"type": "string"},
+                                                      "b": {"type": "string"},
+                                                      "friction": _NONNEG,
+                                                      "restitution": _NONNEG})}}},
+    },
+    "required": ["world", "bodies"],
+}

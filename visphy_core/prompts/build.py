@@ -3,6 +3,11 @@
 Modes (config ``prompt``): paper-faithful (no timing information, the default), ``timed``
 (states fps, clip length and the time between the two frames), with or without the detection
 context, and forecast-only (only the first frame).
+
+Every template is versioned in ``versions.json`` (version and SHA-256 of its text; a test fails
+when a template changes without a new version). The version of a prompt names the templates it
+was built from, e.g. ``default@2+spec_2d@1+detection@1``; it is stored with every reply and is
+part of the response cache key.
 """
 
 from __future__ import annotations
@@ -10,6 +15,7 @@ from __future__ import annotations
 import io
 import json
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from string import Template
 
@@ -23,6 +29,18 @@ _DIR = Path(__file__).parent
 
 def _template(name: str) -> Template:
     return Template((_DIR / f"{name}.txt").read_text())
+
+
+@lru_cache(maxsize=1)
+def template_versions() -> dict[str, dict]:
+    """``{template name: {"version": int, "sha256": str}}`` from ``versions.json``."""
+    return json.loads((_DIR / "versions.json").read_text())
+
+
+def version_of(names: list[str]) -> str:
+    """The prompt version of a prompt built from the named templates."""
+    versions = template_versions()
+    return "+".join(f"{name}@{versions[name]['version']}" for name in names)
 
 
 @dataclass(frozen=True)
@@ -47,8 +65,8 @@ def png_bytes(frame: np.ndarray) -> bytes:
 
 
 def build_prompt(scene: Scene, engine_instructions: str, language: str,
-                 settings: PromptSettings) -> tuple[str, list[ImageInput]]:
-    """Prompt text and key-frame images for one scene."""
+                 settings: PromptSettings) -> tuple[str, list[ImageInput], str]:
+    """Prompt text, key-frame images and the prompt version for one scene."""
     frames = settings.frames[:1] if settings.forecast_only else settings.frames
     images = [ImageInput(f"frame_{i:02d}", png_bytes(scene.key_frame(i))) for i in frames]
     if len(frames) == 1:
@@ -57,7 +75,9 @@ def build_prompt(scene: Scene, engine_instructions: str, language: str,
     else:
         sentence = (f"Image 1 is frame {frames[0]} and image 2 is a later frame (frame "
                     f"{frames[1]}) of the same video.")
+    used = ["default", f"spec_{scene.dim}"]
     if settings.timed:
+        used.append("timing")
         fps, n = scene.clip.fps, scene.clip.n_frames
         later = frames[1] if len(frames) > 1 else frames[0]
         sentence += "\n" + _template("timing").substitute(
@@ -65,21 +85,28 @@ def build_prompt(scene: Scene, engine_instructions: str, language: str,
             later_index=later, gap_s=f"{(later - frames[0]) / fps:g}")
     detection_block = ""
     if settings.detection and scene.detection is not None:
+        used.append("detection")
         detection_block = _template("detection").substitute(
             detection_json=json.dumps(scene.detection, indent=1))
     text = _template("default").substitute(
         frames_sentence=sentence, language=language, engine_instructions=engine_instructions,
-        detection_block=detection_block)
-    return text, images
+        detection_block=detection_block,
+        spec_format=_template(f"spec_{scene.dim}").template.rstrip("\n"))
+    return text, images, version_of(used)
 
 
 def build_repair_prompt(original: str, language: str, failed_program: str,
                         failure_class: str, error_summary: str, max_program_chars: int = 20000
                         ) -> str:
-    """The original prompt plus the failing program and a concise error summary."""
+    """The original prompt plus the failing program and a concise error summary (its version
+    is the original's plus ``+repair@N``: `repair_version`)."""
     program = failed_program
     if len(program) > max_program_chars:
         program = program[:max_program_chars] + "\n/* … truncated … */"
     return original + _template("repair").substitute(
         language=language, failed_program=program, failure_class=failure_class,
         error_summary=error_summary.strip() or "(no error text)")
+
+
+def repair_version(original_version: str) -> str:
+    return f"{original_version}+{version_of(['repair'])}"

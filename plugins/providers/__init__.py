@@ -1,0 +1,1 @@
+"""Provider clients over the official SDKs, shared by model adapters and judges."""

@@ -1,0 +1,1 @@
+"""Test helpers for visphy and its plugin authors: fake provider servers on loopback."""
