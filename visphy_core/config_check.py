@@ -327,8 +327,8 @@ def check_ranges(cfg: DictConfig) -> None:
 
 
 def check_names(cfg: DictConfig) -> None:
-    """``model.name``, ``engine.name``, ``judge.name`` and ``metrics.names`` name installed
-    plugins (see ``python -m visphy_core plugins``)."""
+    """``model.name``, ``engine.name``, every selected judge's ``name`` and ``metrics.names``
+    name installed plugins (see ``python -m visphy_core plugins``)."""
     from visphy_core.plugins import get_registry
 
     registry = get_registry()
@@ -336,13 +336,20 @@ def check_names(cfg: DictConfig) -> None:
     def installed(kind: str, extra: tuple[str, ...] = ()) -> list[str]:
         return sorted(set(getattr(registry, kind)) | set(extra))
 
-    for key, kind, extra in (("model.name", "models", ()), ("engine.name", "engines", ()),
-                             ("judge.name", "judges", ("none",))):
+    for key, kind in (("model.name", "models"), ("engine.name", "engines")):
         value = OmegaConf.select(cfg, key, default=None)
-        valid = installed(kind, extra)
+        valid = installed(kind)
         if value is not None and str(value) not in valid:
             raise ConfigError(f"{key}={value} is not an installed {kind[:-1]}; installed: "
                               f"{', '.join(valid) or 'none'}")
+    judges = OmegaConf.select(cfg, "judge", default=None)
+    if isinstance(judges, DictConfig):
+        valid = installed("judges")
+        for entry, node in judges.items():
+            value = node.get("name") if isinstance(node, DictConfig) else None
+            if value is not None and str(value) not in valid:
+                raise ConfigError(f"judge.{entry}.name={value} is not an installed judge; "
+                                  f"installed: {', '.join(valid) or 'none'}")
     names = OmegaConf.select(cfg, "metrics.names", default=None)
     if names is not None:
         valid = installed("metrics")

@@ -60,6 +60,25 @@ class RunConfig:
     seed: int = field(default=0, metadata={"min": 0, "max": 2**32 - 1})
     cache: bool = True
     progress: bool = True
+    # Stop making new model/judge calls once this much USD is spent (null: no cap).
+    cost_cap_usd: Optional[float] = field(default=None, metadata={"min": 0})
+    # Model calls started ahead of the scene being rendered (they overlap with rendering).
+    prefetch: int = field(default=8, metadata={"min": 0, "max": 1024})
+
+
+class ReferenceSource(StrEnum):
+    spec = "spec"   # written deterministically from the ground-truth spec and contact events
+    llm = "llm"     # written by the model in reference.model from uniformly sampled GT frames
+
+
+@dataclass
+class ReferenceConfig:
+    """The reference description of each scene for the text metrics (one per scene, shared by
+    every model, cached at the dataset level; never made from a model's own output)."""
+
+    source: ReferenceSource = ReferenceSource.spec
+    model: Optional[str] = None     # source=llm: a model config name (conf/model/<name>.yaml)
+    frames: int = field(default=8, metadata={"min": 1, "max": 64})
 
 
 @dataclass
@@ -91,7 +110,10 @@ class MetricsConfig:
 
 @dataclass
 class JudgeConfig:
-    name: str = "none"
+    """One selected judge: ``judge=gemini`` puts it at ``judge.gemini``; several judges with
+    ``judge=[gemini,gpt_frames]``; none with ``judge=none`` (the default)."""
+
+    name: str = MISSING
 
 
 @dataclass
@@ -117,12 +139,13 @@ class RootConfig:
     model: Any = MISSING
     engine: Any = MISSING
     metrics: Any = MISSING
-    judge: Any = MISSING
+    judge: Any = field(default_factory=dict)
     tracking: Any = MISSING
     paths: PathsConfig = field(default_factory=PathsConfig)
     prompt: PromptConfig = field(default_factory=PromptConfig)
     run: RunConfig = field(default_factory=RunConfig)
     sandbox: SandboxConfig = field(default_factory=SandboxConfig)
+    reference: ReferenceConfig = field(default_factory=ReferenceConfig)
 
 
 GROUP_SCHEMAS = {

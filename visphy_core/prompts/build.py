@@ -110,3 +110,19 @@ def build_repair_prompt(original: str, language: str, failed_program: str,
 
 def repair_version(original_version: str) -> str:
     return f"{original_version}+{version_of(['repair'])}"
+
+
+def judge_prompt(input_kind: str, n_frames: int = 0, duration_s: float = 0.0
+                 ) -> tuple[str, str]:
+    """(text, version) of the judge prompt for video input or for sampled frames."""
+    if input_kind == "video":
+        return _template("judge_video").template, version_of(["judge_video"])
+    text = _template("judge_frames").substitute(n_frames=n_frames, duration_s=f"{duration_s:g}")
+    return text, version_of(["judge_frames"])
+
+
+def reference_caption_prompt(n_frames: int, duration_s: float) -> tuple[str, str]:
+    """(text, version) of the prompt that asks an LLM for a reference description."""
+    text = _template("reference_caption").substitute(n_frames=n_frames,
+                                                     duration_s=f"{duration_s:g}")
+    return text, version_of(["reference_caption"])
