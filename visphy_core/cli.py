@@ -153,25 +153,37 @@ def cmd_build_dataset(argv: list[str]) -> int:
 
 
 def cmd_normalise(argv: list[str]) -> int:
+    import shutil
     from pathlib import Path
 
-    from visphy_core.video import decode_video, encode_video, normalise_clip
+    from visphy_core.video import (clip_matches, decode_video, decode_video_timed,
+                                   encode_video, resample_by_time)
 
     parser = argparse.ArgumentParser(
         prog="python -m visphy_core normalise",
-        description="Resample any video to a reference clip's fps, frame count and size "
-                    "(nearest frame in time; aspect kept, padded with white).")
+        description="Resample any video to a reference clip's fps, frame count and size by its "
+                    "own timestamps (frame k = the frame on screen at k / fps; aspect kept, "
+                    "padded with white). A video that already matches is copied unchanged.")
     parser.add_argument("video", help="the foreign video (a baseline's or upstream output)")
     parser.add_argument("--like", required=True, help="the reference clip to match")
     parser.add_argument("-o", "--output", required=True)
     args = parser.parse_args(argv)
-    frames, info = decode_video(Path(args.video))
+    frames, times, info = decode_video_timed(Path(args.video))
     _, target = decode_video(Path(args.like))
-    out = normalise_clip(frames, info.fps, target)
+    source = (f"{args.video}: {info.n_frames} frames {info.width}x{info.height} "
+              f"@ {info.fps:g} fps")
+    if clip_matches(info, target):
+        out_path = Path(args.output)
+        out_path.parent.mkdir(parents=True, exist_ok=True)
+        if Path(args.video).resolve() != out_path.resolve():
+            shutil.copyfile(args.video, out_path)
+        print(f"{source} already matches {args.like}: copied byte for byte to {args.output} "
+              "(no re-encode)")
+        return 0
+    out = resample_by_time(frames, times, target)
     encode_video(out, Path(args.output), target.fps)
-    print(f"{args.video}: {info.n_frames} frames {info.width}x{info.height} @ {info.fps:g} fps "
-          f"-> {args.output}: {target.n_frames} frames {target.width}x{target.height} "
-          f"@ {target.fps:g} fps")
+    print(f"{source} -> {args.output}: {target.n_frames} frames {target.width}x{target.height} "
+          f"@ {target.fps:g} fps (resampled by timestamp)")
     return 0
 
 

@@ -97,4 +97,20 @@ def print_summary(summary: dict, results: list) -> None:
     console.print(f"cache: renders {render['hits']} hit / {render['misses']} rendered · "
                   f"replies {cache.get('response', {}).get('hits', 0)} hit · "
                   f"scores {cache.get('score', {}).get('hits', 0)} hit")
+    usage = summary.get("usage") or {}
+    for stage, t in usage.items():
+        if stage == "all" or not (t["calls"] or t["cache_hits"]):
+            continue
+        cost = f"${t['cost_usd']:.4f}" + (f" (${t['cost_usd_incl_cached']:.4f} incl. cached)"
+                                           if t["cache_hits"] else "")
+        console.print(f"{stage}: {t['calls']} call(s), {t['cache_hits']} cached, "
+                      f"{t['errors']} failed · tokens in {t['input_tokens']:,} / out "
+                      f"{t['output_tokens']:,} · {cost}")
+    spec = summary.get("spec") or {}
+    if spec.get("valid") or spec.get("invalid"):
+        console.print(f"scene spec S: {spec['valid']} valid, {spec['invalid']} invalid, "
+                      f"{spec['absent']} absent")
+    for key, j in (summary.get("judges") or {}).items():
+        console.print(f"judge {key}: {j['n_valid']} valid verdict(s), {j['n_invalid']} invalid"
+                      + (f" {j['invalid']}" if j["invalid"] else ""))
     console.print(f"run directory: {summary['run_dir']}", soft_wrap=True)

@@ -33,14 +33,16 @@ class FailureClass(str, Enum):
     SANDBOX_VIOLATION = "sandbox_violation"
     RESOURCE_LIMIT = "resource_limit"   # the program hit a memory, disk, file-size or process cap
     INFRA_ERROR = "infra_error"         # our side failed (browser crash, missing renderer)
+    REFUSAL = "refusal"                 # the model refused (its provider's refusal signal)
     MODEL_ERROR = "model_error"         # the provider failed after retries
     DATA_ERROR = "data_error"           # a bad input of this scene (detection JSON, GT video)
 
     @property
     def blames_program(self) -> bool:
-        """True when the model's program is at fault (a repair call may help)."""
+        """True when the model's program is at fault (a repair call may help). A refusal is
+        the model's failure but asking again with an error summary is not a repair."""
         return self not in (FailureClass.INFRA_ERROR, FailureClass.MODEL_ERROR,
-                            FailureClass.DATA_ERROR)
+                            FailureClass.DATA_ERROR, FailureClass.REFUSAL)
 
 
 class ProgramRejected(Exception):

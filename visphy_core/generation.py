@@ -168,6 +168,13 @@ class ModelCaller:
         with self._lock:
             return sum(not f.done() for f in self._futures.values())
 
+    def wait_pending(self, timeout_s: float | None = None) -> None:
+        """Wait for the calls in flight (prefetched ones the run no longer needs included):
+        each reply is cached when it arrives, so a resumed run does not pay for it again."""
+        with self._lock:
+            futures = list(self._futures.values())
+        concurrent.futures.wait(futures, timeout=timeout_s)
+
     def _record(self, request: ModelRequest, response: ModelResponse, cached: bool,
                 ticket: int | None = None) -> None:
         provider, model_id = provider_of(self.model)

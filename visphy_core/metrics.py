@@ -25,6 +25,7 @@ class MetricInput:
     generated: np.ndarray
     analysis: str | None = None
     spec: dict | None = None
+    reference_text: str | None = None  # the scene's reference description (text metrics)
 
 
 class Metric(ABC):

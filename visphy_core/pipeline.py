@@ -14,14 +14,23 @@ import numpy as np
 from visphy_core.cache import Cache, CorruptEntry, content_key, read_json
 from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
                                 RenderResult, classify_frames)
-from visphy_core.extract import extract_analysis
+from visphy_core.errors import UserError
+from visphy_core.extract import extract_analysis, extract_spec
+from visphy_core.generation import ModelCaller
+from visphy_core.judge import JudgeInput
+from visphy_core.judging import JudgeCaller
 from visphy_core.metrics import Metric
-from visphy_core.model import Model, ModelRequest, ModelResponse
-from visphy_core.prompts.build import PromptSettings, build_prompt, build_repair_prompt
+from visphy_core.model import (ImageInput, Model, ModelRequest, ModelResponse, OutputContract,
+                               build_model_request)
+from visphy_core.prompts.build import (PromptSettings, build_prompt, build_repair_prompt,
+                                       repair_version)
+from visphy_core.references import ReferenceWriter
+from visphy_core.reply_spec import spec_problems
 from visphy_core.scene import Scene, SceneDataError
-from visphy_core.scoring import score_scene
+from visphy_core.scoring import clip_digest, score_scene
 from visphy_core.secrets import redact, redact_obj
-from visphy_core.video import decode_video, encode_video, frame_digest
+from visphy_core.usage import CostCapReached
+from visphy_core.video import decode_video, encode_video, frame_digest, load_clip_for
 
 
 @dataclass
@@ -47,6 +56,15 @@ class SceneResult:
     model_calls: int = 0                 # calls actually sent to the model (cache misses)
     infra_retries: int = 0               # renders repeated after an infra_error
     isolation: str | None = None         # how the program was isolated (RenderResult.isolation)
+    prompt_version: str | None = None    # templates the first prompt was built from
+    output_kind: str = "program"         # program (rendered) or video (a pixel-space model)
+    finish_reason: str | None = None     # the provider's reason the last reply ended
+    input_tokens: int = 0                # over the replies used (cached ones included)
+    output_tokens: int = 0
+    spec_valid: bool | None = None       # the reply's S against the ground truth's schema
+    spec_problems: list[str] = field(default_factory=list)
+    reference_source: str | None = None  # how the reference description was made
+    judge_errors: dict[str, str] = field(default_factory=dict)  # invalid verdicts, why
     frame_digests: list[str] = field(default_factory=list)
     scores: dict[str, float | None] = field(default_factory=dict)
     unavailable: dict[str, str] = field(default_factory=dict)
@@ -62,7 +80,8 @@ class SceneResult:
         scores = d.pop("scores")
         d["unavailable"] = json.dumps(self.unavailable, sort_keys=True)
         d["flags"] = ",".join(self.flags)
-        d["frame_digests"] = json.dumps(self.frame_digests)
+        for name in JSON_COLUMNS:
+            d[name] = json.dumps(d[name], sort_keys=True)
         for name, value in scores.items():
             d[f"score_{name}"] = value
         return d
@@ -75,11 +94,16 @@ class SceneResult:
         known = {f for f in cls.__dataclass_fields__}
         d = {k: v for k, v in d.items() if k in known}
         d["flags"] = [f for f in (d.get("flags") or "").split(",") if f]
-        d["frame_digests"] = json.loads(d.get("frame_digests") or "[]")
-        d["unavailable"] = json.loads(d.get("unavailable") or "{}")
+        for name in (*JSON_COLUMNS, "unavailable"):
+            if isinstance(d.get(name), str):
+                d[name] = json.loads(d[name])
+            elif name in d and d[name] is None:
+                del d[name]
         return cls(**d, scores=scores)
 
 
+#: List/dict fields stored as JSON text in results.jsonl and results.parquet.
+JSON_COLUMNS = ("frame_digests", "spec_problems", "judge_errors")
 #: Failure classes that say nothing about the model: not counted against it.
 NOT_EVALUABLE = (FailureClass.INFRA_ERROR.value, FailureClass.DATA_ERROR.value)
 #: Render failures never replayed from the cache: they depend on the time limit or the machine.
@@ -172,28 +196,6 @@ def render_cached(engine: Engine, program: Program, contract: RenderContract,
     return outcome
 
 
-def call_model_cached(model: Model, request: ModelRequest, cache: Cache
-                      ) -> tuple[ModelResponse, bool]:
-    """The model's reply, from the cache when this exact request was answered before. A reply is
-    stored right after the call, so a run killed later never pays for it again."""
-    key = request.cache_key(model.identity())
-
-    def parse(entry: Path) -> ModelResponse:
-        data = read_json(entry / "response.json")
-        response = ModelResponse(**data)
-        if not isinstance(response.text, str):
-            raise CorruptEntry("response text is not a string")
-        return response
-
-    cached = cache.load("response", key, parse)
-    if cached is not None:
-        return cached, True
-    response = model.generate(request)
-    if response.error is None:  # provider errors are not cached: a later run may succeed
-        cache.put("response", key, {"response.json": json.dumps(asdict(response), default=str)})
-    return response, False
-
-
 def error_summary(outcome_error: str | None, logs: list[str], max_lines: int = 12) -> str:
     """Concise error text for the repair prompt: the error, then the last lines of the log."""
     lines = [outcome_error or ""] + [line for line in logs if line != outcome_error][-max_lines:]
@@ -229,22 +231,81 @@ def _fail(result: SceneResult, failure: FailureClass, detail: str) -> None:
     result.unavailable = {}
 
 
-def process_scene(scene: Scene, model: Model, engine: Engine, metrics: list[Metric],
-                  settings: PipelineSettings, cache: Cache, scene_dir: Path) -> SceneResult:
+@dataclass
+class SceneServices:
+    """What every scene of a run shares: the model behind its caller, the engine, the metrics,
+    the judges, the reference writer, the settings and the cache."""
+
+    model: Model
+    caller: ModelCaller
+    engine: Engine
+    metrics: list[Metric]
+    settings: PipelineSettings
+    cache: Cache
+    judges: JudgeCaller | None = None
+    references: ReferenceWriter | None = None
+
+
+class ProviderRejectedKey(UserError):
+    """The provider refused the key (HTTP 401/403): every scene would fail the same way."""
+
+
+@dataclass
+class FirstCall:
+    """The first prompt of a scene and the request built from it."""
+
+    prompt: str
+    images: list[ImageInput]
+    version: str
+    request: ModelRequest
+
+
+def first_call(scene: Scene, services: SceneServices) -> FirstCall:
+    """The scene's first prompt and request: the pipeline and the run's prefetch build the same
+    request, so a prefetched call is the one the pipeline asks for."""
+    s, engine = services.settings, services.engine
+    prompt, images, version = build_prompt(scene, engine.instructions(scene.dim), engine.language,
+                                           s.prompt)
+    return FirstCall(prompt, images, version, _request(scene, services, prompt, images, version,
+                                                       attempt=1))
+
+
+def _request(scene: Scene, services: SceneServices, prompt: str, images: list[ImageInput],
+             version: str, attempt: int) -> ModelRequest:
+    c = scene.clip
+    return build_model_request(
+        services.model, scene=scene, engine=services.engine, scene_id=scene.scene_id,
+        prompt=prompt, images=images, engine_name=services.engine.name,
+        detection=scene.detection if services.settings.prompt.detection else None,
+        language=services.engine.language, output=OutputContract(c.fps, c.n_frames, c.width,
+                                                                 c.height),
+        attempt=attempt, prompt_version=version, stage="generate" if attempt == 1 else "repair")
+
+
+def process_scene(scene: Scene, services: SceneServices, scene_dir: Path) -> SceneResult:
     """Run one scene end to end and write its artifacts under ``scene_dir``.
 
     Never raises for a fault of this scene: a bad input of the scene is a ``data_error`` row
     (checked before the model is called), any other exception an ``infra_error`` row with the
-    exception type and message. Only `BaseException`s that are not `Exception`s (an interrupted
-    run, Ctrl-C) propagate.
+    exception type and message. Raises `CostCapReached` (the run stops before this scene; it is
+    redone on resume) and `ProviderRejectedKey` (every scene would fail). `BaseException`s that
+    are not `Exception`s (an interrupted run, Ctrl-C) propagate.
     """
+    metrics = services.metrics
+    columns = [m.name for m in metrics]
+    if services.judges is not None:
+        columns += [services.judges.column(k) for k, _ in services.judges.judges]
     result = SceneResult(scene_id=scene.scene_id, dim=scene.dim, difficulty=scene.difficulty,
-                         scores={m.name: None for m in metrics})  # same columns for every row
+                         output_kind=services.model.output_kind,
+                         scores={name: None for name in columns})  # same columns for every row
     try:
+        settings = services.settings
         frames = (settings.prompt.frames[:1] if settings.prompt.forecast_only
                   else settings.prompt.frames)
         reference = scene.check_inputs(tuple(frames) or (1,))
-        _evaluate(scene, reference, model, engine, metrics, settings, cache, scene_dir, result)
+        _evaluate(scene, reference, services, scene_dir, result)
+    except (CostCapReached, ProviderRejectedKey):
+        raise
     except SceneDataError as exc:
         _fail(result, FailureClass.DATA_ERROR, str(exc))
     except Exception as exc:  # noqa: BLE001 - one scene's fault never aborts the run
@@ -262,87 +323,127 @@ def process_scene(scene: Scene, model: Model, engine: Engine, metrics: list[Metr
     return result
 
 
-def _evaluate(scene: Scene, reference: np.ndarray, model: Model, engine: Engine,
-              metrics: list[Metric], settings: PipelineSettings, cache: Cache, scene_dir: Path,
+def _model_error(result: SceneResult, response: ModelResponse, attempt: int,
+                 model: Model) -> None:
+    if response.error_kind == "auth":
+        raise ProviderRejectedKey(f"model={model.name}: the provider refused the key in "
+                                  f"${model.needs_key} ({response.error}); check the key")
+    result.failure_class = FailureClass.MODEL_ERROR.value
+    result.failure_detail = redact(_one_line(response.error or ""))[:2000]
+    if attempt == 1:
+        result.first_failure_class = result.failure_class
+
+
+def _reply_failure(response: ModelResponse, exc: ProgramRejected) -> tuple[FailureClass, str]:
+    """The class of a reply the engine could not use, informed by why the reply ended."""
+    if response.finish_reason in ("refusal", "content_filter") and exc.failure in (
+            FailureClass.NO_CODE, FailureClass.WRONG_LANGUAGE):
+        return FailureClass.REFUSAL, (f"the model refused ({response.finish_reason}): "
+                                      f"{response.refusal or response.text[:300]}")
+    if response.truncated and exc.failure is not FailureClass.TRUNCATED:
+        return FailureClass.TRUNCATED, (f"the reply hit the output token limit "
+                                        f"({response.usage.get('output_tokens', '?')} tokens): "
+                                        f"{exc}")
+    return exc.failure, str(exc)
+
+
+def _record_spec(result: SceneResult, spec: dict | None, dim: str, scene_dir: Path,
+                 suffix: str) -> None:
+    if spec is None:
+        result.spec_valid, result.spec_problems = None, []
+        return
+    problems = spec_problems(spec, dim)
+    result.spec_valid, result.spec_problems = not problems, problems
+    _write(scene_dir / f"spec{suffix}.json", json.dumps(spec, indent=1))
+    _write(scene_dir / f"spec_validation{suffix}.json",
+           json.dumps({"valid": not problems, "problems": problems}, indent=1))
+
+
+def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scene_dir: Path,
               result: SceneResult) -> None:
+    model, engine, settings = services.model, services.engine, services.settings
     contract = RenderContract.for_scene(scene, timeout_s=settings.timeout_s, seed=settings.seed)
-    prompt, images = build_prompt(scene, engine.instructions(scene.dim), engine.language,
-                                  settings.prompt)
+    first = first_call(scene, services)
+    result.prompt_version = first.version
     _write(scene_dir / "prompt.json", json.dumps(
-        {"text": prompt, "images": [i.name for i in images], "engine": engine.name}, indent=1))
+        {"text": first.prompt, "images": [i.name for i in first.images], "engine": engine.name,
+         "prompt_version": first.version, "privileged": model.privileged}, indent=1))
     outcome: RenderOutcome | None = None
-    text_prompt = prompt
+    clip: np.ndarray | None = None
+    request = first.request
     analysis, spec = None, None
-    attempts = (1, 2) if settings.retry else (1,)
+    attempts = (1, 2) if settings.retry and model.output_kind == "program" else (1,)
     for attempt in attempts:
         result.attempts = attempt
-        request = ModelRequest(scene_id=scene.scene_id, prompt=text_prompt, images=images,
-                               detection=scene.detection if settings.prompt.detection else None,
-                               engine_name=engine.name, attempt=attempt, scene=scene,
-                               engine=engine)
-        response, cached = call_model_cached(model, request, cache)
+        response, cached = services.caller.call(request)
         result.response_cached = cached
         result.model_calls += 0 if cached else 1
         result.model_latency_s += response.latency_s
         result.cost_usd += response.cost_usd or 0.0
+        result.input_tokens += int(response.usage.get("input_tokens", 0) or 0)
+        result.output_tokens += int(response.usage.get("output_tokens", 0) or 0)
+        result.finish_reason = response.finish_reason
         suffix = "" if attempt == 1 else f".attempt{attempt}"
         _write(scene_dir / f"response{suffix}.txt", response.text)
+        _write(scene_dir / f"response{suffix}.json", json.dumps(
+            {k: getattr(response, k) for k in ("usage", "cost_usd", "latency_s", "error",
+                                                "error_kind", "finish_reason", "refusal",
+                                                "transport_attempts", "prompt_version",
+                                                "model_id")} | {"cached": cached}, indent=1))
         if response.error:
-            result.failure_class = FailureClass.MODEL_ERROR.value
-            result.failure_detail = redact(_one_line(response.error))[:2000]
-            if attempt == 1:
-                result.first_failure_class = result.failure_class
+            _model_error(result, response, attempt, model)
             break
         analysis = extract_analysis(response.text)
-        try:
-            program = engine.extract(response.text)
-            spec = program.spec
-            engine.validate(program)
-        except ProgramRejected as exc:
-            failure, detail, failed_source, logs = exc.failure, str(exc), response.text, []
-        else:
-            _write(scene_dir / f"program{suffix}.{'html' if program.language == 'html' else 'py'}",
-                   program.source)
-            outcome = render_cached(engine, program, contract, cache)
-            log_lines = []
-            if outcome.failure is FailureClass.INFRA_ERROR:
-                # Our side failed, not the program: render once more (never cached, so this is a
-                # real second render), with no repair call to the model.
-                result.infra_retries += 1
-                log_lines += [f"infra_error (retrying the render once): {outcome.error or ''}",
-                              *outcome.logs, "--- retry ---"]
-                outcome = render_cached(engine, program, contract, cache)
-            _write(scene_dir / f"render{suffix}.log", "\n".join(
-                [*log_lines, f"failure: {outcome.failure.value if outcome.failure else 'none'}",
-                 f"isolation: {outcome.isolation or 'unknown'}",
-                 f"error: {outcome.error or ''}", *outcome.logs]))
-            result.render_cached = outcome.cached
-            result.render_wall_s = outcome.wall_s
-            result.isolation = outcome.isolation
-            if outcome.failure is None:
+        spec = extract_spec(response.text)
+        if model.output_kind == "program":
+            _record_spec(result, spec, scene.dim, scene_dir, suffix)
+        if model.output_kind == "video":
+            clip, failure, detail = _video_reply(response, scene)
+            if clip is not None:
                 break
-            failure, detail, failed_source, logs = (outcome.failure, outcome.error or "",
-                                                    program.source, outcome.logs)
-            outcome = None
+            failed_source, logs = response.text, []
+        else:
+            try:
+                program = engine.extract(response.text)
+                engine.validate(program)
+            except ProgramRejected as exc:
+                failure, detail = _reply_failure(response, exc)
+                failed_source, logs = response.text, []
+            else:
+                _write(scene_dir / f"program{suffix}."
+                                   f"{'html' if program.language == 'html' else 'py'}",
+                       program.source)
+                outcome = _render_with_infra_retry(engine, program, contract, services.cache,
+                                                   scene_dir, suffix, result)
+                if outcome.failure is None:
+                    break
+                failure, detail, failed_source, logs = (outcome.failure, outcome.error or "",
+                                                        program.source, outcome.logs)
+                outcome = None
         result.failure_class, result.failure_detail = failure.value, redact(detail)
         if attempt == 1:
             result.first_failure_class = failure.value
         if not failure.blames_program or attempt == attempts[-1]:
             break  # no repair call for our own or the provider's failures
-        text_prompt = redact(build_repair_prompt(prompt, engine.language, failed_source,
-                                                 failure.value, error_summary(detail, logs)))
-        _write(scene_dir / "repair_prompt.txt", text_prompt)
+        repair = redact(build_repair_prompt(first.prompt, engine.language, failed_source,
+                                            failure.value, error_summary(detail, logs)))
+        _write(scene_dir / "repair_prompt.txt", repair)
+        request = _request(scene, services, repair, first.images,
+                           repair_version(first.version), attempt=2)
     if analysis is not None:
         _write(scene_dir / "analysis.txt", analysis)
-    if spec is not None:
-        _write(scene_dir / "spec.json", json.dumps(spec, indent=1))
 
-    if outcome is not None:
+    if outcome is not None or clip is not None:
         result.model_success = result.system_success = True
         result.failure_class = result.failure_detail = None
-        generated = outcome.frames
-        result.frame_digests = outcome.frame_digests
-        _write(scene_dir / "video.mp4", outcome.video_path.read_bytes())
+        if outcome is not None:
+            generated = outcome.frames
+            result.frame_digests = outcome.frame_digests
+            _write(scene_dir / "video.mp4", outcome.video_path.read_bytes())
+        else:
+            encode_video(clip, scene_dir / "video.mp4", contract.fps)
+            generated = decode_video(scene_dir / "video.mp4")[0]
+            result.frame_digests = [frame_digest(f) for f in generated]
         flag = classify_frames(generated)
         if flag is FailureClass.STATIC_OUTPUT:
             result.flags.append(flag.value)
@@ -360,6 +461,69 @@ def _evaluate(scene: Scene, reference: np.ndarray, model: Model, engine: Engine,
     else:
         generated = None
     if generated is not None:
-        scores, unavailable = score_scene(scene, reference, generated, metrics, analysis, spec,
-                                          cache)
-        result.scores, result.unavailable = scores, unavailable
+        _score_and_judge(scene, reference, generated, analysis, spec, services, scene_dir,
+                         result)
+
+
+def _render_with_infra_retry(engine: Engine, program: Program, contract: RenderContract,
+                             cache: Cache, scene_dir: Path, suffix: str,
+                             result: SceneResult) -> RenderOutcome:
+    outcome = render_cached(engine, program, contract, cache)
+    log_lines = []
+    if outcome.failure is FailureClass.INFRA_ERROR:
+        # Our side failed, not the program: render once more (never cached, so this is a
+        # real second render), with no repair call to the model.
+        result.infra_retries += 1
+        log_lines += [f"infra_error (retrying the render once): {outcome.error or ''}",
+                      *outcome.logs, "--- retry ---"]
+        outcome = render_cached(engine, program, contract, cache)
+    _write(scene_dir / f"render{suffix}.log", "\n".join(
+        [*log_lines, f"failure: {outcome.failure.value if outcome.failure else 'none'}",
+         f"isolation: {outcome.isolation or 'unknown'}",
+         f"error: {outcome.error or ''}", *outcome.logs]))
+    result.render_cached = outcome.cached
+    result.render_wall_s = outcome.wall_s
+    result.isolation = outcome.isolation
+    return outcome
+
+
+def _video_reply(response: ModelResponse, scene: Scene
+                 ) -> tuple[np.ndarray | None, FailureClass, str]:
+    """A pixel-space model's clip, resampled to the reference by its own timestamps."""
+    if not response.video_path:
+        return None, FailureClass.NO_CODE, "the video model returned no video"
+    try:
+        clip = load_clip_for(Path(response.video_path), scene.clip)
+    except (ValueError, OSError) as exc:
+        return None, FailureClass.BLANK_OUTPUT, f"unreadable video: {_one_line(str(exc))}"
+    if classify_frames(clip) is FailureClass.BLANK_OUTPUT:
+        return None, FailureClass.BLANK_OUTPUT, "every frame of the video is one flat colour"
+    return clip, FailureClass.BLANK_OUTPUT, ""
+
+
+def _score_and_judge(scene: Scene, reference: np.ndarray, generated: np.ndarray,
+                     analysis: str | None, spec: dict | None, services: SceneServices,
+                     scene_dir: Path, result: SceneResult) -> None:
+    reference_text = None
+    if services.references is not None:
+        reference_text, result.reference_source = services.references.describe(scene)
+        _write(scene_dir / "reference.txt", reference_text)
+    scores, unavailable = score_scene(scene, reference, generated, services.metrics, analysis,
+                                      spec, services.cache, reference_text=reference_text)
+    result.scores.update(scores)
+    result.unavailable.update(unavailable)
+    if services.judges is None:
+        return
+    inp = JudgeInput(scene_id=scene.scene_id, dim=scene.dim, reference_video=scene.video_path,
+                     generated_video=scene_dir / "video.mp4", fps=scene.clip.fps,
+                     n_frames=scene.clip.n_frames)
+    verdicts = services.judges.judge_scene(inp, content_key(clip_digest(reference),
+                                                            clip_digest(generated)))
+    for key, verdict in verdicts.items():
+        column = services.judges.column(key)
+        result.scores[column] = verdict.score if verdict.valid else None
+        if not verdict.valid:
+            result.judge_errors[key] = verdict.error or "invalid verdict"
+            result.unavailable[column] = verdict.error or "invalid verdict"
+    _write(scene_dir / "verdicts.json", json.dumps(
+        {k: v.to_json() for k, v in verdicts.items()}, indent=1, default=str))

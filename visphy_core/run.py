@@ -30,12 +30,18 @@ from omegaconf import DictConfig, OmegaConf
 from visphy_core.cache import Cache
 from visphy_core.console import print_summary, scene_progress
 from visphy_core.dataset import load_dataset
+from visphy_core.errors import ConfigError
+from visphy_core.generation import ModelCaller, get_service
+from visphy_core.judging import JudgeCaller
 from visphy_core.metrics import Metric
-from visphy_core.pipeline import NOT_EVALUABLE, PipelineSettings, SceneResult, process_scene
+from visphy_core.pipeline import (NOT_EVALUABLE, PipelineSettings, SceneResult, SceneServices,
+                                  first_call, process_scene)
 from visphy_core.plugins import get_plugin_manager, get_registry
 from visphy_core.prompts.build import PromptSettings
-from visphy_core.run_dir import (FAILED, FINISHED, INTERRUPTED, RUNNING, RunLock, config_hash,
-                                  find_resumable, new_run_dir, read_rows)
+from visphy_core.references import ReferenceWriter
+from visphy_core.usage import CostCapReached, UsageLedger
+from visphy_core.run_dir import (COST_CAP, FAILED, FINISHED, INTERRUPTED, RUNNING, RunLock,
+                                  config_hash, find_resumable, new_run_dir, read_rows)
 from visphy_core.scene import Scene
 
 
@@ -66,6 +72,8 @@ class RunContext:
     results: list[SceneResult] = field(default_factory=list)
     cache: Cache | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    ledger: UsageLedger | None = None
+    judges: list[str] = field(default_factory=list)
 
 
 def _isolation(cfg: DictConfig) -> dict[str, Any]:
@@ -101,6 +109,9 @@ def _manifest(ctx: RunContext) -> dict:
                     for p in describe_plugins(pm)},
         "scenes": [s.scene_id for s in ctx.scenes],
         "metrics": [m.describe() for m in ctx.metrics],
+        "model": ctx.extra.get("model"),
+        "judges": ctx.judges,
+        "cost_cap_usd": ctx.cfg.run.get("cost_cap_usd"),
     }
 
 
@@ -113,7 +124,24 @@ def _version() -> str:
         return "source"
 
 
-def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache) -> dict:
+def _judge_columns(results: list[SceneResult], judges: list[str]) -> dict[str, dict]:
+    """Per judge: mean score over valid verdicts, and the invalid ones counted by reason."""
+    out = {}
+    for key in judges:
+        column = f"judge_{key}"
+        valid = [r.scores[column] for r in results if r.scores.get(column) is not None]
+        invalid: dict[str, int] = {}
+        for r in results:
+            if key in r.judge_errors:
+                reason = r.judge_errors[key].split(":")[0][:80]
+                invalid[reason] = invalid.get(reason, 0) + 1
+        out[key] = {"mean": float(np.mean(valid)) if valid else None, "n_valid": len(valid),
+                    "n_invalid": sum(invalid.values()), "invalid": invalid}
+    return out
+
+
+def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache,
+              judges: list[str] | None = None, ledger: UsageLedger | None = None) -> dict:
     """Means with honest denominators: model successes only, and all scenes with fallbacks.
 
     Success rates are given over all scenes and over the evaluable ones (scenes that ended in
@@ -130,16 +158,18 @@ def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache) -
             side = "infra_or_data" if r.failure_class in NOT_EVALUABLE else "model"
             failures[side][r.failure_class] = failures[side].get(r.failure_class, 0) + 1
     per_metric = {}
-    for m in metrics:
+    columns = [(m.name, m.direction) for m in metrics]
+    columns += [(f"judge_{key}", "higher") for key in judges or []]
+    for name, direction in columns:
         def mean(rows):
-            vals = [r.scores.get(m.name) for r in rows if r.scores.get(m.name) is not None]
+            vals = [r.scores.get(name) for r in rows if r.scores.get(name) is not None]
             return (float(np.mean(vals)) if vals else None), len(vals)
 
         ok_mean, ok_n = mean(ok)
         all_mean, all_n = mean(scored)
-        reasons = {r.unavailable[m.name] for r in results if m.name in r.unavailable}
-        per_metric[m.name] = {
-            "direction": m.direction, "mean_model_success": ok_mean, "n_model_success": ok_n,
+        reasons = {r.unavailable[name] for r in results if name in r.unavailable}
+        per_metric[name] = {
+            "direction": direction, "mean_model_success": ok_mean, "n_model_success": ok_n,
             "mean_with_fallbacks": all_mean, "n_with_fallbacks": all_n,
             "unavailable": sorted(reasons)[0] if reasons else None,
         }
@@ -160,6 +190,12 @@ def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache) -
         "model_calls": sum(r.model_calls for r in results),
         "renders_done": sum(1 for r in results if r.render_wall_s is not None
                             and not r.render_cached),
+        "spec": {"valid": sum(r.spec_valid is True for r in results),
+                 "invalid": sum(r.spec_valid is False for r in results),
+                 "absent": sum(r.spec_valid is None for r in results)},
+        "prompt_versions": sorted({r.prompt_version for r in results if r.prompt_version}),
+        "judges": _judge_columns(results, judges or []),
+        "usage": ledger.totals() if ledger is not None else {},
     }
 
 
@@ -212,6 +248,44 @@ def _deferred_signals() -> Iterator[list[int]]:
             signal.signal(sig, old)
 
 
+def _build_judges(cfg: DictConfig, registry) -> list[tuple[str, Any]]:
+    judges = []
+    for key, node in (cfg.get("judge") or {}).items():
+        judges.append((str(key), registry.get("judges", str(node.name))(node)))
+    return judges
+
+
+def _reference_model(cfg: DictConfig, registry):
+    """The captioning model of ``reference.source=llm`` (a model config from conf/model/)."""
+    if str(cfg.reference.source) != "llm":
+        return None
+    if not cfg.reference.model:
+        raise ConfigError("reference.source=llm needs reference.model=<a model config name>, "
+                          "e.g. reference.model=gemini25pro")
+    from visphy_core.config_check import compose
+
+    node = compose([f"model={cfg.reference.model}"]).model
+    return registry.get("models", str(node.name))(node)
+
+
+def _check_ready(cfg: DictConfig, model, judges, reference_model) -> None:
+    """Before any work: keys present, and a cost cap only where every call has a price."""
+    for thing in [model, *(j for _, j in judges), reference_model]:
+        if thing is not None:
+            thing.check_ready()
+    cap = cfg.run.get("cost_cap_usd")
+    if cap is None:
+        return
+    for what, node in [(f"model={cfg.model.name}", cfg.model),
+                       *((f"judge={k}", j.cfg) for k, j in judges)]:
+        price = node.get("price") if hasattr(node, "get") else None
+        if price is not None and (price.get("input_usd_per_mtok") is None
+                                  or price.get("output_usd_per_mtok") is None):
+            raise ConfigError(f"run.cost_cap_usd={cap:g} needs prices for every call, but "
+                              f"{what} has no price (set its price.input_usd_per_mtok and "
+                              "price.output_usd_per_mtok)")
+
+
 def run_experiment(cfg: DictConfig) -> dict:
     """Evaluate every selected scene; returns the summary (also in ``summary.json``).
 
@@ -220,17 +294,21 @@ def run_experiment(cfg: DictConfig) -> dict:
     """
     registry = get_registry()
     pm = get_plugin_manager()
+    model = registry.get("models", cfg.model.name)(cfg.model)
+    judges = _build_judges(cfg, registry)
+    reference_model = _reference_model(cfg, registry)
+    _check_ready(cfg, model, judges, reference_model)  # a missing key: one line, no work done
     root = Path(cfg.paths.root).resolve()
     data_dir, runs_dir = Path(cfg.paths.data_dir).resolve(), Path(cfg.paths.runs_dir).resolve()
     cache = Cache(Path(cfg.paths.cache_dir).resolve(), enabled=bool(cfg.run.cache))
     scenes = load_dataset(cfg.dataset, data_dir, progress=bool(cfg.run.progress))
     isolation = _isolation(cfg)
-    model = registry.get("models", cfg.model.name)(cfg.model)
     engine = registry.get("engines", cfg.engine.name)(cfg.engine)
     metrics = [registry.get("metrics", name) for name in cfg.metrics.names]
     chash = config_hash(cfg)
     found = find_resumable(runs_dir, chash)
-    extra: dict[str, Any] = {"config_hash": chash, "isolation": isolation}
+    extra: dict[str, Any] = {"config_hash": chash, "isolation": isolation,
+                             "model": model.describe()}
     if found is not None:
         run_dir, lock = found
         restored = read_rows(run_dir / "results.jsonl", [s.scene_id for s in scenes])
@@ -248,20 +326,92 @@ def run_experiment(cfg: DictConfig) -> dict:
         lock = RunLock(run_dir)
         lock.acquire()
         restored = []
+    ledger = UsageLedger(run_dir / "calls.jsonl", cap_usd=cfg.run.get("cost_cap_usd"))
+    settings = PipelineSettings(prompt=PromptSettings.from_cfg(cfg.prompt), retry=cfg.run.retry,
+                                fallback=cfg.run.fallback, timeout_s=cfg.engine.timeout_s,
+                                seed=cfg.run.seed)
+    caller = ModelCaller(model, cache, ledger)
+    services = SceneServices(
+        model=model, caller=caller, engine=engine, metrics=metrics, settings=settings,
+        cache=cache, judges=JudgeCaller(judges, cache, ledger) if judges else None,
+        references=ReferenceWriter(cfg.reference, cache, reference_model,
+                                   ModelCaller(reference_model, cache, ledger)
+                                   if reference_model is not None else None))
     try:
-        return _run(cfg, pm, root, cache, scenes, model, engine, metrics, run_dir, restored,
-                    extra)
+        return _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledger)
     finally:
         lock.release()
 
 
-def _run(cfg, pm, root, cache, scenes, model, engine, metrics, run_dir, restored, extra) -> dict:
+class _Prefetch:
+    """Starts the first model call of the next ``window`` scenes while the current one renders.
+
+    A scene is prefetched only after its inputs check out (a ``data_error`` scene is never sent
+    to the model); the pipeline later asks for the same request and joins the call in flight.
+    """
+
+    def __init__(self, scenes: list[Scene], services: SceneServices, window: int):
+        self.scenes = scenes
+        self.services = services
+        self.window = window
+        self.next = 0
+
+    def advance(self, position: int) -> None:
+        settings = self.services.settings
+        frames = settings.prompt.frames[:1] if settings.prompt.forecast_only \
+            else settings.prompt.frames
+        while self.next < min(len(self.scenes), position + 1 + self.window):
+            scene = self.scenes[self.next]
+            self.next += 1
+            try:
+                scene.check_inputs(tuple(frames) or (1,))
+                self.services.caller.submit(first_call(scene, self.services).request)
+            except Exception:  # noqa: BLE001 - the pipeline classifies this scene itself
+                continue
+
+
+def _wait_for_calls(caller: ModelCaller) -> None:
+    """Let the model calls in flight finish: each reply is cached on arrival, so a resumed run
+    never pays for it again. A (further) SIGINT/SIGTERM abandons them."""
+    pending = caller.pending()
+    if not pending:
+        return
+    print(f"waiting for {pending} model call(s) in flight (their replies are cached for the "
+          "next run; interrupt again to abandon them)", file=sys.stderr)
+    abandon = threading.Event()
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        previous = {sig: signal.signal(sig, lambda s, f: abandon.set())
+                    for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        while caller.pending() and not abandon.is_set():
+            caller.wait_pending(0.2)
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+def _close_calls(services: SceneServices) -> None:
+    """Close the clients of the model, the reference writer and the judges."""
+    for thing in (services.model, services.references.model if services.references else None):
+        if thing is not None:
+            try:
+                get_service().run(thing.aclose())
+            except Exception as exc:  # noqa: BLE001
+                log.warning("closing %s failed: %s", thing.name, exc)
+    if services.judges is not None:
+        services.judges.close()
+
+
+def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledger) -> dict:
     import pandas as pd
 
+    metrics, engine = services.metrics, services.engine
+    judge_keys = [k for k, _ in services.judges.judges] if services.judges else []
     (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     ctx = RunContext(cfg=cfg, run_dir=run_dir, root=root, scenes=scenes,
                      model_name=cfg.model.name, engine_name=cfg.engine.name, metrics=metrics,
-                     cache=cache, extra=dict(extra))
+                     cache=cache, extra=dict(extra), ledger=ledger, judges=judge_keys)
     manifest = _manifest(ctx)
     if restored:
         manifest["resumed_rows"] = len(restored)
@@ -269,10 +419,8 @@ def _run(cfg, pm, root, cache, scenes, model, engine, metrics, run_dir, restored
     ctx.results.extend(restored)
     done = {r.scene_id for r in restored}
     pending = [s for s in scenes if s.scene_id not in done]
-    settings = PipelineSettings(prompt=PromptSettings.from_cfg(cfg.prompt), retry=cfg.run.retry,
-                                fallback=cfg.run.fallback, timeout_s=cfg.engine.timeout_s,
-                                seed=cfg.run.seed)
-    status, raised = FINISHED, None
+    prefetch = _Prefetch(pending, services, int(cfg.run.get("prefetch", 0)))
+    status, raised, cost_stop = FINISHED, None, None
     rows_path = run_dir / "results.jsonl"
     try:
         with _signals_close_the_run():
@@ -282,10 +430,15 @@ def _run(cfg, pm, root, cache, scenes, model, engine, metrics, run_dir, restored
                 _write_json(run_dir / "manifest.json", manifest)
             with scene_progress(len(pending), enabled=bool(cfg.run.progress)) as advance, \
                     rows_path.open("a") as rows:
-                for scene in pending:
+                for position, scene in enumerate(pending):
                     advance(scene.scene_id)
-                    result = process_scene(scene, model, engine, metrics, settings, cache,
-                                           run_dir / "scenes" / scene.scene_id)
+                    prefetch.advance(position)
+                    try:
+                        result = process_scene(scene, services,
+                                               run_dir / "scenes" / scene.scene_id)
+                    except CostCapReached as exc:
+                        cost_stop = exc
+                        break
                     # The row on disk and the row in memory go together: a signal between
                     # them would leave a summary that misses a row results.jsonl holds.
                     with _deferred_signals() as held:
@@ -296,11 +449,19 @@ def _run(cfg, pm, root, cache, scenes, model, engine, metrics, run_dir, restored
                     if held:
                         raise RunInterrupted(held[0])
                     pm.hook.visphy_scene_done(run=ctx, scene=scene, result=result)
+            if cost_stop is not None:
+                status = COST_CAP
     except RunInterrupted as exc:
         status, raised = INTERRUPTED, exc
     except Exception as exc:  # noqa: BLE001 - close the run, then re-raise
         status, raised = FAILED, exc
+    if status != FAILED:
+        _wait_for_calls(services.caller)
     with _deferred_signals() as pending_signals:
+        try:
+            _close_calls(services)
+        except Exception as exc:  # noqa: BLE001
+            log.warning("closing model calls failed: %s: %s", type(exc).__name__, exc)
         try:
             engine.close()
         except Exception as exc:  # noqa: BLE001
@@ -310,12 +471,20 @@ def _run(cfg, pm, root, cache, scenes, model, engine, metrics, run_dir, restored
         ctx.results.sort(key=lambda r: order.get(r.scene_id, len(order)))
         pd.DataFrame([r.row() for r in ctx.results]).to_parquet(run_dir / "results.parquet",
                                                                index=False)
-        summary = summarise(ctx.results, metrics, cache)
+        summary = summarise(ctx.results, metrics, cache, judge_keys, ledger)
         summary.update({"status": status, "run_dir": str(run_dir), "model": cfg.model.name,
                         "engine": cfg.engine.name, "dataset": cfg.dataset.name,
                         "n_selected": len(scenes), "resumed_rows": len(restored),
                         "config_hash": extra["config_hash"],
                         "isolation_levels": extra["isolation"]})
+        if cost_stop is not None:
+            done_ids = {r.scene_id for r in ctx.results}
+            summary["cost_cap"] = {
+                "cap_usd": cost_stop.cap_usd, "spent_usd": ledger.spent_usd,
+                "not_run": [s.scene_id for s in scenes if s.scene_id not in done_ids],
+                "message": f"{cost_stop}; {len(scenes) - len(done_ids)} of {len(scenes)} "
+                           "scenes not run: raise run.cost_cap_usd and rerun the same command "
+                           "to continue"}
         if cache.warnings:
             summary["cache_warnings"] = list(cache.warnings)
         if status == INTERRUPTED:
@@ -332,9 +501,11 @@ def _run(cfg, pm, root, cache, scenes, model, engine, metrics, run_dir, restored
                 raise
             log.warning("visphy_run_end failed while closing a %s run: %s", status, exc)
         _write_json(run_dir / "summary.json", summary)
-    if status == FINISHED:
+    if status in (FINISHED, COST_CAP):
         print_summary(summary, ctx.results)
-    else:
+    if status == COST_CAP:
+        print(f"stopped: {summary['cost_cap']['message']}", file=sys.stderr)
+    elif status != FINISHED:
         print(f"run {status} after {len(ctx.results)}/{len(scenes)} scenes; partial results in "
               f"{run_dir} (rerun the same command to resume)", file=sys.stderr)
     if raised is not None:

@@ -18,20 +18,30 @@ from omegaconf import DictConfig, OmegaConf
 from visphy_core.cache import content_key
 from visphy_core.pipeline import SceneResult
 
-#: Manifest statuses; every one but "finished" can be resumed by rerunning the same command.
+#: Manifest statuses; every one but "finished" can be resumed by rerunning the same command
+#: ("cost_cap": stopped by run.cost_cap_usd; raise the cap and rerun to continue).
 FINISHED, RUNNING, INTERRUPTED, FAILED = "finished", "running", "interrupted", "failed"
+COST_CAP = "cost_cap"
+#: Keys of a model or judge config that change how calls are made, not what they return.
+TRANSPORT_KEYS = ("base_url", "timeout_s", "retries", "concurrency", "api_key_env")
 
 
 def config_hash(cfg: DictConfig) -> str:
     """Hash of everything that changes a run's rows: the config without where things are written
-    (``paths``) and without the keys that only change how the run looks (``run.progress``,
-    ``run.cache``). Two commands with the same hash produce the same rows."""
+    (``paths``), without the keys that only change how the run looks or is paced
+    (``run.progress``, ``run.cache``, ``run.cost_cap_usd``, ``run.prefetch``) and without the
+    transport settings of models and judges (`TRANSPORT_KEYS`: a fake server on another port,
+    a longer timeout). Two commands with the same hash produce the same rows."""
     resolved = OmegaConf.to_container(cfg, resolve=True)
     resolved.pop("paths", None)
     run = dict(resolved.pop("run", None) or {})
-    for key in ("progress", "cache"):
+    for key in ("progress", "cache", "cost_cap_usd", "prefetch"):
         run.pop(key, None)
     resolved["run"] = run
+    for node in [resolved.get("model"), *(resolved.get("judge") or {}).values()]:
+        if isinstance(node, dict):
+            for key in TRANSPORT_KEYS:
+                node.pop(key, None)
     return content_key(resolved)
 
 

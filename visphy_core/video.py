@@ -102,18 +102,112 @@ def resize_with_padding(frame: np.ndarray, width: int, height: int) -> np.ndarra
     return out
 
 
+#: A source frame counts as shown at time t when its timestamp is at most t plus this much:
+#: container time bases round timestamps (1/17920 s for 35 fps in MP4), so a frame meant for
+#: exactly t may carry a timestamp a few microseconds after it.
+TIME_TOLERANCE_S = 0.0005
+
+
+def decode_video_timed(path: str | Path) -> tuple[np.ndarray, np.ndarray, ClipInfo]:
+    """Decode a clip with each frame's presentation time in seconds, the first frame at 0.
+
+    Times come from each frame's PTS × time base, so variable frame rates and a non-zero start
+    time (the first PTS is subtracted) are honoured; a frame without a PTS gets index / fps.
+    Frames are returned in presentation order.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"video not found: {path}")
+    frames: list[np.ndarray] = []
+    stamps: list[float | None] = []
+    try:
+        with av.open(str(path)) as container:
+            stream = container.streams.video[0]
+            fps = float(stream.average_rate or stream.base_rate or 0) or 0.0
+            for frame in container.decode(stream):
+                frames.append(frame.to_ndarray(format="rgb24"))
+                base = frame.time_base or stream.time_base
+                stamps.append(float(frame.pts * base) if frame.pts is not None and base
+                              else None)
+    except av.error.FFmpegError as exc:  # type: ignore[attr-defined]
+        raise ValueError(f"cannot decode video {path}: {exc}") from exc
+    if not frames:
+        raise ValueError(f"video has no frames: {path}")
+    if any(s is None for s in stamps):
+        if fps <= 0:
+            raise ValueError(f"video {path} has frames without timestamps and no frame rate")
+        times = np.arange(len(frames), dtype=np.float64) / fps
+    else:
+        times = np.asarray(stamps, dtype=np.float64)
+        order = np.argsort(times, kind="stable")
+        if np.any(order != np.arange(len(order))):
+            frames = [frames[i] for i in order]
+            times = times[order]
+        times = times - times[0]
+    arr = np.stack(frames)
+    if fps <= 0 and len(times) > 1 and times[-1] > 0:
+        fps = (len(times) - 1) / float(times[-1])
+    return arr, times, ClipInfo(fps=fps, n_frames=len(frames), width=arr.shape[2],
+                                height=arr.shape[1])
+
+
+def shown_at(times_s: np.ndarray, target_times_s: np.ndarray) -> np.ndarray:
+    """Index of the source frame on screen at each target time: the last one whose timestamp
+    is at most t (+ `TIME_TOLERANCE_S`); the first frame before the clip starts, the last frame
+    held after it ends."""
+    times_s = np.asarray(times_s, dtype=np.float64)
+    if len(times_s) == 0:
+        raise ValueError("cannot resample an empty clip")
+    idx = np.searchsorted(times_s, np.asarray(target_times_s) + TIME_TOLERANCE_S,
+                          side="right") - 1
+    return np.clip(idx, 0, len(times_s) - 1)
+
+
+def resample_by_time(frames: np.ndarray, times_s: np.ndarray, target: ClipInfo) -> np.ndarray:
+    """The clip ``target`` describes, cut from ``frames`` shown at ``times_s`` (seconds).
+
+    Frame k of the result is the source frame shown at time k / target.fps (see `shown_at`),
+    fitted into target.width×target.height with `resize_with_padding`.
+    """
+    if len(frames) == 0:
+        raise ValueError("cannot resample an empty clip")
+    if len(times_s) != len(frames):
+        raise ValueError(f"{len(frames)} frames but {len(times_s)} timestamps")
+    if target.fps <= 0 or target.n_frames <= 0:
+        raise ValueError(f"bad target clip {target}")
+    idx = shown_at(times_s, np.arange(target.n_frames) / target.fps)
+    return np.stack([resize_with_padding(frames[i], target.width, target.height) for i in idx])
+
+
+def clip_matches(info: ClipInfo, target: ClipInfo, rel_tol: float = 1e-3) -> bool:
+    """Whether a clip already meets ``target``: same frame count and size, fps within 0.1 %."""
+    return (info.n_frames == target.n_frames and (info.width, info.height)
+            == (target.width, target.height)
+            and abs(info.fps - target.fps) <= rel_tol * max(target.fps, 1e-9))
+
+
+def load_clip_for(path: str | Path, target: ClipInfo) -> np.ndarray:
+    """A foreign clip as the frames ``target`` describes, paired with the reference by time.
+
+    A clip that already meets the contract comes back exactly as decoded.
+    """
+    frames, times, info = decode_video_timed(path)
+    if clip_matches(info, target):
+        return frames
+    return resample_by_time(frames, times, target)
+
+
 def normalise_clip(
     frames: np.ndarray, source_fps: float, target: ClipInfo
 ) -> np.ndarray:
-    """Resample a clip in time (nearest frame by timestamp) and space to the reference contract.
+    """Resample a constant-rate clip (frame i at i / source_fps) in time and space to ``target``.
 
-    Frame k of the result shows the source frame nearest to time k / target.fps; a source shorter
-    than the reference holds its last frame, so frame counts always match and no frame pair is
-    invented by index between clips of different frame rates.
+    The same rule as `resample_by_time`: frame k of the result is the source frame shown at
+    k / target.fps; a source shorter than the reference holds its last frame. For a decoded file
+    prefer `load_clip_for`, which uses the file's own timestamps.
     """
     if len(frames) == 0:
         raise ValueError("cannot normalise an empty clip")
-    src_fps = source_fps if source_fps > 0 else target.fps
-    times = np.arange(target.n_frames) / target.fps
-    idx = np.clip(np.rint(times * src_fps).astype(int), 0, len(frames) - 1)
-    return np.stack([resize_with_padding(frames[i], target.width, target.height) for i in idx])
+    if source_fps <= 0:
+        raise ValueError(f"source fps must be positive, got {source_fps}")
+    return resample_by_time(frames, np.arange(len(frames)) / source_fps, target)
