@@ -319,23 +319,36 @@ def test_persistent_drop_is_a_connection_error() -> None:
 
 # --------------------------------------------------------------------------- concurrency
 class InFlightServer(FakeOpenAIServer):
-    """Counts the requests being served at once (from arrival to the last byte sent)."""
+    """Counts the requests being served at once, from arrival until the reply starts (not
+    until it ends: the client may free its slot and send the next request before the serving
+    thread returns, which would count one request twice)."""
 
     def __init__(self, **kw: Any):
         super().__init__(**kw)
         self.in_flight = 0
         self.peak = 0
         self._count_lock = threading.Lock()
+        self._local = threading.local()
+
+    def _leave(self) -> None:
+        if getattr(self._local, "inside", False):
+            self._local.inside = False
+            with self._count_lock:
+                self.in_flight -= 1
+
+    def _send(self, handler, *args, **kw):  # type: ignore[no-untyped-def]
+        self._leave()
+        super()._send(handler, *args, **kw)
 
     def _serve(self, handler, req):  # type: ignore[no-untyped-def]
         with self._count_lock:
             self.in_flight += 1
             self.peak = max(self.peak, self.in_flight)
+        self._local.inside = True
         try:
             super()._serve(handler, req)
         finally:
-            with self._count_lock:
-                self.in_flight -= 1
+            self._leave()
 
 
 def test_limiter_caps_concurrency() -> None:

@@ -5,6 +5,7 @@ Subcommands:
   setup          install the vendored JavaScript libraries (npm ci into the asset cache)
   build-dataset  generate VisPhyBench: build-dataset [--split S] [--seed N] [--data-dir DIR]
   normalise      resample a foreign video to a reference clip: normalise IN --like REF -o OUT
+  render         extract, render and score one reply: render REPLY --engine E --scene ID
 Anything else is a Hydra run: ``python -m visphy_core engine=threejs model=oracle dataset=mini``.
 
 Bad input (a config value, a missing dataset, a plugin that does not load, Chromium missing) is
@@ -187,8 +188,14 @@ def cmd_normalise(argv: list[str]) -> int:
     return 0
 
 
+def cmd_render(argv: list[str]) -> int:
+    from visphy_core.render_one import render_reply
+
+    return render_reply(argv)
+
+
 SUBCOMMANDS = {"plugins": cmd_plugins, "setup": cmd_setup, "build-dataset": cmd_build_dataset,
-               "normalise": cmd_normalise}
+               "normalise": cmd_normalise, "render": cmd_render}
 
 
 def run_hydra(argv: list[str]) -> int:

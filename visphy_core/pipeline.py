@@ -391,6 +391,8 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
                                                 "transport_attempts", "prompt_version",
                                                 "model_id")} | {"cached": cached}, indent=1))
         if response.error:
+            if response.error_kind == "not_recorded" and attempt > 1:
+                break  # a replay without the repair reply: the first failure stands
             _model_error(result, response, attempt, model)
             break
         analysis = extract_analysis(response.text)

@@ -1,0 +1,144 @@
+"""Model ``replay``: answers from recorded replies, so a published or earlier run can be
+re-rendered and re-scored offline (``model=replay model.source=PATH``).
+
+``source`` may be:
+
+* a visphy run directory (``scenes/<id>/response.txt``, ``response.attempt2.txt`` for the
+  repair call, ``video.mp4`` for a pixel-space model's run): replaying it with the same engine
+  and settings reproduces that run's rows;
+* a folder with one file per scene: ``<id>.txt`` / ``.md`` / ``.html`` / ``.py`` (a bare program
+  without a fence is wrapped in one), ``<id>.attempt2.<ext>`` for a repair reply, ``<id>.mp4`` for
+  a video;
+* a folder with one sub-folder per scene holding one reply file (``<id>/response.txt`` or the
+  only ``.txt``/``.md``/``.html``/``.py`` file in it);
+* a single reply file (the ``render`` command uses this: every scene gets that reply).
+
+A scene with no recorded reply is a ``model_error`` naming the file it looked for; a repair call
+with no recorded repair reply keeps the first attempt's failure (``error_kind="not_recorded"``).
+Replies cost nothing and are not billed again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+from omegaconf import MISSING
+
+from visphy_core.config_schema import ModelConfig
+from visphy_core.errors import UserError
+from visphy_core.extract import fenced_blocks
+from visphy_core.hookspecs import hookimpl
+from visphy_core.model import Model, ModelRequest, ModelResponse
+
+TEXT_SUFFIXES = (".txt", ".md", ".html", ".py")
+FENCE_FOR = {".html": "html", ".py": "python"}
+
+
+@dataclass
+class ReplayConfig(ModelConfig):
+    source: str = MISSING          # a run directory, a folder of replies, or one reply file
+    output: Optional[str] = None   # program | video (null: from the run's manifest / files)
+
+
+class ReplayModel(Model):
+    version = "1"
+
+    def __init__(self, cfg):
+        super().__init__(cfg)
+        self.name = str(cfg.get("name", "replay"))
+        self.source = Path(str(cfg.source)).expanduser()
+        self.output_kind = str(cfg.get("output") or self._detect_output())
+
+    # ------------------------------------------------------------------ layout
+    def _is_run_dir(self) -> bool:
+        return (self.source / "scenes").is_dir() and (self.source / "manifest.json").is_file()
+
+    def _detect_output(self) -> str:
+        if self._is_run_dir():
+            try:
+                model = json.loads((self.source / "manifest.json").read_text()).get("model")
+                return (model or {}).get("output", "program")
+            except (OSError, ValueError):
+                return "program"
+        if self.source.is_dir() and any(self.source.glob("*.mp4")) \
+                and not any(p.suffix in TEXT_SUFFIXES for p in self.source.iterdir()):
+            return "video"
+        return "program"
+
+    def check_ready(self) -> None:
+        if not self.source.exists():
+            raise UserError(f"model=replay: model.source={self.source} does not exist (a run "
+                            "directory, a folder of replies named <scene_id>.txt, or one reply "
+                            "file)")
+
+    def identity(self) -> str:
+        """Name plus a digest of every recorded reply: editing a reply file is a new model."""
+        h = hashlib.sha256()
+        files = [self.source] if self.source.is_file() else sorted(
+            p for p in self.source.rglob("*")
+            if p.is_file() and (p.suffix in TEXT_SUFFIXES or p.suffix == ".mp4"))
+        for path in files:
+            h.update(str(path.relative_to(self.source.parent)).encode())
+            h.update(hashlib.sha256(path.read_bytes()).digest())
+        return json.dumps(["replay", self.version, self.output_kind, h.hexdigest()])
+
+    def _candidates(self, scene_id: str, attempt: int) -> list[Path]:
+        if self.source.is_file():
+            return [self.source] if attempt == 1 else []
+        tag = "" if attempt == 1 else f".attempt{attempt}"
+        if self._is_run_dir():
+            scene = self.source / "scenes" / scene_id
+            if self.output_kind == "video":
+                return [scene / "video.mp4"] if attempt == 1 else []
+            return [scene / f"response{tag}.txt"]
+        if self.output_kind == "video":
+            return [self.source / f"{scene_id}.mp4"] if attempt == 1 else []
+        found = [self.source / f"{scene_id}{tag}{ext}" for ext in TEXT_SUFFIXES]
+        folder = self.source / scene_id
+        if folder.is_dir():
+            found.append(folder / f"response{tag}.txt")
+            if attempt == 1:
+                found += sorted(p for p in folder.iterdir()
+                                if p.suffix in TEXT_SUFFIXES and ".attempt" not in p.name)
+        return found
+
+    # ------------------------------------------------------------------ replies
+    def generate(self, request: ModelRequest) -> ModelResponse:
+        candidates = self._candidates(request.scene_id, request.attempt)
+        path = next((p for p in candidates if p.is_file()), None)
+        if path is None:
+            if request.attempt > 1:
+                return ModelResponse(text="", error=f"no recorded reply for attempt "
+                                     f"{request.attempt} of {request.scene_id}",
+                                     error_kind="not_recorded")
+            looked = ", ".join(str(p) for p in candidates[:3]) or str(self.source)
+            return ModelResponse(text="", error=f"no recorded reply for {request.scene_id} "
+                                 f"(looked for {looked})", error_kind="not_recorded")
+        if self.output_kind == "video":
+            return ModelResponse(text=f"recorded video {path.name}", video_path=str(path),
+                                 cost_usd=0.0)
+        return ModelResponse(text=_as_reply(path), cost_usd=0.0)
+
+
+def _as_reply(path: Path) -> str:
+    """The file's text; a bare program (no fence at all) is wrapped in the fence its suffix
+    implies, so recorded programs written elsewhere extract like replies."""
+    text = path.read_text(errors="replace")
+    blocks, unclosed = fenced_blocks(text)
+    if not blocks and unclosed is None and path.suffix in FENCE_FOR:
+        return f"```{FENCE_FOR[path.suffix]}\n{text.rstrip()}\n```\n"
+    return text
+
+
+@hookimpl
+def visphy_register_configs(config_store):
+    config_store.store(group="model", name="schema_replay", node=ReplayConfig)
+
+
+@hookimpl
+def visphy_register_models(register):
+    register("replay", ReplayModel)
