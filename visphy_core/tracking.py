@@ -19,7 +19,8 @@ from visphy_core.hookspecs import hookimpl
 _ACTIVE: dict[int, Any] = {}
 #: visphy run status (``summary["status"]``) → MLflow run status. An interrupted run (SIGINT,
 #: SIGTERM) ends KILLED, a run that raised ends FAILED: never left RUNNING.
-_MLFLOW_STATUS = {"finished": "FINISHED", "interrupted": "KILLED", "failed": "FAILED"}
+_MLFLOW_STATUS = {"finished": "FINISHED", "interrupted": "KILLED", "failed": "FAILED",
+                  "cost_cap": "KILLED"}
 
 
 def tracking_uris(cfg, root: Path) -> tuple[str, str]:
@@ -107,8 +108,18 @@ def visphy_run_end(run, summary):
                 "fallbacks", "n_scenes", "n_evaluable"):
         if summary.get(key) is not None:
             client.log_metric(run_id, key, float(summary[key]))
+    for stage, totals in (summary.get("usage") or {}).items():
+        for field in ("calls", "cache_hits", "errors", "input_tokens", "output_tokens",
+                      "cached_input_tokens", "reasoning_tokens", "cost_usd",
+                      "cost_usd_incl_cached"):
+            client.log_metric(run_id, f"usage.{stage}.{field}", float(totals.get(field) or 0))
+    for key, judge in (summary.get("judges") or {}).items():
+        client.log_metric(run_id, f"judge.{key}.n_valid", float(judge["n_valid"]))
+        client.log_metric(run_id, f"judge.{key}.n_invalid", float(judge["n_invalid"]))
+    if summary.get("prompt_versions"):
+        client.set_tag(run_id, "visphy.prompt_version", ",".join(summary["prompt_versions"]))
     for name in ("config.yaml", "manifest.json", "summary.json", "results.parquet",
-                 "results.jsonl"):
+                 "results.jsonl", "calls.jsonl"):
         path = run.run_dir / name
         if path.is_file():
             client.log_artifact(run_id, str(path))

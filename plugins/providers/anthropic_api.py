@@ -45,13 +45,18 @@ class AnthropicClient(ProviderClient):
         self._loop: asyncio.AbstractEventLoop | None = None
 
     def _client(self) -> anthropic.AsyncAnthropic:
-        """The SDK client of the running loop (its connection pool is bound to one loop, so a
-        new loop, e.g. a second ``asyncio.run``, gets a new client)."""
+        """The SDK client of the running loop: its connection pool is bound to the loop that
+        made it, and `Model.generate` runs each call in a fresh ``asyncio.run``. The httpx
+        client is our own `DefaultAsyncHttpxClient` (the SDK's defaults) because the SDK's
+        built-in one, when garbage collected, schedules its close on whatever loop is running
+        then, which fails ("Event loop is closed") for a client of an earlier, finished loop."""
         loop = asyncio.get_running_loop()
         if self._sdk is None or self._loop is not loop:
+            timeout = float(self.settings.get("timeout_s") or 600.0)
             self._sdk = anthropic.AsyncAnthropic(
                 api_key=self.api_key, base_url=self.settings.get("base_url") or None,
-                max_retries=0, timeout=float(self.settings.get("timeout_s") or 600.0))
+                max_retries=0, timeout=timeout,
+                http_client=anthropic.DefaultAsyncHttpxClient(timeout=timeout))
             self._loop = loop
         return self._sdk
 

@@ -180,6 +180,19 @@ class ApiModel(Model):
         return {**super().describe(), "provider": str(self.cfg.provider),
                 "model_id": str(self.cfg.model_id)}
 
+    def generate(self, request: ModelRequest) -> ModelResponse:
+        """Blocking call outside a run (a run uses `agenerate` on its own loop): the client
+        is opened and closed on one event loop."""
+        import asyncio
+
+        async def once() -> ModelResponse:
+            try:
+                return await self.agenerate(request)
+            finally:
+                await self.aclose()
+
+        return asyncio.run(once())
+
     async def agenerate(self, request: ModelRequest) -> ModelResponse:
         parts = [Part("text", text=request.prompt)]
         parts += [Part("image", data=img.png) for img in request.images]

@@ -1,0 +1,54 @@
+"""A tiny benchmark in the original VisPhyBench-Data layout, for tests of visphy and its plugins.
+
+``make_tiny_dataset(root, n_scenes)`` writes ``root/<split>/videos/<id>.mp4`` (64×64, 17 frames at
+5 fps: a coloured square falling), ``detection_json/<id>_frame_01.json`` and ``metadata.jsonl``;
+use it with ``dataset=original dataset.root=<root> dataset.split=<split>``. Scenes are 2D ids
+(``task1000N_000``) whose clips differ in colour and speed, so per-scene results differ.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from visphy_core.video import encode_video
+
+SIZE, N_FRAMES, FPS = 64, 17, 5
+
+
+def tiny_clip(index: int) -> np.ndarray:
+    """The clip of scene ``index``: a 12-px square falling at a speed that depends on index."""
+    frames = np.full((N_FRAMES, SIZE, SIZE, 3), 255, dtype=np.uint8)
+    colour = ((37 * index) % 200 + 30, 80, 255 - (37 * index) % 200)
+    for k in range(N_FRAMES):
+        y = min(SIZE - 14, 2 + k * (2 + index % 3))
+        x = 6 + (5 * index) % (SIZE - 20)
+        frames[k, y:y + 12, x:x + 12] = colour
+    return frames
+
+
+def scene_id(index: int) -> str:
+    return f"task{10000 + index:05d}_000"
+
+
+def make_tiny_dataset(root: Path, n_scenes: int = 3, split: str = "sub") -> Path:
+    """Write the dataset; returns ``root`` (pass it as ``dataset.root``)."""
+    d = Path(root) / split
+    (d / "videos").mkdir(parents=True, exist_ok=True)
+    (d / "detection_json").mkdir(exist_ok=True)
+    lines = []
+    for i in range(n_scenes):
+        sid = scene_id(i)
+        encode_video(tiny_clip(i), d / "videos" / f"{sid}.mp4", FPS)
+        detection = {"image_size": {"width": SIZE, "height": SIZE},
+                     "coordinate_system": "pixels, origin top-left, y down",
+                     "objects": [{"id": "falling_square", "category": "rectangle",
+                                  "color_rgb": [int(c) for c in tiny_clip(i)[0].reshape(-1, 3)
+                                                .min(axis=0)]}]}
+        (d / "detection_json" / f"{sid}_frame_01.json").write_text(json.dumps(detection))
+        lines.append(json.dumps({"id": sid, "fps": FPS, "n_frames": N_FRAMES,
+                                 "width": SIZE, "height": SIZE, "difficulty": "easy"}))
+    (d / "metadata.jsonl").write_text("\n".join(lines) + "\n")
+    return Path(root)
