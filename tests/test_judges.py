@@ -51,6 +51,8 @@ JUDGES: dict[str, tuple[type[FakeProviderServer], str, str, str, str]] = {
                       "x-api-key"),
 }
 VIDEO_JUDGES = ("gemini", "qwen_vl")
+pytestmark = pytest.mark.filterwarnings(
+    "ignore:The model 'claude-sonnet-4-5' is deprecated:DeprecationWarning")
 FRAME_JUDGES = ("gpt_frames", "claude_frames")
 
 
@@ -292,6 +294,17 @@ def test_a_video_for_a_provider_without_video_is_an_invalid_verdict(clips):
     assert server.requests == []
     assert not verdict.valid and verdict.score is None
     assert verdict.error_kind == "bad_request" and "video" in verdict.error
+
+
+def test_an_unreadable_clip_is_an_invalid_verdict_without_a_call(any_judge, clips, tmp_path):
+    name, server, base_url = any_judge
+    judge = ApiJudge(judge_cfg(name, base_url))
+    inp = JudgeInput(scene_id="s1", dim="2d", reference_video=clips[0],
+                     generated_video=tmp_path / "missing.mp4", fps=FPS, n_frames=N_FRAMES)
+    verdict = asyncio.run(judge.ajudge(inp))
+    assert server.requests == []
+    assert not verdict.valid and verdict.score is None
+    assert verdict.error.startswith("cannot read the clips") and "missing.mp4" in verdict.error
 
 
 # ----------------------------------------------------------------------------- reply parsing

@@ -1,6 +1,6 @@
-"""The ``claude`` adapter end to end: `ApiModel` → `AnthropicClient` → the real ``anthropic`` SDK
-→ a fake Messages API on loopback. Asserts what went over the wire and how every fault ends
-(a retry or a classified failure), without ever reaching Anthropic."""
+"""The ``claude`` adapter end to end: `ApiModel` → `AnthropicClient` → the real ``anthropic``
+SDK → a fake Messages API on loopback. Asserts what went over the wire and how every fault
+ends (a retry or a classified failure), without ever reaching Anthropic."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ import pytest
 from omegaconf import OmegaConf
 from PIL import Image
 
+from visphy_core.calls import CallError, CallErrorKind
 from visphy_core.model import ImageInput, ModelRequest, ModelResponse, OutputContract
 from visphy_plugins.providers.base import ApiCaller, ApiModel, Part
 from visphy_plugins.providers.config import ApiModelConfig, PriceConfig, RetriesConfig
@@ -185,8 +186,9 @@ def test_video_is_refused_without_a_request(server: Server) -> None:
 @pytest.mark.filterwarnings("ignore::ResourceWarning")
 def test_one_model_serves_two_event_loops(server: Server) -> None:
     model = make_model(server)
-    first = model.generate(request())   # each `generate` is a fresh `asyncio.run`
-    second = model.generate(request())  # a new loop: a new SDK client, not the dead loop's
+    # No `aclose` between the loops: the second must not reuse the dead loop's SDK client.
+    first = asyncio.run(model.agenerate(request()))
+    second = asyncio.run(model.agenerate(request()))
     asyncio.run(model.aclose())
     gc.collect()
     assert first.error is None and second.error is None and server.count() == 2
@@ -293,3 +295,44 @@ def test_dropped_connection(server: Server) -> None:
     server.default = lambda req: drop()
     resp = generate(make_model(server))
     assert resp.error_kind == "connection" and server.count() == 3
+
+
+@pytest.mark.parametrize("stop,finish", [("end_turn", "stop"), ("stop_sequence", "stop"),
+                                         ("max_tokens", "length"),
+                                         ("model_context_window_exceeded", "length"),
+                                         ("pause_turn", "other"), ("tool_use", "other")])
+def test_stop_reasons(server: Server, stop: str, finish: str) -> None:
+    server.bodies["x"] = lambda req: server._reply(
+        req, [{"type": "text", "text": "t"}], stop, {"input_tokens": 1, "output_tokens": 1})
+    server.script = [ok("x")]
+    assert generate(make_model(server)).finish_reason == finish
+
+
+# --------------------------------------------------------------------------- the client alone
+
+
+def test_sdk_timeout_is_classified(server: Server) -> None:
+    """Without `ApiCaller`'s own deadline racing it, the SDK's timeout is what fires."""
+    from visphy_plugins.providers.anthropic_api import AnthropicClient
+
+    server.default = lambda req: delay(2.0, ok("late"))
+    client = AnthropicClient(make_model(server, timeout_s=1.0).cfg, KEY)
+
+    async def go() -> None:
+        try:
+            await client.complete([Part("text", text="hi")], 64)
+        finally:
+            await client.aclose()
+
+    with pytest.raises(CallError) as info:
+        asyncio.run(go())
+    assert info.value.kind is CallErrorKind.timeout
+
+
+def test_non_message_reply_is_malformed() -> None:
+    """A non-JSON content type makes the SDK return the body as a ``str``."""
+    from visphy_plugins.providers.anthropic_api import to_completion
+
+    with pytest.raises(CallError) as info:
+        to_completion("<html>bad gateway</html>")
+    assert info.value.kind is CallErrorKind.malformed

@@ -14,17 +14,18 @@ verdict with its reason (counted, never a number).
 
 from __future__ import annotations
 
+import asyncio
 import json
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any, Optional
 
+from visphy_core.config_schema import JudgeConfig
 from visphy_core.hookspecs import hookimpl
 from visphy_core.judge import Judge, JudgeInput, Verdict, parse_verdict, uniform_indices
 from visphy_core.prompts.build import judge_prompt, png_bytes
 from visphy_core.video import decode_video
 from visphy_plugins.providers.base import ApiCaller, Part
-from visphy_core.config_schema import JudgeConfig
 from visphy_plugins.providers.config import ApiSettings
 
 API_JUDGES = ("gemini", "gpt_frames", "qwen_vl", "claude_frames")
@@ -88,14 +89,13 @@ class ApiJudge(Judge):
                 "sampling": self.sampling, "prompt_version": self.prompt_version}
 
     # ------------------------------------------------------------------ the message
-    def build_parts(self, inp: JudgeInput) -> tuple[list[Part], str]:
-        """The message parts and the prompt version (reference before generated)."""
-        duration = inp.n_frames / inp.fps if inp.fps else 0.0
+    def build_parts(self, inp: JudgeInput) -> tuple[list[Part], str, str]:
+        """The message parts (reference before generated), prompt version and sampling."""
         if self.input_kind == "video":
             text, version = judge_prompt("video")
             return [Part("text", text=text),
                     Part("video", data=inp.reference_video.read_bytes()),
-                    Part("video", data=inp.generated_video.read_bytes())], version
+                    Part("video", data=inp.generated_video.read_bytes())], version, "video"
         images: list[Part] = []
         counts = []
         for path in (inp.reference_video, inp.generated_video):
@@ -103,16 +103,19 @@ class ApiJudge(Judge):
             idx = uniform_indices(len(frames), self.frames)
             counts.append(len(idx))
             images += [Part("image", data=png_bytes(frames[i])) for i in idx]
-        text, version = judge_prompt("frames", n_frames=min(counts), duration_s=duration)
-        return [Part("text", text=text), *images], version
+        k = min(counts)  # fewer than `frames` only for a clip shorter than that
+        duration = inp.n_frames / inp.fps if inp.fps else 0.0
+        text, version = judge_prompt("frames", n_frames=k, duration_s=duration)
+        return [Part("text", text=text), *images], version, f"uniform:{k} frames per clip"
 
     # ------------------------------------------------------------------ one verdict
     async def ajudge(self, inp: JudgeInput) -> Verdict:
         configured = str(self.cfg.model_id)
         verdict = Verdict(judge=self.name, judge_model=configured,
                           prompt_version=self.prompt_version, sampling=self.sampling)
-        try:
-            parts, verdict.prompt_version = self.build_parts(inp)
+        try:  # decoding and PNG encoding off the event loop: other judges' calls go on
+            parts, verdict.prompt_version, verdict.sampling = await asyncio.to_thread(
+                self.build_parts, inp)
         except (OSError, ValueError) as exc:  # an unreadable clip: no call is made
             verdict.error = _one_line(f"cannot read the clips: {type(exc).__name__}: {exc}")
             return verdict

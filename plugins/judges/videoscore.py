@@ -38,6 +38,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from visphy_core.calls import CallErrorKind
 from visphy_core.config_schema import JudgeConfig
 from visphy_core.hookspecs import hookimpl
 from visphy_core.judge import Judge, JudgeInput, Verdict
@@ -237,6 +238,7 @@ class VideoScore2Judge(Judge):
             answer = await asyncio.to_thread(self._infer, inp.generated_video)
         except Exception as exc:  # noqa: BLE001 - a failed local inference is an invalid verdict
             verdict.error = " ".join(f"inference failed: {type(exc).__name__}: {exc}".split())[:500]
+            verdict.error_kind = CallErrorKind.server.value  # may succeed next time: not cached
             verdict.latency_s = loop.time() - start
             return verdict
         verdict.latency_s = loop.time() - start

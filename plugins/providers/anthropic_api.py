@@ -13,6 +13,8 @@ Quirks of the installed SDK (2.x) this module works around, found against the fa
   back as a plain ``str``. Both are checked here and reported as ``malformed``.
 * A 200 whose body is not JSON raises a bare ``json.JSONDecodeError``, not an SDK error.
 * ``APITimeoutError`` is a subclass of ``APIConnectionError``: it is matched first.
+* The key goes out as ``Authorization: Bearer`` (not ``x-api-key``), with
+  ``anthropic-version: 2026-10-21``; ``ANTHROPIC_BASE_URL`` applies when ``base_url`` is null.
 """
 
 from __future__ import annotations
@@ -124,7 +126,7 @@ def to_completion(message: Any) -> Completion:
     """A `Completion` from a ``Message``; `CallError` (malformed) when the reply lacks the
     shape of one (the SDK builds replies without validating them)."""
     content = getattr(message, "content", None)
-    usage = getattr(message, "usage", None)
+    usage: Any = getattr(message, "usage", None)
     if not isinstance(content, list) or not isinstance(getattr(usage, "input_tokens", None), int) \
             or not isinstance(getattr(usage, "output_tokens", None), int):
         raise CallError(CallErrorKind.malformed,
@@ -137,16 +139,17 @@ def to_completion(message: Any) -> Completion:
     if finish == "refusal":
         details = getattr(message, "stop_details", None)
         refusal = text or getattr(details, "explanation", None) or "refused"
-    cache_read = _int(usage.cache_read_input_tokens)
-    cache_write = _int(usage.cache_creation_input_tokens)
+    cache_read = _int(getattr(usage, "cache_read_input_tokens", None))
+    cache_write = _int(getattr(usage, "cache_creation_input_tokens", None))
     norm = {"input_tokens": usage.input_tokens + cache_read + cache_write,
             "output_tokens": usage.output_tokens, "cached_input_tokens": cache_read}
-    thinking = getattr(usage.output_tokens_details, "thinking_tokens", None)
+    thinking = getattr(getattr(usage, "output_tokens_details", None), "thinking_tokens", None)
     if isinstance(thinking, int):
         norm["reasoning_tokens"] = thinking
-    raw = {"id": message.id, "model": message.model, "stop_reason": stop,
+    raw = {"id": getattr(message, "id", None), "model": getattr(message, "model", None),
+           "stop_reason": stop,
            "usage": {"input_tokens": usage.input_tokens, "output_tokens": usage.output_tokens,
                      "cache_read_input_tokens": cache_read,
                      "cache_creation_input_tokens": cache_write}}
     return Completion(text=text, usage=norm, finish_reason=finish, refusal=refusal,
-                      model_id=str(message.model or ""), raw=raw)
+                      model_id=str(raw["model"] or ""), raw=raw)
