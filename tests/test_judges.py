@@ -502,3 +502,61 @@ def test_videoscore2_verdict_from_a_reply(monkeypatch, tmp_path, clips):
     assert not bad.valid and bad.score is None and "outside 1–5" in bad.error
     assert vs2(weights_dir=str(tmp_path)).identity() != vs2().identity()
     assert vs2(infer_fps=4.0).identity() != vs2().identity()
+
+
+def _tiny_qwen25vl(path: Path) -> None:
+    """A randomly initialised, tiny Qwen2.5-VL (VideoScore2's architecture and processor)."""
+    from tokenizers import Tokenizer, decoders, models, pre_tokenizers, trainers
+    from transformers import (Qwen2_5_VLConfig, Qwen2_5_VLForConditionalGeneration,
+                              Qwen2_5_VLProcessor, Qwen2TokenizerFast, Qwen2VLImageProcessor)
+    from transformers import Qwen2VLVideoProcessor
+
+    special = ["<|endoftext|>", "<|im_start|>", "<|im_end|>", "<|vision_start|>",
+               "<|vision_end|>", "<|image_pad|>", "<|video_pad|>"]
+    bpe = Tokenizer(models.BPE())
+    bpe.pre_tokenizer = pre_tokenizers.ByteLevel(add_prefix_space=False)
+    bpe.decoder = decoders.ByteLevel()
+    bpe.train_from_iterator(["visual quality: 3; text-to-video alignment: 4, physical/common-"
+                             "sense consistency: 2"] * 4, trainers.BpeTrainer(
+        vocab_size=400, special_tokens=special,
+        initial_alphabet=pre_tokenizers.ByteLevel.alphabet()))
+    chat = ("{% for m in messages %}<|im_start|>{{ m['role'] }}\n{% for c in m['content'] %}"
+            "{% if c['type'] == 'video' %}<|vision_start|><|video_pad|><|vision_end|>"
+            "{% else %}{{ c['text'] }}{% endif %}{% endfor %}<|im_end|>\n{% endfor %}"
+            "{% if add_generation_prompt %}<|im_start|>assistant\n{% endif %}")
+    tok = Qwen2TokenizerFast(tokenizer_object=bpe, eos_token="<|im_end|>",
+                             pad_token="<|endoftext|>")
+    ids = {t: tok.convert_tokens_to_ids(t) for t in special}
+    cfg = Qwen2_5_VLConfig(
+        text_config=dict(vocab_size=len(tok), hidden_size=64, intermediate_size=128,
+                         num_hidden_layers=1, num_attention_heads=2, num_key_value_heads=1,
+                         rope_scaling={"type": "mrope", "mrope_section": [4, 6, 6]},
+                         eos_token_id=ids["<|im_end|>"], pad_token_id=ids["<|endoftext|>"]),
+        vision_config=dict(depth=1, hidden_size=32, num_heads=2, intermediate_size=64,
+                           out_hidden_size=64, fullatt_block_indexes=[0]),
+        image_token_id=ids["<|image_pad|>"], video_token_id=ids["<|video_pad|>"],
+        vision_start_token_id=ids["<|vision_start|>"], eos_token_id=ids["<|im_end|>"],
+        pad_token_id=ids["<|endoftext|>"])
+    Qwen2_5_VLForConditionalGeneration(cfg).save_pretrained(path)
+    Qwen2_5_VLProcessor(image_processor=Qwen2VLImageProcessor(), tokenizer=tok,
+                        video_processor=Qwen2VLVideoProcessor(),
+                        chat_template=chat).save_pretrained(path)
+
+
+def test_videoscore2_runs_a_local_qwen25vl_end_to_end(tmp_path, clips):
+    """The real loading and inference path on a tiny random model of VideoScore2's
+    architecture (where torch, torchvision and transformers are installed): its babble has no
+    scores, so the verdict is invalid and says so, never a number."""
+    for mod in ("torch", "torchvision", "transformers"):
+        pytest.importorskip(mod)
+    weights = tmp_path / "videoscore2"
+    _tiny_qwen25vl(weights)
+    judge = vs2(weights_dir=str(weights), max_new_tokens=16, dtype="float32", device="cpu")
+    assert judge.unavailable_reason() is None
+    answer = judge._infer(clips[1])
+    assert isinstance(answer, str)
+    verdict = asyncio.run(judge.ajudge(judge_input(clips)))
+    assert verdict.error_kind is None, verdict.error
+    assert json.loads(verdict.raw)["reply"] == answer          # greedy: reproducible
+    assert not verdict.valid and verdict.score is None
+    assert "no VideoScore2 scores" in verdict.error

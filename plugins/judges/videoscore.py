@@ -98,6 +98,10 @@ class VideoScore2JudgeConfig(JudgeConfig):
     dtype: DType = DType.bfloat16
 
 
+def _version(text: str) -> tuple[int, ...]:
+    return tuple(int(p) for p in re.findall(r"\d+", text)[:2])
+
+
 def to_ten(s: float) -> float:
     """A 1–5 VideoScore2 score on visphy's 1–10 scale: linear, 1→1, 3→5.5, 5→10."""
     return 1.0 + (float(s) - 1.0) * 9.0 / 4.0
@@ -191,9 +195,10 @@ class VideoScore2Judge(Judge):
         if device == "auto":
             device = "cuda" if torch.cuda.is_available() else "cpu"
         dtype = str(self._get("dtype", "bfloat16"))
-        torch_dtype = "auto" if dtype == "auto" else getattr(torch, dtype)
+        dtype_arg = {"dtype" if _version(transformers.__version__) >= (4, 56) else "torch_dtype":
+                     "auto" if dtype == "auto" else getattr(torch, dtype)}
         path = str(self.weights_path())
-        self._model = auto_model.from_pretrained(path, torch_dtype=torch_dtype).to(device).eval()
+        self._model = auto_model.from_pretrained(path, **dtype_arg).to(device).eval()
         self._processor = AutoProcessor.from_pretrained(path)
         self._device = device
 

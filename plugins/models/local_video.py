@@ -106,8 +106,10 @@ class LocalVideoModel(Model):
         reasons = []
         absent = [pip for module, pip in self.packages if importlib.util.find_spec(module) is None]
         if absent:
-            reasons.append(f"{' and '.join(absent)} {'is' if len(absent) == 1 else 'are'} not "
-                           f"installed (pip install {' '.join(absent)})")
+            names = (absent[0] if len(absent) == 1
+                     else f"{', '.join(absent[:-1])} and {absent[-1]}")
+            reasons.append(f"{names} {'is' if len(absent) == 1 else 'are'} not installed "
+                           f"(pip install {' '.join(absent)})")
         wanted = (f"a diffusers {self.pipeline_class} checkpoint (model_index.json and its "
                   f"component folders, e.g. {self.weights_hint})")
         where = self.weights_dir()
