@@ -50,7 +50,7 @@ def test_default_config_values():
     ("engine=threejz", "engine=threejz is not an option of 'engine'; valid: "),
     ("model=orcle", "model=orcle is not an option of 'model'; valid: "),
     ("engine.timout_s=3", "unknown key 'engine.timout_s'; valid keys of 'engine': name, timeout_s"),
-    ("run.retyr=false", "unknown key 'run.retyr'; valid keys of 'run': cache, fallback"),
+    ("run.retyr=false", "unknown key 'run.retyr'; valid keys of 'run': cache, cost_cap_usd, fallback"),
     ("bogus=1", "unknown key 'bogus'; valid top-level keys: dataset"),
     ("engine=threejs,threejz", "engine=threejz is not an option"),
 ])

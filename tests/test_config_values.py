@@ -40,6 +40,7 @@ BAD_INPUTS = [
     ("judge=gemini judge.gemini.name=nope",
      ["judge.gemini.name=nope is not an installed judge; installed: ", "gemini"]),
     ("judge=gemin", ["judge=gemin is not an option of 'judge'; valid: ", "gemini", "none"]),
+    ("judge=[gemini,gptx]", ["judge=gptx is not an option of 'judge'; valid: ", "gpt_frames"]),
     ("run.cost_cap_usd=-1", ["run.cost_cap_usd=-1 is out of range: must be ≥ 0"]),
     ("model.name=gpt-9", ["model.name=gpt-9 is not an installed model; installed: ", "oracle"]),
     ("engine.name=threejz",
@@ -271,3 +272,10 @@ def _write_table():
             lines.append(f"| `{args}` | `{line}` |")
         with open(path, "w") as fh:
             fh.write("\n".join(lines) + "\n")
+
+
+def test_a_list_of_judges_is_checked_item_by_item():
+    (cfg,) = check_overrides(["judge=[gemini,gpt_frames]"])
+    assert sorted(cfg.judge) == ["gemini", "gpt_frames"]
+    with pytest.raises(ConfigError, match=r"judge=nope is not an option of 'judge'"):
+        check_overrides(["judge=[gemini,nope]"])

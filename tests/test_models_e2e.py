@@ -130,21 +130,25 @@ def test_a_full_scene_through_each_provider_sdk(name, visphy_home, mini_scenes):
     if name != "openai_compat":
         assert usage["cost_usd"] > 0
     scenes = {s.scene_id: s for s in mini_scenes}
-    for req, scene_id in zip(requests, sorted(scenes)[:2]):
+    expected = [scenes[sid] for sid in sorted(scenes)[:2]]
+    matched = []
+    for req in requests:  # calls run concurrently: pair each request with its scene by image
         body = req.json
         assert model_sent(req) in ("served-model", server_model(name))
         assert max_tokens_sent(body)
         assert SECRET not in req.raw_url and SECRET.encode() not in req.body
         assert any(SECRET in v for v in req.headers.values())
         imgs = [_decode_png(b) for b in images_sent(body)]
-        scene = scenes[scene_id]
         assert len(imgs) == 2
+        scene = next(sc for sc in expected if np.array_equal(imgs[0], sc.key_frame(1)))
+        matched.append(scene.scene_id)
         assert np.array_equal(imgs[0], scene.key_frame(1))
         assert np.array_equal(imgs[1], scene.key_frame(10))
         text = text_sent(body)
         for leak in ("ground_truth", "digest_sha256", "trajectories/", ".npz",
                      scene.spec["digest_sha256"]):
             assert leak not in text
+    assert sorted(matched) == [sc.scene_id for sc in expected]
     _no_secret_anywhere(visphy_home)
 
 
@@ -288,3 +292,28 @@ def test_replay_of_a_run_reproduces_its_rows(tmp_path):
 
     assert rows(first) == rows(second)
     assert _summary(home)["usage"]["generate"]["cost_usd"] == 0
+
+
+def test_two_judges_from_the_command_line_score_every_scene(tmp_path):
+    """`judge=[gemini,gpt_frames]` composes, passes the config check and calls each judge once
+    per scene; their scores and the judge stage's usage land in the rows and the summary."""
+    root = make_tiny_dataset(tmp_path / "data", 2)
+    home = tmp_path / "home"
+    gem = FakeGeminiServer(default=lambda req: ok('{"score": 8, "justification": "same"}'))
+    oai = FakeOpenAIServer(default=lambda req: ok("Verdict: {\"score\": 6, \"justification\": "
+                                                  "\"close\"}"))
+    env = _env("GEMINI_API_KEY", OPENAI_API_KEY=SECRET)
+    with gem, oai:
+        run_cli("model=oracle", "engine=threejs", "dataset=original", f"dataset.root={root}",
+                "tracking=none", "run.progress=false", "judge=[gemini,gpt_frames]",
+                f"judge.gemini.base_url={gem.url}", f"judge.gpt_frames.base_url={oai.url}/v1",
+                home=home, env=env)
+        assert gem.count() == 2 and oai.count() == 2
+    summary = _summary(home)
+    judges = summary["judges"]
+    assert judges["gemini"]["mean"] == 8 and judges["gpt_frames"]["mean"] == 6
+    assert summary["usage"]["judge"]["calls"] == 4
+    (run_dir,) = list((home / "runs").iterdir())
+    rows = [json.loads(x) for x in (run_dir / "results.jsonl").read_text().splitlines()]
+    assert [(r["score_judge_gemini"], r["score_judge_gpt_frames"]) for r in rows] == [(8, 6), (8, 6)]
+    _no_secret_anywhere(home)

@@ -106,7 +106,12 @@ def _check_groups(overrides: list[str]) -> None:
             continue
         valid = group_options(key)
         values = _sweep_values(ov) if ov.is_sweep_override() else [ov.value()]
-        for value in values:
+        flat = []
+        for value in values:  # a list value selects several options at once: judge=[a,b]
+            if isinstance(value, str) and value.startswith("[") and value.endswith("]"):
+                value = [v.strip() for v in value[1:-1].split(",") if v.strip()]
+            flat.extend(value if isinstance(value, (list, tuple)) else [value])
+        for value in flat:
             if value is not None and str(value) not in valid:
                 raise ConfigError(f"{key}={value} is not an option of '{key}'; valid: "
                                   f"{', '.join(valid)}")
