@@ -10,6 +10,7 @@ import io
 import json
 import os
 import signal
+import sqlite3
 import subprocess
 import sys
 import time
@@ -296,19 +297,23 @@ def test_replay_of_a_run_reproduces_its_rows(tmp_path):
 
 def test_two_judges_from_the_command_line_score_every_scene(tmp_path):
     """`judge=[gemini,gpt_frames]` composes, passes the config check and calls each judge once
-    per scene; their scores and the judge stage's usage land in the rows and the summary."""
+    per scene; their scores and each stage's usage land in the rows, the summary and MLflow."""
     root = make_tiny_dataset(tmp_path / "data", 2)
     home = tmp_path / "home"
     gem = FakeGeminiServer(default=lambda req: ok('{"score": 8, "justification": "same"}'))
-    oai = FakeOpenAIServer(default=lambda req: ok("Verdict: {\"score\": 6, \"justification\": "
-                                                  "\"close\"}"))
+    def openai(req):  # the model's calls get a program, the frame judge's (16 images) a verdict
+        if len(images_sent(req.json)) > 2:
+            return ok('Verdict: {"score": 6, "justification": "close"}')
+        return ok(reply("html"), {"input_tokens": 1000, "output_tokens": 500})
+
+    oai = FakeOpenAIServer(default=openai)
     env = _env("GEMINI_API_KEY", OPENAI_API_KEY=SECRET)
     with gem, oai:
-        run_cli("model=oracle", "engine=threejs", "dataset=original", f"dataset.root={root}",
-                "tracking=none", "run.progress=false", "judge=[gemini,gpt_frames]",
-                f"judge.gemini.base_url={gem.url}", f"judge.gpt_frames.base_url={oai.url}/v1",
-                home=home, env=env)
-        assert gem.count() == 2 and oai.count() == 2
+        run_cli("model=gpt41", f"model.base_url={oai.url}/v1", "engine=threejs",
+                "dataset=original", f"dataset.root={root}", "run.progress=false",
+                "judge=[gemini,gpt_frames]", f"judge.gemini.base_url={gem.url}",
+                f"judge.gpt_frames.base_url={oai.url}/v1", home=home, env=env)
+        assert gem.count() == 2 and oai.count() == 4   # 2 programs + 2 frame verdicts
     summary = _summary(home)
     judges = summary["judges"]
     assert judges["gemini"]["mean"] == 8 and judges["gpt_frames"]["mean"] == 6
@@ -316,4 +321,13 @@ def test_two_judges_from_the_command_line_score_every_scene(tmp_path):
     (run_dir,) = list((home / "runs").iterdir())
     rows = [json.loads(x) for x in (run_dir / "results.jsonl").read_text().splitlines()]
     assert [(r["score_judge_gemini"], r["score_judge_gpt_frames"]) for r in rows] == [(8, 6), (8, 6)]
+    with sqlite3.connect(home / "mlflow.db") as con:
+        metrics = dict(con.execute("select key, value from latest_metrics").fetchall())
+        tags = dict(con.execute("select key, value from tags").fetchall())
+    for stage in ("generate", "judge"):
+        for key in ("calls", "input_tokens", "output_tokens", "cost_usd"):
+            assert metrics[f"usage.{stage}.{key}"] == pytest.approx(summary["usage"][stage][key])
+    assert metrics["usage.generate.calls"] == 2 and metrics["usage.generate.cost_usd"] > 0
+    assert metrics["judge.gemini.n_valid"] == 2 and metrics["judge.gpt_frames.n_invalid"] == 0
+    assert tags["visphy.prompt_version"] == ",".join(summary["prompt_versions"])
     _no_secret_anywhere(home)
