@@ -224,8 +224,9 @@ async def call_with_retries(attempt: Callable[[], Awaitable[T]], policy: RetryPo
                 raise
             delay = exc.retry_after_s
             if delay is not None and delay > policy.max_retry_after_s:
-                exc.attempts = n  # type: ignore[attr-defined]
-                raise CallError(exc.kind, f"{exc} (Retry-After {delay:g} s exceeds "
-                                f"{policy.max_retry_after_s:g} s)", exc.status) from exc
+                long = CallError(exc.kind, f"{exc} (Retry-After {delay:g} s exceeds "
+                                 f"{policy.max_retry_after_s:g} s)", exc.status, delay)
+                long.attempts = n  # type: ignore[attr-defined]
+                raise long from exc
             await sleep(policy.backoff(n, rng) if delay is None else delay)
     raise AssertionError("unreachable")

@@ -276,8 +276,10 @@ def _check_ready(cfg: DictConfig, model, judges, reference_model) -> None:
     cap = cfg.run.get("cost_cap_usd")
     if cap is None:
         return
+    reference = ([(f"reference.model={cfg.reference.model}", reference_model.cfg)]
+                 if reference_model is not None and reference_model.cfg is not None else [])
     for what, node in [(f"model={cfg.model.name}", cfg.model),
-                       *((f"judge={k}", j.cfg) for k, j in judges)]:
+                       *((f"judge={k}", j.cfg) for k, j in judges), *reference]:
         price = node.get("price") if hasattr(node, "get") else None
         if price is not None and (price.get("input_usd_per_mtok") is None
                                   or price.get("output_usd_per_mtok") is None):

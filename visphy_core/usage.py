@@ -101,11 +101,15 @@ class UsageLedger:
         self._next = 0
         self.stopped_by_cap = False
         if path is not None and path.is_file():
-            for line in path.read_text().splitlines():
+            text = path.read_text()
+            for line in text.splitlines():
                 try:
                     self._records.append(CallRecord(**json.loads(line)))
                 except (ValueError, TypeError):
                     continue  # a half-written last line of a killed run
+            if text and not text.endswith("\n"):
+                with open(path, "a") as fh:  # end the fragment so the next record stands alone
+                    fh.write("\n")
 
     # ------------------------------------------------------------------ the cap
     @property
