@@ -400,6 +400,9 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
         if model.output_kind == "program":
             _record_spec(result, spec, scene.dim, scene_dir, suffix)
         if model.output_kind == "video":
+            if response.video_path and Path(response.video_path).is_file():
+                # the model's own video, byte for byte: a replay of this run starts from it
+                _write(scene_dir / f"reply{suffix}.mp4", Path(response.video_path).read_bytes())
             clip, failure, detail = _video_reply(response, scene)
             if clip is not None:
                 break

@@ -40,6 +40,10 @@ def _speed(body: dict) -> float:
     return math.hypot(float(v.get("vx_px_s", 0.0)), float(v.get("vy_px_s", 0.0)))
 
 
+def _count(n: int) -> str:
+    return f"{n} object" if n == 1 else f"{n} objects"
+
+
 def describe_spec(spec: dict) -> str:
     """A plain-English motion description from a ground-truth spec and its contact events."""
     bodies = spec.get("bodies", [])
@@ -48,9 +52,11 @@ def describe_spec(spec: dict) -> str:
     launched = [b["id"] for b in bodies if b.get("dynamic") and _speed(b) > 1e-6]
     gravity = spec.get("world", {}).get("gravity_m_s2", [0.0, -9.8])
     g = math.sqrt(sum(float(c) ** 2 for c in gravity))
-    sentences = [f"The scene contains {len(bodies)} objects: {_names([b['id'] for b in bodies])}."]
+    sentences = [f"The scene contains {_count(len(bodies))}: "
+                 f"{_names([b['id'] for b in bodies])}."]
     if moving:
-        sentences.append(f"The dynamic bodies are {_names(moving)}; "
+        sentences.append(f"The dynamic {'body is' if len(moving) == 1 else 'bodies are'} "
+                         f"{_names(moving)}; "
                          f"{_names(fixed) or 'nothing'} {'stays' if len(fixed) == 1 else 'stay'} "
                          "fixed.")
     else:
@@ -90,13 +96,15 @@ def describe_detection(detection: dict) -> str:
     objects = detection.get("objects", [])
     kinds = [f"{o.get('id', '?').replace('_', ' ')} ({o.get('category', 'object')})"
              for o in objects]
-    return (f"The scene contains {len(objects)} objects: {', '.join(kinds)}."
+    return (f"The scene contains {_count(len(objects))}: {', '.join(kinds)}."
             if objects else "The scene contains no detected objects.")
 
 
 def _ground_truth_key(scene: Scene) -> str:
     h = hashlib.sha256()
-    for path in (scene.spec_path, scene.video_path):
+    has_spec = scene.spec_path is not None and scene.spec_path.is_file()
+    # what a description is made from: the spec, else the detection file; and the video
+    for path in (scene.spec_path if has_spec else scene.detection_path, scene.video_path):
         if path is not None and path.is_file():
             h.update(hashlib.sha256(path.read_bytes()).digest())
     return h.hexdigest()

@@ -50,13 +50,18 @@ def render_reply(argv: list[str]) -> int:
     from visphy_core.references import ReferenceWriter
     from visphy_core.usage import UsageLedger
 
-    args = _parser().parse_args(argv)
+    args = _parser().parse_intermixed_args(argv)  # overrides before or after the options
     reply = Path(args.reply).resolve()
     if not reply.is_file():
         raise UserError(f"reply file not found: {reply}")
+    if not args.scene or any(c in args.scene for c in ",[]* "):
+        raise UserError(f"--scene {args.scene!r}: name exactly one scene id, e.g. "
+                        "--scene task10001_000")
     overrides = [f"engine={args.engine}", f"dataset={args.dataset}",
                  f"dataset.scenes=[{args.scene}]", "model=replay",
                  f"model.source={json.dumps(str(reply))}", "tracking=none", "run.retry=false"]
+    if reply.suffix.lower() in (".mp4", ".webm", ".mov", ".mkv", ".avi"):
+        overrides.append("model.output=video")  # a pixel-space model's video
     if args.metrics:
         overrides.append(f"metrics.names=[{args.metrics}]")
     if args.judge:
@@ -70,7 +75,11 @@ def render_reply(argv: list[str]) -> int:
     for judge in judges:
         judge[1].check_ready()
     cache = Cache(Path(cfg.paths.cache_dir).resolve(), enabled=bool(cfg.run.cache))
-    (scene,) = load_dataset(cfg.dataset, Path(cfg.paths.data_dir).resolve(), progress=False)
+    scenes = load_dataset(cfg.dataset, Path(cfg.paths.data_dir).resolve(), progress=False)
+    if len(scenes) != 1:
+        raise UserError(f"--scene {args.scene} selects {len(scenes)} scenes of dataset "
+                        f"{args.dataset}; name exactly one")
+    (scene,) = scenes
     out = Path(args.out) if args.out else Path(cfg.paths.root) / "render" / (
         f"{scene.scene_id}_{args.engine}_{dt.datetime.now():%Y-%m-%d_%H-%M-%S}")
     out.mkdir(parents=True, exist_ok=True)

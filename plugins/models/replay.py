@@ -4,8 +4,9 @@ re-rendered and re-scored offline (``model=replay model.source=PATH``).
 ``source`` may be:
 
 * a visphy run directory (``scenes/<id>/response.txt``, ``response.attempt2.txt`` for the
-  repair call, ``video.mp4`` for a pixel-space model's run): replaying it with the same engine
-  and settings reproduces that run's rows;
+  repair call, ``reply.mp4`` — the model's own video — for a pixel-space model's run; a call
+  that failed at the provider, recorded in ``response.json``, is replayed as that failure):
+  replaying it with the same engine and settings reproduces that run's rows;
 * a folder with one file per scene: ``<id>.txt`` / ``.md`` / ``.html`` / ``.py`` (a bare program
   without a fence is wrapped in one), ``<id>.attempt2.<ext>`` for a repair reply, ``<id>.mp4`` for
   a video;
@@ -93,7 +94,10 @@ class ReplayModel(Model):
         if self._is_run_dir():
             scene = self.source / "scenes" / scene_id
             if self.output_kind == "video":
-                return [scene / "video.mp4"] if attempt == 1 else []
+                # reply.mp4: the model's own video; video.mp4 of runs before it was kept,
+                # unless that scene's video.mp4 is the fallback clip (see `_recorded_error`)
+                return [scene / f"reply{tag}.mp4", scene / "video.mp4"] if attempt == 1 \
+                    else [scene / f"reply{tag}.mp4"]
             return [scene / f"response{tag}.txt"]
         if self.output_kind == "video":
             return [self.source / f"{scene_id}.mp4"] if attempt == 1 else []
@@ -106,22 +110,75 @@ class ReplayModel(Model):
                                 if p.suffix in TEXT_SUFFIXES and ".attempt" not in p.name)
         return found
 
+    def _run_rows(self) -> dict[str, dict]:
+        """A run directory's result rows by scene id (empty when unreadable)."""
+        if not hasattr(self, "_rows"):
+            self._rows = {}
+            try:
+                for line in (self.source / "results.jsonl").read_text().splitlines():
+                    try:
+                        row = json.loads(line)
+                        self._rows[str(row["scene_id"])] = row
+                    except (ValueError, KeyError, TypeError):
+                        continue
+            except OSError:
+                pass
+        return self._rows
+
+    def _recorded_error(self, scene_id: str, attempt: int) -> Optional[ModelResponse]:
+        """In a run directory, the call that failed at the provider (``response.json`` holds
+        its error) is replayed as that failure, not as an empty reply."""
+        tag = "" if attempt == 1 else f".attempt{attempt}"
+        meta = self.source / "scenes" / scene_id / f"response{tag}.json"
+        try:
+            recorded = json.loads(meta.read_text())
+        except (OSError, ValueError):
+            return None
+        if not isinstance(recorded, dict) or not recorded.get("error"):
+            return None
+        return ModelResponse(text="", error=str(recorded["error"]),
+                             error_kind=recorded.get("error_kind") or "server",
+                             finish_reason=recorded.get("finish_reason"), cost_usd=0.0)
+
+    def _fallback_video(self, path: Path, scene_id: str) -> bool:
+        """An old run directory's ``video.mp4`` that is the fallback clip, not the model's."""
+        return path.name == "video.mp4" and bool(self._run_rows().get(scene_id, {})
+                                                  .get("fallback"))
+
     # ------------------------------------------------------------------ replies
     def generate(self, request: ModelRequest) -> ModelResponse:
+        if self._is_run_dir():
+            failed = self._recorded_error(request.scene_id, request.attempt)
+            if failed is not None:
+                return failed
         candidates = self._candidates(request.scene_id, request.attempt)
         path = next((p for p in candidates if p.is_file()), None)
+        if path is not None and self._is_run_dir() and self._fallback_video(path,
+                                                                            request.scene_id):
+            return ModelResponse(text="", error=f"the recorded run has no video of its own for "
+                                 f"{request.scene_id} (its video.mp4 is the fallback clip)",
+                                 error_kind="not_recorded")
         if path is None:
             if request.attempt > 1:
                 return ModelResponse(text="", error=f"no recorded reply for attempt "
                                      f"{request.attempt} of {request.scene_id}",
                                      error_kind="not_recorded")
-            looked = ", ".join(str(p) for p in candidates[:3]) or str(self.source)
+            looked = ", ".join(str(p) for p in candidates) or str(self.source)
             return ModelResponse(text="", error=f"no recorded reply for {request.scene_id} "
                                  f"(looked for {looked})", error_kind="not_recorded")
         if self.output_kind == "video":
             return ModelResponse(text=f"recorded video {path.name}", video_path=str(path),
                                  cost_usd=0.0)
-        return ModelResponse(text=_as_reply(path), cost_usd=0.0)
+        response = ModelResponse(text=_as_reply(path), cost_usd=0.0)
+        if self._is_run_dir():  # the recorded finish reason and refusal classify it the same
+            meta = path.with_suffix(".json")
+            try:
+                recorded = json.loads(meta.read_text())
+                response.finish_reason = recorded.get("finish_reason")
+                response.refusal = recorded.get("refusal")
+            except (OSError, ValueError, AttributeError):
+                pass
+        return response
 
 
 def _as_reply(path: Path) -> str:
