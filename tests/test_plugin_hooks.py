@@ -79,7 +79,8 @@ def test_visphy_register_metrics(pm):
     pm.register(Plugin(), name="inline")
     metric = build_registry(pm).get("metrics", "inline_const")
     assert metric.describe() == {"name": "inline_const", "direction": "higher",
-                                 "range": [0.0, 1.0], "needs": ["frames"]}
+                                 "range": [0.0, 1.0], "needs": ["frames"], "family": "pixel",
+                                 "kind": "scene", "weights": None, "unavailable": None}
 
 
 def test_visphy_register_judges(pm):

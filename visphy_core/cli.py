@@ -2,6 +2,7 @@
 
 Subcommands:
   plugins        list installed plugins and what each registers (also: --plugins)
+  metrics        list installed metrics: direction, family, kind, weights, availability here
   setup          install the vendored JavaScript libraries (npm ci into the asset cache)
   build-dataset  generate VisPhyBench: build-dataset [--split S] [--seed N] [--data-dir DIR]
   normalise      resample a foreign video to a reference clip: normalise IN --like REF -o OUT
@@ -188,6 +189,27 @@ def cmd_normalise(argv: list[str]) -> int:
     return 0
 
 
+def cmd_metrics(argv: list[str]) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from visphy_core.plugins import get_registry
+
+    registry = get_registry()
+    table = Table(title="visphy metrics")
+    for col in ("metric", "dir", "family", "kind", "range", "weights", "here"):
+        table.add_column(col)
+    for name in sorted(registry.metrics):
+        d = registry.get("metrics", name).describe()
+        lo, hi = d["range"]
+        table.add_row(name, "↑" if d["direction"] == "higher" else "↓", d["family"], d["kind"],
+                      f"{lo:g}…{hi:g}", d["weights"] or "—",
+                      "available" if d["unavailable"] is None
+                      else f"unavailable: {d['unavailable']}")
+    Console(width=160).print(table)
+    return 0
+
+
 def cmd_render(argv: list[str]) -> int:
     from visphy_core.render_one import render_reply
 
@@ -195,7 +217,7 @@ def cmd_render(argv: list[str]) -> int:
 
 
 SUBCOMMANDS = {"plugins": cmd_plugins, "setup": cmd_setup, "build-dataset": cmd_build_dataset,
-               "normalise": cmd_normalise, "render": cmd_render}
+               "normalise": cmd_normalise, "render": cmd_render, "metrics": cmd_metrics}
 
 
 def run_hydra(argv: list[str]) -> int:

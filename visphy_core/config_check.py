@@ -408,6 +408,24 @@ def check_values(cfg: DictConfig) -> None:
     check_ranges(cfg)
     check_names(cfg)
     check_tracking(cfg)
+    check_protocol(cfg)
+
+
+PROTOCOLS = ("visphy", "paper")
+
+
+def check_protocol(cfg: DictConfig) -> None:
+    """``metrics.protocol``: a non-empty list of scoring protocols."""
+    value = OmegaConf.select(cfg, "metrics.protocol", default=None)
+    if value is None:
+        return
+    items = [str(v) for v in value]
+    if not items:
+        raise ConfigError(f"metrics.protocol=[] names no protocol; valid: {', '.join(PROTOCOLS)}")
+    for item in items:
+        if item not in PROTOCOLS:
+            raise ConfigError(f"metrics.protocol={_show(list(value))}: {item} is not a scoring "
+                              f"protocol; valid: {', '.join(PROTOCOLS)}")
 
 
 def check_inputs(cfg: DictConfig) -> None:

@@ -104,8 +104,37 @@ class EngineConfig:
 
 
 @dataclass
+@dataclass
+class PaperAlignConfig:
+    """The upstream protocol's search (MISSION §6); `visphy_core.alignment.AlignParams`."""
+
+    sample_every: int = 3
+    downsample: int = 64
+    max_offset: int = 30
+    top_k: int = 5
+    max_samples: int = 16
+    window: int = 3
+    offset_penalty: float = 0.05
+    dtw: bool = False
+    dtw_size: int = 48
+    dtw_step_penalty: float = 0.005
+
+
+@dataclass
+class VisphyAlignConfig(PaperAlignConfig):
+    """visphy's aligned variant: the same search on every frame."""
+
+    sample_every: int = 1
+
+
+@dataclass
 class MetricsConfig:
     names: list[str] = field(default_factory=lambda: ["psnr", "ssim"])
+    protocol: list[str] = field(  # visphy, paper (checked in config_check)
+        default_factory=lambda: ["visphy", "paper"])
+    aligned: bool = True          # visphy: also the aligned variant (.aligned, align.offset/err)
+    align: VisphyAlignConfig = field(default_factory=VisphyAlignConfig)
+    paper: PaperAlignConfig = field(default_factory=PaperAlignConfig)
 
 
 @dataclass

@@ -48,7 +48,8 @@ def _fmt(value) -> str:
 
 def print_summary(summary: dict, results: list) -> None:
     """Per-scene table, then metric means with their denominators, then failures and cache."""
-    metric_names = list(summary["metrics"])
+    # per scene: the primary columns only (visphy, unaligned); every column is in the means
+    metric_names = [n for n in summary["metrics"] if "." not in n][:8]
     table = Table(title=f"visphy · {summary['model']} × {summary['engine']} · "
                         f"{summary['dataset']} ({summary['n_scenes']} scenes)")
     table.add_column("scene")

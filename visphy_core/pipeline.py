@@ -27,7 +27,7 @@ from visphy_core.prompts.build import (PromptSettings, build_prompt, build_repai
 from visphy_core.references import ReferenceWriter
 from visphy_core.reply_spec import spec_problems
 from visphy_core.scene import Scene, SceneDataError
-from visphy_core.scoring import clip_digest, score_scene
+from visphy_core.scoring import ScoringProtocol, clip_digest, score_columns, score_scene
 from visphy_core.secrets import redact, redact_obj
 from visphy_core.usage import CostCapReached
 from visphy_core.video import decode_video, encode_video, frame_digest, load_clip_for
@@ -244,6 +244,7 @@ class SceneServices:
     cache: Cache
     judges: JudgeCaller | None = None
     references: ReferenceWriter | None = None
+    protocol: ScoringProtocol = field(default_factory=ScoringProtocol)
 
 
 class ProviderRejectedKey(UserError):
@@ -292,7 +293,7 @@ def process_scene(scene: Scene, services: SceneServices, scene_dir: Path) -> Sce
     are not `Exception`s (an interrupted run, Ctrl-C) propagate.
     """
     metrics = services.metrics
-    columns = [m.name for m in metrics]
+    columns = [name for name, _ in score_columns(metrics, services.protocol)]
     if services.judges is not None:
         columns += [services.judges.column(k) for k, _ in services.judges.judges]
     result = SceneResult(scene_id=scene.scene_id, dim=scene.dim, difficulty=scene.difficulty,
@@ -514,7 +515,8 @@ def _score_and_judge(scene: Scene, reference: np.ndarray, generated: np.ndarray,
         reference_text, result.reference_source = services.references.describe(scene)
         _write(scene_dir / "reference.txt", reference_text)
     scores, unavailable = score_scene(scene, reference, generated, services.metrics, analysis,
-                                      spec, services.cache, reference_text=reference_text)
+                                      spec, services.cache, reference_text=reference_text,
+                                      protocol=services.protocol)
     result.scores.update(scores)
     result.unavailable.update(unavailable)
     if services.judges is None:

@@ -34,6 +34,7 @@ from visphy_core.errors import ConfigError
 from visphy_core.generation import ModelCaller, get_service
 from visphy_core.judging import JudgeCaller
 from visphy_core.metrics import Metric
+from visphy_core.scoring import ScoringProtocol, score_columns
 from visphy_core.pipeline import (NOT_EVALUABLE, PipelineSettings, SceneResult, SceneServices,
                                   first_call, process_scene)
 from visphy_core.plugins import get_plugin_manager, get_registry
@@ -141,7 +142,8 @@ def _judge_columns(results: list[SceneResult], judges: list[str]) -> dict[str, d
 
 
 def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache,
-              judges: list[str] | None = None, ledger: UsageLedger | None = None) -> dict:
+              judges: list[str] | None = None, ledger: UsageLedger | None = None,
+              protocol: ScoringProtocol | None = None) -> dict:
     """Means with honest denominators: model successes only, and all scenes with fallbacks.
 
     Success rates are given over all scenes and over the evaluable ones (scenes that ended in
@@ -158,7 +160,7 @@ def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache,
             side = "infra_or_data" if r.failure_class in NOT_EVALUABLE else "model"
             failures[side][r.failure_class] = failures[side].get(r.failure_class, 0) + 1
     per_metric = {}
-    columns = [(m.name, m.direction) for m in metrics]
+    columns = score_columns(metrics, protocol)
     columns += [(f"judge_{key}", "higher") for key in judges or []]
     for name, direction in columns:
         def mean(rows):
@@ -335,6 +337,7 @@ def run_experiment(cfg: DictConfig) -> dict:
     caller = ModelCaller(model, cache, ledger)
     services = SceneServices(
         model=model, caller=caller, engine=engine, metrics=metrics, settings=settings,
+        protocol=ScoringProtocol.from_cfg(cfg.metrics),
         cache=cache, judges=JudgeCaller(judges, cache, ledger) if judges else None,
         references=ReferenceWriter(cfg.reference, cache, reference_model,
                                    ModelCaller(reference_model, cache, ledger)
@@ -473,7 +476,8 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
         ctx.results.sort(key=lambda r: order.get(r.scene_id, len(order)))
         pd.DataFrame([r.row() for r in ctx.results]).to_parquet(run_dir / "results.parquet",
                                                                index=False)
-        summary = summarise(ctx.results, metrics, cache, judge_keys, ledger)
+        summary = summarise(ctx.results, metrics, cache, judge_keys, ledger,
+                            services.protocol)
         summary.update({"status": status, "run_dir": str(run_dir), "model": cfg.model.name,
                         "engine": cfg.engine.name, "dataset": cfg.dataset.name,
                         "n_selected": len(scenes), "resumed_rows": len(restored),

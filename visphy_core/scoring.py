@@ -2,8 +2,23 @@
 
 The generated clip is brought to the reference contract first (fps, frame count, size) by its
 own timestamps (`visphy_core.video.resample_by_time`), so frames are paired by time, never by
-index across different frame rates. Values are cached by the
-content of both clips and the metric's identity, so re-scoring never recomputes.
+index across different frame rates. Then each pairing of the `ScoringProtocol` is made once
+(`visphy_core.alignment`) and every metric scored under it:
+
+=====================  ========================================  ==========================
+pairing                what is paired                            columns
+=====================  ========================================  ==========================
+visphy (unaligned)     every frame k with frame k (by time)      ``psnr``, ``flow_epe_dis``
+visphy aligned         every frame, best single offset           ``psnr.aligned``, …,
+                                                                  ``align.offset``,
+                                                                  ``align.err``
+paper                  every 3rd frame, the upstream search       ``paper.psnr``, …,
+                                                                  ``paper.align.offset``,
+                                                                  ``paper.align.err``
+=====================  ========================================  ==========================
+
+A ``scene`` metric (text, spec) has one column. Values are cached by the content of both clips,
+the pairing and the metric's identity, so re-scoring never recomputes.
 """
 
 from __future__ import annotations
@@ -14,8 +29,12 @@ import math
 
 import numpy as np
 
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from visphy_core.alignment import EVERY_FRAME, PAPER, AlignParams, Alignment, align, unaligned
 from visphy_core.cache import Cache, content_key
-from visphy_core.metrics import Metric, MetricInput
+from visphy_core.metrics import HIGHER, LOWER, PAIRS, SCENE, SEQUENCE, Metric, MetricInput
 from visphy_core.scene import Scene
 from visphy_core.video import resample_by_time, resize_with_padding
 
@@ -51,38 +70,158 @@ def to_contract(scene: Scene, generated: np.ndarray,
     return generated
 
 
+@dataclass(frozen=True)
+class ScoringProtocol:
+    """Which pairings every frame and sequence metric is scored under (``metrics.protocol``)."""
+
+    unaligned: bool = True                 # visphy: every frame, by time (the plain column)
+    aligned: bool = True                   # visphy: every frame, best offset (``.aligned``)
+    paper: bool = True                     # the upstream protocol (``paper.``)
+    aligned_params: AlignParams = EVERY_FRAME
+    paper_params: AlignParams = PAPER
+
+    @classmethod
+    def from_cfg(cls, cfg: Any) -> "ScoringProtocol":
+        """From the ``metrics`` config node (``protocol``: ``[visphy, paper]`` or a subset;
+        ``aligned``; ``paper.*`` and ``align.*`` overrides of the search parameters)."""
+        if cfg is None:
+            return cls()
+        names = [str(n) for n in (cfg.get("protocol") or ["visphy", "paper"])]
+        visphy = "visphy" in names
+        paper_over = dict(cfg.get("paper") or {})
+        align_over = dict(cfg.get("align") or {})
+        return cls(unaligned=visphy, aligned=visphy and bool(cfg.get("aligned", True)),
+                   paper="paper" in names,
+                   aligned_params=replace(EVERY_FRAME, **align_over),
+                   paper_params=replace(PAPER, **paper_over))
+
+    def views(self) -> list[str]:
+        """The pairings in column order: ``""`` (unaligned), ``"aligned"``, ``"paper"``."""
+        return ([""] if self.unaligned else []) + (["aligned"] if self.aligned else []) \
+            + (["paper"] if self.paper else [])
+
+
+def column(metric_name: str, view: str) -> str:
+    if view == "":
+        return metric_name
+    if view == "aligned":
+        return f"{metric_name}.aligned"
+    return f"{view}.{metric_name}"
+
+
+def _align_columns(view: str) -> list[tuple[str, str]]:
+    prefix = {"aligned": "align", "paper": "paper.align"}[view]
+    return [(f"{prefix}.offset", LOWER), (f"{prefix}.err", LOWER)]
+
+
+def score_columns(metrics: list[Metric], protocol: ScoringProtocol | None = None
+                  ) -> list[tuple[str, str]]:
+    """Every score column (name, direction) a run with these metrics writes, in order."""
+    protocol = protocol or ScoringProtocol()
+    views = protocol.views()
+    cols: list[tuple[str, str]] = []
+    for m in metrics:
+        if m.kind == SCENE:
+            cols.append((m.name, m.direction))
+        else:
+            cols += [(column(m.name, v), m.direction) for v in views]
+    if any(m.kind != SCENE for m in metrics):
+        for v in views:
+            if v:
+                cols += _align_columns(v)
+    return cols
+
+
+def alignments(reference: np.ndarray, generated: np.ndarray, protocol: ScoringProtocol
+               ) -> dict[str, Alignment]:
+    out = {}
+    for v in protocol.views():
+        if v == "":
+            out[v] = unaligned(len(reference), len(generated))
+        elif v == "aligned":
+            out[v] = align(reference, generated, protocol.aligned_params)
+        else:
+            out[v] = align(reference, generated, protocol.paper_params)
+    return out
+
+
 def score_scene(scene: Scene, reference: np.ndarray, generated: np.ndarray,
                 metrics: list[Metric], analysis: str | None, spec: dict | None,
                 cache: Cache, generated_times_s: np.ndarray | None = None,
-                reference_text: str | None = None
+                reference_text: str | None = None, protocol: ScoringProtocol | None = None
                 ) -> tuple[dict[str, float | None], dict[str, str]]:
-    """Scores by metric name, and the reason for each metric that could not be computed.
+    """Scores by column, and the reason for each column that could not be computed.
 
     ``generated_times_s``: the generated frames' presentation times (seconds from its first
     frame) when the clip does not already follow the scene's contract (a foreign video).
     ``reference_text``: the scene's reference description, for text metrics.
     """
+    protocol = protocol or ScoringProtocol()
     if generated.shape != reference.shape or generated_times_s is not None:
         generated = to_contract(scene, generated, generated_times_s)
     inp = MetricInput(scene=scene, reference=reference, generated=generated, analysis=analysis,
                       spec=spec, reference_text=reference_text)
     clips = content_key(clip_digest(reference), clip_digest(generated), analysis or "",
                         json.dumps(spec, sort_keys=True) if spec else "", reference_text or "")
+    views = alignments(reference, generated, protocol) \
+        if any(m.kind != SCENE for m in metrics) else {}
     scores: dict[str, float | None] = {}
     unavailable: dict[str, str] = {}
-    for metric in metrics:
-        reason = metric.unavailable_reason()
-        if reason:
-            scores[metric.name], unavailable[metric.name] = None, reason
-            continue
-        key = content_key("score", metric.name, metric.version, type(metric).__qualname__, clips)
+    for v, a in views.items():
+        if v:
+            (off_col, _), (err_col, _) = _align_columns(v)
+            scores[off_col], scores[err_col] = float(a.offset), float(a.align_err)
+
+    def cached(col: str, key_parts: tuple, fn) -> float | None:
+        key = content_key("score", col, *key_parts, clips)
         entry = cache.get("score", key)
         if entry is not None:
-            value = json.loads((entry / "value.json").read_text())["value"]
+            return json.loads((entry / "value.json").read_text())["value"]
+        value = float(fn())
+        value = None if math.isnan(value) else value
+        cache.put("score", key, {"value.json": json.dumps({"value": value})})
+        return value
+
+    for metric in metrics:
+        cols = [metric.name] if metric.kind == SCENE else [column(metric.name, v) for v in views]
+        reason = metric.unavailable_reason()
+        if reason:
+            for col in cols:
+                scores[col], unavailable[col] = None, reason
+            continue
+        ident = (metric.name, metric.version, metric.identity())
+        if metric.kind == SCENE:
+            scores[metric.name] = cached(metric.name, ident, lambda: metric.compute(inp))
+        elif metric.kind == PAIRS:
+            memo: dict[tuple[int, int], float] = {}
+            for v, a in views.items():
+                scores[column(metric.name, v)] = cached(
+                    column(metric.name, v), ident + (_pairs_key(a),),
+                    lambda a=a: _mean_over_pairs(metric, reference, generated, a, memo))
         else:
-            value = float(metric.compute(inp))
-            if math.isnan(value):
-                value = None
-            cache.put("score", key, {"value.json": json.dumps({"value": value})})
-        scores[metric.name] = value
+            for v, a in views.items():
+                scores[column(metric.name, v)] = cached(
+                    column(metric.name, v), ident + (_pairs_key(a),),
+                    lambda a=a: metric.compute_sequence(inp, a))
     return scores, unavailable
+
+
+def _pairs_key(a: Alignment) -> str:
+    return hashlib.sha256(np.stack([a.ref_idx, a.gen_idx]).astype(np.int64).tobytes()
+                          ).hexdigest()[:16]
+
+
+def _mean_over_pairs(metric: Metric, reference: np.ndarray, generated: np.ndarray,
+                     a: Alignment, memo: dict[tuple[int, int], float]) -> float:
+    """The mean of a pair metric over an alignment's pairs, each distinct pair computed once
+    per scene (in one batch) and shared between the pairings."""
+    pairs = a.pairs()
+    if not pairs:
+        return float("nan")
+    todo = sorted({p for p in pairs if p not in memo})
+    if todo:
+        ri = np.array([r for r, _ in todo])
+        gi = np.array([g for _, g in todo])
+        values = np.asarray(metric.pair_values(reference[ri], generated[gi]), dtype=np.float64)
+        memo.update(zip(todo, values.tolist()))
+    return float(np.mean([memo[p] for p in pairs]))

@@ -11,7 +11,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from visphy_core.hookspecs import hookimpl
-from visphy_core.metrics import HIGHER, Metric, MetricInput
+from visphy_core.metrics import HIGHER, PAIRS, Metric
 
 PSNR_CAP_DB = 100.0  # identical frames: report the cap instead of infinity
 _SIGMA, _RADIUS = 1.5, 5
@@ -53,18 +53,22 @@ class PSNR(Metric):
     name = "psnr"
     direction = HIGHER
     score_range = (0.0, PSNR_CAP_DB)
+    family = "pixel"
+    kind = PAIRS
 
-    def compute(self, inp: MetricInput) -> float:
-        return float(np.mean([psnr_frame(a, b) for a, b in zip(inp.reference, inp.generated)]))
+    def pair_values(self, reference: np.ndarray, generated: np.ndarray) -> np.ndarray:
+        return np.array([psnr_frame(a, b) for a, b in zip(reference, generated)])
 
 
 class SSIM(Metric):
     name = "ssim"
     direction = HIGHER
     score_range = (-1.0, 1.0)
+    family = "pixel"
+    kind = PAIRS
 
-    def compute(self, inp: MetricInput) -> float:
-        return float(np.mean([ssim_frame(a, b) for a, b in zip(inp.reference, inp.generated)]))
+    def pair_values(self, reference: np.ndarray, generated: np.ndarray) -> np.ndarray:
+        return np.array([ssim_frame(a, b) for a, b in zip(reference, generated)])
 
 
 @hookimpl
