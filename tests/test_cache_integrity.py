@@ -217,12 +217,14 @@ def test_flipped_video_bytes_are_recomputed_with_correct_scores(home, clean):
 @pytest.mark.browser
 def test_an_edited_cached_score_is_recomputed(home, clean):
     s1, row1 = clean
-    for value in _entries(home, "score", "value.json"):
+    entries = _entries(home, "score", "value.json")
+    assert len(entries) == 6  # psnr and ssim, each unaligned, aligned and paper
+    for value in entries:
         value.write_text(json.dumps({"value": 99.0}))
     s2, row2 = _run(home)
-    assert row2["score_psnr"] == pytest.approx(row1["score_psnr"], abs=1e-9)
-    assert row2["score_ssim"] == pytest.approx(row1["score_ssim"], abs=1e-9)
-    assert s2["cache"]["score"]["dropped"] == 2 and s2["cache"]["render"]["hits"] == 1
+    for col in ("psnr", "ssim", "psnr.aligned", "paper.ssim"):
+        assert row2[f"score_{col}"] == pytest.approx(row1[f"score_{col}"], abs=1e-9)
+    assert s2["cache"]["score"]["dropped"] == 6 and s2["cache"]["render"]["hits"] == 1
 
 
 @pytest.mark.browser
