@@ -27,14 +27,14 @@ import hashlib
 import json
 import math
 
-import numpy as np
-
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
+
+import numpy as np
 
 from visphy_core.alignment import EVERY_FRAME, PAPER, AlignParams, Alignment, align, unaligned
 from visphy_core.cache import Cache, content_key
-from visphy_core.metrics import HIGHER, LOWER, PAIRS, SCENE, SEQUENCE, Metric, MetricInput
+from visphy_core.metrics import LOWER, PAIRS, SCENE, Metric, MetricInput
 from visphy_core.scene import Scene
 from visphy_core.video import resample_by_time, resize_with_padding
 
