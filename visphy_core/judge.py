@@ -151,15 +151,9 @@ class Judge(ABC):
 
     def identity(self) -> str:
         """Cache identity: everything that changes a verdict (model, prompt, sampling)."""
-        settings = {}
-        if self.cfg is not None:
-            try:
-                from omegaconf import OmegaConf
+        from visphy_core.model import config_identity
 
-                settings = OmegaConf.to_container(self.cfg, resolve=True)
-            except ValueError:
-                settings = dict(self.cfg)
-        return json.dumps([self.name, self.version, settings], sort_keys=True, default=str)
+        return config_identity(self.name, self.version, self.cfg)
 
     async def aclose(self) -> None:
         """Release clients."""

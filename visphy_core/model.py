@@ -106,6 +106,20 @@ class ModelResponse:
         return self.finish_reason == "length"
 
 
+def config_identity(name: str, version: str, cfg: Any) -> str:
+    """``[name, version, every setting]`` as canonical JSON: the cache identity of a configured
+    model or judge."""
+    settings = {}
+    if cfg is not None:
+        try:
+            from omegaconf import OmegaConf
+
+            settings = OmegaConf.to_container(cfg, resolve=True)
+        except ValueError:
+            settings = dict(cfg)
+    return json.dumps([name, version, settings], sort_keys=True, default=str)
+
+
 class Model(ABC):
     """Base class for model plugins (see `plugins/models/oracle.py`).
 
@@ -142,15 +156,7 @@ class Model(ABC):
 
     def identity(self) -> str:
         """Cache identity: name, version and every setting that changes the reply."""
-        settings = {}
-        if self.cfg is not None:
-            try:
-                from omegaconf import OmegaConf
-
-                settings = OmegaConf.to_container(self.cfg, resolve=True)
-            except ValueError:
-                settings = dict(self.cfg)
-        return json.dumps([self.name, self.version, settings], sort_keys=True, default=str)
+        return config_identity(self.name, self.version, self.cfg)
 
     def describe(self) -> dict:
         """What the run manifest records about the model."""
