@@ -135,6 +135,11 @@ class MetricsConfig:
     aligned: bool = True          # visphy: also the aligned variant (.aligned, align.offset/err)
     align: VisphyAlignConfig = field(default_factory=VisphyAlignConfig)
     paper: PaperAlignConfig = field(default_factory=PaperAlignConfig)
+    # Model weights (LPIPS/DISTS backbones, CLIP, DINO, RAFT, RoBERTa): searched here first, then
+    # $VISPHY_WEIGHTS and $TORCH_HOME/hub/checkpoints (visphy_core.weights). Never downloaded.
+    weights_dir: Optional[str] = None
+    device: str = "cpu"           # torch device of the learned metrics (cpu, cuda, cuda:1…)
+    max_pairs: dict[str, int] = field(default_factory=dict)  # per metric: pairs scored at most
 
 
 @dataclass

@@ -46,6 +46,8 @@ class MetricInput:
     analysis: str | None = None
     spec: dict | None = None
     reference_text: str | None = None  # the scene's reference description (text metrics)
+    program: str | None = None         # the model's program source (static analysis metrics)
+    language: str | None = None        # its language (``html``, ``python``…)
     extra: dict = field(default_factory=dict)  # per-scene memo shared by the metrics
 
 
@@ -58,6 +60,10 @@ class Metric(ABC):
     needs: tuple[str, ...] = ("frames",)
     weights: str | None = None       # what it loads, e.g. "AlexNet + LPIPS v0.1 linear layers"
     version: str = "1"
+    # kind ``pairs``: at most this many pairs of each pairing are scored, evenly spaced in time
+    # (first and last included); None: every pair. Set on costly metrics, overridable with
+    # ``metrics.max_pairs.<name>``; recorded in the metric's identity.
+    max_pairs: int | None = None
 
     def unavailable_reason(self) -> str | None:
         """Why this metric cannot be computed here, and how to make it possible (None: it can)."""
@@ -66,7 +72,8 @@ class Metric(ABC):
     def identity(self) -> str:
         """What changes a value: class, version and (for loaded models) the weights' digest.
         Part of every cached score's key."""
-        return f"{type(self).__module__}.{type(self).__qualname__}@{self.version}"
+        ident = f"{type(self).__module__}.{type(self).__qualname__}@{self.version}"
+        return ident if self.max_pairs is None else f"{ident}/max_pairs={self.max_pairs}"
 
     # ----------------------------------------------------------------- the three kinds
     def pair_values(self, reference: np.ndarray, generated: np.ndarray) -> np.ndarray:
@@ -87,4 +94,5 @@ class Metric(ABC):
     def describe(self) -> dict:
         return {"name": self.name, "direction": self.direction, "family": self.family,
                 "kind": self.kind, "range": list(self.score_range), "needs": list(self.needs),
-                "weights": self.weights, "unavailable": self.unavailable_reason()}
+                "weights": self.weights, "max_pairs": self.max_pairs,
+                "unavailable": self.unavailable_reason()}

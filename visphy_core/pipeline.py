@@ -373,6 +373,7 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
     clip: np.ndarray | None = None
     request = first.request
     analysis, spec = None, None
+    program: Program | None = None
     attempts = (1, 2) if settings.retry and model.output_kind == "program" else (1,)
     for attempt in attempts:
         result.attempts = attempt
@@ -468,7 +469,7 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
         generated = None
     if generated is not None:
         _score_and_judge(scene, reference, generated, analysis, spec, services, scene_dir,
-                         result)
+                         result, program if outcome is not None else None)
 
 
 def _render_with_infra_retry(engine: Engine, program: Program, contract: RenderContract,
@@ -509,14 +510,17 @@ def _video_reply(response: ModelResponse, scene: Scene
 
 def _score_and_judge(scene: Scene, reference: np.ndarray, generated: np.ndarray,
                      analysis: str | None, spec: dict | None, services: SceneServices,
-                     scene_dir: Path, result: SceneResult) -> None:
+                     scene_dir: Path, result: SceneResult, program: Program | None = None
+                     ) -> None:
     reference_text = None
     if services.references is not None:
         reference_text, result.reference_source = services.references.describe(scene)
         _write(scene_dir / "reference.txt", reference_text)
     scores, unavailable = score_scene(scene, reference, generated, services.metrics, analysis,
                                       spec, services.cache, reference_text=reference_text,
-                                      protocol=services.protocol)
+                                      protocol=services.protocol,
+                                      program=program.source if program else None,
+                                      language=program.language if program else None)
     result.scores.update(scores)
     result.unavailable.update(unavailable)
     if services.judges is None:

@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from visphy_core.errors import UserError
+from visphy_core.scoring import ScoringProtocol, select_metrics
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -87,7 +88,8 @@ def render_reply(argv: list[str]) -> int:
     engine = registry.get("engines", cfg.engine.name)(cfg.engine)
     services = SceneServices(
         model=model, caller=ModelCaller(model, cache, ledger), engine=engine,
-        metrics=[registry.get("metrics", n) for n in cfg.metrics.names],
+        metrics=select_metrics(registry, cfg.metrics),
+        protocol=ScoringProtocol.from_cfg(cfg.metrics),
         settings=PipelineSettings(prompt=PromptSettings.from_cfg(cfg.prompt), retry=False,
                                   fallback=False, timeout_s=cfg.engine.timeout_s,
                                   seed=cfg.run.seed),

@@ -34,7 +34,7 @@ from visphy_core.errors import ConfigError
 from visphy_core.generation import ModelCaller, get_service
 from visphy_core.judging import JudgeCaller
 from visphy_core.metrics import Metric
-from visphy_core.scoring import ScoringProtocol, score_columns
+from visphy_core.scoring import ScoringProtocol, score_columns, select_metrics
 from visphy_core.pipeline import (NOT_EVALUABLE, PipelineSettings, SceneResult, SceneServices,
                                   first_call, process_scene)
 from visphy_core.plugins import get_plugin_manager, get_registry
@@ -308,7 +308,7 @@ def run_experiment(cfg: DictConfig) -> dict:
     scenes = load_dataset(cfg.dataset, data_dir, progress=bool(cfg.run.progress))
     isolation = _isolation(cfg)
     engine = registry.get("engines", cfg.engine.name)(cfg.engine)
-    metrics = [registry.get("metrics", name) for name in cfg.metrics.names]
+    metrics = select_metrics(registry, cfg.metrics)
     chash = config_hash(cfg)
     found = find_resumable(runs_dir, chash)
     extra: dict[str, Any] = {"config_hash": chash, "isolation": isolation,

@@ -23,6 +23,7 @@ the pairing and the metric's identity, so re-scoring never recomputes.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import math
@@ -37,6 +38,7 @@ from visphy_core.cache import Cache, content_key
 from visphy_core.metrics import LOWER, PAIRS, SCENE, Metric, MetricInput
 from visphy_core.scene import Scene
 from visphy_core.video import resample_by_time, resize_with_padding
+from visphy_core import weights
 
 
 def clip_digest(frames: np.ndarray) -> str:
@@ -101,6 +103,21 @@ class ScoringProtocol:
             + (["paper"] if self.paper else [])
 
 
+def select_metrics(registry: Any, cfg: Any) -> list[Metric]:
+    """The metrics of ``metrics.names`` (copies, with ``metrics.max_pairs`` applied), after
+    pointing the weight search at ``metrics.weights_dir`` and models at ``metrics.device``."""
+    weights.configure(cfg.get("weights_dir"), cfg.get("device") or "cpu")
+    limits = dict(cfg.get("max_pairs") or {})
+    out = []
+    for name in cfg.names:
+        metric = registry.get("metrics", name)
+        if name in limits:
+            metric = copy.copy(metric)
+            metric.max_pairs = int(limits[name]) if limits[name] else None
+        out.append(metric)
+    return out
+
+
 def column(metric_name: str, view: str) -> str:
     if view == "":
         return metric_name
@@ -148,19 +165,23 @@ def alignments(reference: np.ndarray, generated: np.ndarray, protocol: ScoringPr
 def score_scene(scene: Scene, reference: np.ndarray, generated: np.ndarray,
                 metrics: list[Metric], analysis: str | None, spec: dict | None,
                 cache: Cache, generated_times_s: np.ndarray | None = None,
-                reference_text: str | None = None, protocol: ScoringProtocol | None = None
+                reference_text: str | None = None, protocol: ScoringProtocol | None = None,
+                program: str | None = None, language: str | None = None
                 ) -> tuple[dict[str, float | None], dict[str, str]]:
     """Scores by column, and the reason for each column that could not be computed.
 
     ``generated_times_s``: the generated frames' presentation times (seconds from its first
     frame) when the clip does not already follow the scene's contract (a foreign video).
     ``reference_text``: the scene's reference description, for text metrics.
+    ``program``/``language``: the model's program, for metrics that read it (``needs``
+    ``program``; only their cached values depend on it).
     """
     protocol = protocol or ScoringProtocol()
     if generated.shape != reference.shape or generated_times_s is not None:
         generated = to_contract(scene, generated, generated_times_s)
     inp = MetricInput(scene=scene, reference=reference, generated=generated, analysis=analysis,
-                      spec=spec, reference_text=reference_text)
+                      spec=spec, reference_text=reference_text, program=program,
+                      language=language)
     clips = content_key(clip_digest(reference), clip_digest(generated), analysis or "",
                         json.dumps(spec, sort_keys=True) if spec else "", reference_text or "")
     views = alignments(reference, generated, protocol) \
@@ -174,6 +195,8 @@ def score_scene(scene: Scene, reference: np.ndarray, generated: np.ndarray,
 
     def cached(col: str, key_parts: tuple, fn) -> float | None:
         key = content_key("score", col, *key_parts, clips)
+        if "program" in metric.needs:
+            key = content_key(key, language or "", program or "")
         entry = cache.get("score", key)
         if entry is not None:
             return json.loads((entry / "value.json").read_text())["value"]
@@ -211,11 +234,23 @@ def _pairs_key(a: Alignment) -> str:
                           ).hexdigest()[:16]
 
 
+def subsample_pairs(pairs: list[tuple[int, int]], max_pairs: int | None
+                    ) -> list[tuple[int, int]]:
+    """At most ``max_pairs`` of ``pairs``, evenly spaced, first and last kept."""
+    if max_pairs is None or len(pairs) <= max_pairs:
+        return pairs
+    if max_pairs <= 1:
+        return pairs[:1]
+    idx = np.unique(np.round(np.linspace(0, len(pairs) - 1, max_pairs)).astype(int))
+    return [pairs[i] for i in idx]
+
+
 def _mean_over_pairs(metric: Metric, reference: np.ndarray, generated: np.ndarray,
                      a: Alignment, memo: dict[tuple[int, int], float]) -> float:
-    """The mean of a pair metric over an alignment's pairs, each distinct pair computed once
-    per scene (in one batch) and shared between the pairings."""
-    pairs = a.pairs()
+    """The mean of a pair metric over an alignment's pairs (at most ``metric.max_pairs`` of
+    them), each distinct pair computed once per scene (in one batch) and shared between the
+    pairings."""
+    pairs = subsample_pairs(a.pairs(), metric.max_pairs)
     if not pairs:
         return float("nan")
     todo = sorted({p for p in pairs if p not in memo})
