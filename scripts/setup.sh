@@ -26,6 +26,15 @@ if [ ! -x .venv/bin/python ]; then
   echo "[setup] creating .venv with $PY"
   "$PY" -m venv .venv
 fi
+# torch first, pinned: on these machines this pair comes from the local wheel store and runs on
+# the CPU (never mix the CPU-only torch 2.13.0 with a torchvision). Elsewhere override it, e.g.
+# VISPHY_TORCH="torch torchvision" for the newest pair of your index.
+TORCH_SPEC="${VISPHY_TORCH:-torch==2.14.1 torchvision==0.29.1}"
+if ! .venv/bin/python -c "import torch, torchvision" >/dev/null 2>&1; then
+  echo "[setup] pip install $TORCH_SPEC"
+  # shellcheck disable=SC2086
+  .venv/bin/python -m pip install -q --disable-pip-version-check $TORCH_SPEC
+fi
 spec="."
 [ -n "$EXTRAS" ] && spec=".[$EXTRAS]"
 echo "[setup] pip install -e '$spec'"

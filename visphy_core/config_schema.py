@@ -138,6 +138,9 @@ class MetricsConfig:
     # Model weights (LPIPS/DISTS backbones, CLIP, DINO, RAFT, RoBERTa): searched here first, then
     # $VISPHY_WEIGHTS and $TORCH_HOME/hub/checkpoints (visphy_core.weights). Never downloaded.
     weights_dir: Optional[str] = None
+    # The spec track: the model's S simulated by visphy and replayed by the engine's reference
+    # program, scored under the same protocol (``spec.`` columns; visphy_core.spec_track).
+    spec_track: bool = True
     device: str = "cpu"           # torch device of the learned metrics (cpu, cuda, cuda:1…)
     max_pairs: dict[str, int] = field(default_factory=dict)  # per metric: pairs scored at most
 

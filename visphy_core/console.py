@@ -46,6 +46,21 @@ def _fmt(value) -> str:
     return f"{value:.4f}" if abs(value) < 10 else f"{value:.2f}"
 
 
+def split_column(name: str) -> tuple[str, str]:
+    """A score column as (metric, view): ``psnr`` (visphy), ``psnr.aligned`` / ``align.err``
+    (aligned), ``paper.psnr`` (paper), ``spec.psnr`` (the spec track, unaligned)."""
+    if name.startswith("spec."):
+        base, view = split_column(name[len("spec."):])
+        return base, "spec" if view == "visphy" else f"spec.{view}"
+    if name.startswith("paper."):
+        return name[len("paper."):], "paper"
+    if name.endswith(".aligned"):
+        return name[:-len(".aligned")], "aligned"
+    if name.startswith("align."):
+        return name, "aligned"
+    return name, "visphy"
+
+
 def print_summary(summary: dict, results: list) -> None:
     """Per-scene table, then metric means with their denominators, then failures and cache."""
     # per scene: the primary columns only (visphy, unaligned); every column is in the means
@@ -67,16 +82,30 @@ def print_summary(summary: dict, results: list) -> None:
         table.add_row(r.scene_id, status, *[_fmt(r.scores.get(n)) for n in metric_names], render)
     console.print(table)
 
-    means = Table(title="means (model successes | all scenes incl. fallbacks)")
-    means.add_column("metric")
-    means.add_column("model successes", justify="right")
+    means = Table(title="means over model successes (n) · all scenes incl. fallbacks")
+    means.add_column("metric", no_wrap=True)
+    views = [v for v in ("visphy", "aligned", "paper", "spec")
+             if any(split_column(c)[1] == v for c in summary["metrics"])]
+    for v in views:
+        means.add_column(v, justify="right")
     means.add_column("with fallbacks", justify="right")
+    rows: dict[str, dict[str, dict]] = {}
+    unavailable: dict[str, str] = {}
     for name, m in summary["metrics"].items():
+        base, view = split_column(name)
         if m["unavailable"]:
-            means.add_row(name, f"unavailable: {m['unavailable']}", "")
+            unavailable.setdefault(base, m["unavailable"])
             continue
-        means.add_row(name, f"{_fmt(m['mean_model_success'])} (n={m['n_model_success']})",
-                      f"{_fmt(m['mean_with_fallbacks'])} (n={m['n_with_fallbacks']})")
+        rows.setdefault(base, {})[view] = m
+    for base, by_view in rows.items():
+        arrow = "↑" if next(iter(by_view.values()))["direction"] == "higher" else "↓"
+        cells = [f"{_fmt(by_view[v]['mean_model_success'])} ({by_view[v]['n_model_success']})"
+                 if v in by_view else "" for v in views]
+        first = by_view.get("visphy") or by_view.get("aligned") or next(iter(by_view.values()))
+        means.add_row(f"{base} {arrow}", *cells,
+                      f"{_fmt(first['mean_with_fallbacks'])} ({first['n_with_fallbacks']})")
+    for base, why in unavailable.items():
+        means.add_row(base, f"unavailable: {why}", *[""] * len(views))
     console.print(means)
     n = summary["n_scenes"]
     n_eval = summary.get("n_evaluable", n)
@@ -111,6 +140,10 @@ def print_summary(summary: dict, results: list) -> None:
     if spec.get("valid") or spec.get("invalid"):
         console.print(f"scene spec S: {spec['valid']} valid, {spec['invalid']} invalid, "
                       f"{spec['absent']} absent")
+    track = summary.get("spec_track") or {}
+    if track:
+        console.print("spec track (S simulated and replayed): " + ", ".join(
+            f"{n} {state.replace('_', ' ')}" for state, n in sorted(track.items())))
     for key, j in (summary.get("judges") or {}).items():
         console.print(f"judge {key}: {j['n_valid']} valid verdict(s), {j['n_invalid']} invalid"
                       + (f" {j['invalid']}" if j["invalid"] else ""))

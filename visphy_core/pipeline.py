@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +19,7 @@ from visphy_core.extract import extract_analysis, extract_spec
 from visphy_core.generation import ModelCaller
 from visphy_core.judge import JudgeInput
 from visphy_core.judging import JudgeCaller
-from visphy_core.metrics import Metric
+from visphy_core.metrics import SCENE, Metric
 from visphy_core.model import (ImageInput, Model, ModelRequest, ModelResponse, OutputContract,
                                build_model_request)
 from visphy_core.prompts.build import (PromptSettings, build_prompt, build_repair_prompt,
@@ -27,7 +27,9 @@ from visphy_core.prompts.build import (PromptSettings, build_prompt, build_repai
 from visphy_core.references import ReferenceWriter
 from visphy_core.reply_spec import spec_problems
 from visphy_core.scene import Scene, SceneDataError
-from visphy_core.scoring import ScoringProtocol, clip_digest, score_columns, score_scene
+from visphy_core.scoring import (SPEC_PREFIX, ScoringProtocol, clip_digest, score_columns,
+                                 score_scene)
+from visphy_core.spec_track import SpecTrackError, spec_scene
 from visphy_core.secrets import redact, redact_obj
 from visphy_core.usage import CostCapReached
 from visphy_core.video import decode_video, encode_video, frame_digest, load_clip_for
@@ -64,6 +66,8 @@ class SceneResult:
     spec_valid: bool | None = None       # the reply's S against the ground truth's schema
     spec_problems: list[str] = field(default_factory=list)
     reference_source: str | None = None  # how the reference description was made
+    spec_track: str | None = None        # S simulated and replayed: rendered, no_spec,
+    spec_track_error: str | None = None  # invalid_spec or failed (why); None: track off
     judge_errors: dict[str, str] = field(default_factory=dict)  # invalid verdicts, why
     frame_digests: list[str] = field(default_factory=list)
     scores: dict[str, float | None] = field(default_factory=dict)
@@ -470,6 +474,9 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
     if generated is not None:
         _score_and_judge(scene, reference, generated, analysis, spec, services, scene_dir,
                          result, program if outcome is not None else None)
+    if services.protocol.spec_track and model.output_kind == "program":
+        _spec_track(scene, reference, spec, result.spec_valid, services, scene_dir, result,
+                    contract)
 
 
 def _render_with_infra_retry(engine: Engine, program: Program, contract: RenderContract,
@@ -506,6 +513,38 @@ def _video_reply(response: ModelResponse, scene: Scene
     if classify_frames(clip) is FailureClass.BLANK_OUTPUT:
         return None, FailureClass.BLANK_OUTPUT, "every frame of the video is one flat colour"
     return clip, FailureClass.BLANK_OUTPUT, ""
+
+
+def _spec_track(scene: Scene, reference: np.ndarray, spec: dict | None,
+                spec_valid: bool | None, services: SceneServices, scene_dir: Path,
+                result: SceneResult, contract: RenderContract) -> None:
+    """Score S apart from the program: simulated by visphy, replayed by the engine's reference
+    program, scored under the same protocol with ``spec.``-prefixed columns."""
+    if spec is None or spec_valid is None:
+        result.spec_track = "no_spec"
+        return
+    if not spec_valid:
+        result.spec_track = "invalid_spec"
+        return
+    try:
+        program = services.engine.program_from_spec(spec_scene(scene, spec))
+    except (SpecTrackError, ValueError, NotImplementedError) as exc:
+        result.spec_track, result.spec_track_error = "failed", _one_line(str(exc))
+        return
+    outcome = render_cached(services.engine, program, contract, services.cache)
+    if outcome.failure is not None:
+        result.spec_track = "failed"
+        result.spec_track_error = _one_line(f"the reference program failed to replay S: "
+                                            f"{outcome.failure.value} {outcome.error or ''}")
+        return
+    _write(scene_dir / "spec_video.mp4", outcome.video_path.read_bytes())
+    metrics = [m for m in services.metrics if m.kind != SCENE]
+    scores, unavailable = score_scene(scene, reference, outcome.frames, metrics, None, None,
+                                      services.cache,
+                                      protocol=replace(services.protocol, spec_track=False))
+    result.spec_track = "rendered"
+    result.scores.update({f"{SPEC_PREFIX}{k}": v for k, v in scores.items()})
+    result.unavailable.update({f"{SPEC_PREFIX}{k}": v for k, v in unavailable.items()})
 
 
 def _score_and_judge(scene: Scene, reference: np.ndarray, generated: np.ndarray,

@@ -34,7 +34,7 @@ from visphy_core.errors import ConfigError
 from visphy_core.generation import ModelCaller, get_service
 from visphy_core.judging import JudgeCaller
 from visphy_core.metrics import Metric
-from visphy_core.scoring import ScoringProtocol, score_columns, select_metrics
+from visphy_core.scoring import SPEC_PREFIX, ScoringProtocol, score_columns, select_metrics
 from visphy_core.pipeline import (NOT_EVALUABLE, PipelineSettings, SceneResult, SceneServices,
                                   first_call, process_scene)
 from visphy_core.plugins import get_plugin_manager, get_registry
@@ -168,7 +168,8 @@ def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache,
             return (float(np.mean(vals)) if vals else None), len(vals)
 
         ok_mean, ok_n = mean(ok)
-        all_mean, all_n = mean(scored)
+        # the spec track scores S whether or not the program ran: over every evaluable scene
+        all_mean, all_n = mean(evaluable if name.startswith(SPEC_PREFIX) else scored)
         reasons = {r.unavailable[name] for r in results if name in r.unavailable}
         per_metric[name] = {
             "direction": direction, "mean_model_success": ok_mean, "n_model_success": ok_n,
@@ -196,9 +197,18 @@ def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache,
                  "invalid": sum(r.spec_valid is False for r in results),
                  "absent": sum(r.spec_valid is None for r in results)},
         "prompt_versions": sorted({r.prompt_version for r in results if r.prompt_version}),
+        "spec_track": _count_states(r.spec_track for r in results),
         "judges": _judge_columns(results, judges or []),
         "usage": ledger.totals() if ledger is not None else {},
     }
+
+
+def _count_states(states) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for state in states:
+        if state is not None:
+            out[state] = out.get(state, 0) + 1
+    return out
 
 
 def _write_json(path: Path, data: Any) -> None:

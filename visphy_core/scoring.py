@@ -81,11 +81,13 @@ class ScoringProtocol:
     paper: bool = True                     # the upstream protocol (``paper.``)
     aligned_params: AlignParams = EVERY_FRAME
     paper_params: AlignParams = PAPER
+    spec_track: bool = False               # also score S simulated and replayed (``spec.``)
 
     @classmethod
     def from_cfg(cls, cfg: Any) -> "ScoringProtocol":
         """From the ``metrics`` config node (``protocol``: ``[visphy, paper]`` or a subset;
-        ``aligned``; ``paper.*`` and ``align.*`` overrides of the search parameters)."""
+        ``aligned``; ``paper.*`` and ``align.*`` overrides of the search parameters;
+        ``spec_track``)."""
         if cfg is None:
             return cls()
         names = [str(n) for n in (cfg.get("protocol") or ["visphy", "paper"])]
@@ -95,7 +97,8 @@ class ScoringProtocol:
         return cls(unaligned=visphy, aligned=visphy and bool(cfg.get("aligned", True)),
                    paper="paper" in names,
                    aligned_params=replace(EVERY_FRAME, **align_over),
-                   paper_params=replace(PAPER, **paper_over))
+                   paper_params=replace(PAPER, **paper_over),
+                   spec_track=bool(cfg.get("spec_track", False)))
 
     def views(self) -> list[str]:
         """The pairings in column order: ``""`` (unaligned), ``"aligned"``, ``"paper"``."""
@@ -131,10 +134,19 @@ def _align_columns(view: str) -> list[tuple[str, str]]:
     return [(f"{prefix}.offset", LOWER), (f"{prefix}.err", LOWER)]
 
 
+SPEC_PREFIX = "spec."  # the spec track's columns (visphy_core.spec_track)
+
+
 def score_columns(metrics: list[Metric], protocol: ScoringProtocol | None = None
                   ) -> list[tuple[str, str]]:
-    """Every score column (name, direction) a run with these metrics writes, in order."""
+    """Every score column (name, direction) a run with these metrics writes, in order (with
+    the spec track on: then its ``spec.``-prefixed frame and sequence metric columns)."""
     protocol = protocol or ScoringProtocol()
+    if protocol.spec_track:
+        frame = [m for m in metrics if m.kind != SCENE]
+        plain = replace(protocol, spec_track=False)
+        return score_columns(metrics, plain) + [
+            (SPEC_PREFIX + c, d) for c, d in score_columns(frame, plain)]
     views = protocol.views()
     cols: list[tuple[str, str]] = []
     for m in metrics:

@@ -23,7 +23,7 @@ def missing_packages(*modules: str) -> str | None:
     if not absent:
         return None
     return (f"not installed: {', '.join(absent)} — the default install has them "
-            "(scripts/setup.sh; or pip install 'visphy[metrics]')")
+            "(scripts/setup.sh installs them)")
 
 
 @lru_cache(maxsize=1)
