@@ -244,46 +244,66 @@ def load_raft(path, device: str):
 
 
 def _to_original_px(flow: np.ndarray, H: int, W: int) -> np.ndarray:
-    """A working-resolution flow (h×w×2, working pixels) in pixels of an H×W original."""
+    """A working-resolution flow (h×w×2, working pixels) as planes (2×h×w float32: u, v) in
+    pixels of an H×W original."""
     h, w = flow.shape[:2]
-    flow = np.asarray(flow, dtype=np.float32)
-    if (h, w) == (H, W):
-        return flow
-    return flow * np.array([W / w, H / h], dtype=np.float32)
+    out = np.empty((2, h, w), np.float32)
+    np.multiply(flow[..., 0], np.float32(W / w), out=out[0])
+    np.multiply(flow[..., 1], np.float32(H / h), out=out[1])
+    return out
 
 
 # ----------------------------------------------------------------------------- comparison
 def pair_errors(f_ref: np.ndarray, f_gen: np.ndarray,
                 threshold: float = MOVING_THRESHOLD_PX) -> np.ndarray:
-    """The six `STATISTICS` of one pair of flow fields (h×w×2, same grid, original pixels)."""
-    u1, v1 = f_ref[..., 0], f_ref[..., 1]
-    u2, v2 = f_gen[..., 0], f_gen[..., 1]
+    """The six `STATISTICS` of one pair of flow fields (2×h×w float32 planes u, v on the same
+    grid, original pixels). In place on temporaries only (≈1 ms at 256²)."""
+    u1, v1 = f_ref
+    u2, v2 = f_gen
     du, dv = u1 - u2, v1 - v2
-    d2 = du * du + dv * dv
-    epe = np.sqrt(d2)
-    m1 = np.sqrt(u1 * u1 + v1 * v1)
-    m2 = np.sqrt(u2 * u2 + v2 * v2)
-    mag = np.abs(m1 - m2)
-    cz = u1 * v2 - v1 * u2  # (u1, v1, 1) × (u2, v2, 1) = (dv, −du, cz)
-    ang = np.degrees(np.arctan2(np.sqrt(d2 + cz * cz), u1 * u2 + v1 * v2 + 1.0))
+    d2 = du * du
+    d2 += dv * dv                                   # ‖f_ref − f_gen‖²
+    m1 = u1 * u1
+    m1 += v1 * v1
+    np.sqrt(m1, out=m1)                             # ‖f_ref‖
+    m2 = u2 * u2
+    m2 += v2 * v2
+    np.sqrt(m2, out=m2)                             # ‖f_gen‖
+    # (u1, v1, 1) × (u2, v2, 1) = (dv, −du, u1·v2 − v1·u2): |cross|² = d2 + cz²
+    cross = u1 * v2
+    cross -= v1 * u2
+    cross *= cross
+    cross += d2
+    np.sqrt(cross, out=cross)
+    dot = u1 * u2
+    dot += v1 * v2
+    dot += 1.0
+    ang = np.arctan2(cross, dot, out=cross)        # radians; degrees on the means
+    epe = np.sqrt(d2, out=d2)
+    moving = m1 > threshold
+    moving |= m2 > threshold
+    mag = np.subtract(m1, m2, out=m1)
+    np.abs(mag, out=mag)
+    maps = (epe.ravel(), ang.ravel(), mag.ravel())
     out = np.zeros(6)
-    out[:3] = [epe.mean(dtype=np.float64), ang.mean(dtype=np.float64),
-               mag.mean(dtype=np.float64)]
-    moving = (m1 > threshold) | (m2 > threshold)
-    if moving.any():  # no moving pixel in either: both still, 0 error
-        out[3:] = [epe[moving].mean(dtype=np.float64), ang[moving].mean(dtype=np.float64),
-                   mag[moving].mean(dtype=np.float64)]
+    out[:3] = [float(m.sum(dtype=np.float64)) / m.size for m in maps]
+    n = int(np.count_nonzero(moving))
+    if n:  # else both clips still in this pair: 0 error
+        weight = moving.ravel().astype(np.float32)
+        out[3:] = [float(np.dot(m, weight)) / n for m in maps]
+    out[[1, 4]] = np.degrees(out[[1, 4]])
     return out
 
 
 def _match_grid(f_gen: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """A flow resampled onto another working grid (clips of different sizes; values already in
-    each clip's original pixels)."""
+    """A flow (2×h×w) resampled onto another working grid (clips of different sizes; values
+    already in each clip's original pixels)."""
     import cv2
 
-    if f_gen.shape[:2] == tuple(shape):
+    if f_gen.shape[1:] == tuple(shape):
         return f_gen
-    return cv2.resize(f_gen, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+    return np.stack([cv2.resize(p, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+                     for p in f_gen])
 
 
 def sequence_errors(inp: MetricInput, alignment, estimator: FlowEstimator,
@@ -312,12 +332,12 @@ def sequence_errors(inp: MetricInput, alignment, estimator: FlowEstimator,
             if a != b:
                 return memo[("flow", cfg, role, a, b)]
             H, W = _clip(inp, role).shape[1:3]
-            return np.zeros((*estimator.working_shape(H, W), 2), np.float32)
+            return np.zeros((2, *estimator.working_shape(H, W)), np.float32)
 
         for s in todo_pairs:
             a, b, c, d = s
             fr = flow("ref", a, b)
-            fg = _match_grid(flow("gen", c, d), fr.shape[:2])
+            fg = _match_grid(flow("gen", c, d), fr.shape[1:])
             memo[("errors", cfg, float(threshold), *s)] = pair_errors(fr, fg, threshold)
     return np.stack([memo[k] for k in err_keys])
 
