@@ -190,6 +190,8 @@ def cmd_normalise(argv: list[str]) -> int:
 
 
 def cmd_metrics(argv: list[str]) -> int:
+    """Every registered metric: direction, family, kind, range, and whether it runs here (the
+    reasons a metric cannot, with how to fix them, follow the table, each once)."""
     from rich.console import Console
     from rich.table import Table
 
@@ -197,16 +199,22 @@ def cmd_metrics(argv: list[str]) -> int:
 
     registry = get_registry()
     table = Table(title="visphy metrics")
-    for col in ("metric", "dir", "family", "kind", "range", "weights", "here"):
-        table.add_column(col)
-    for name in sorted(registry.metrics):
+    for col in ("metric", "dir", "family", "kind", "range", "here"):
+        table.add_column(col, no_wrap=col == "metric")
+    reasons: dict[str, list[str]] = {}
+    for name in sorted(registry.metrics, key=lambda n: (registry.get("metrics", n).family, n)):
         d = registry.get("metrics", name).describe()
         lo, hi = d["range"]
+        why = d["unavailable"]
+        if why is not None:
+            reasons.setdefault(why, []).append(name)
         table.add_row(name, "↑" if d["direction"] == "higher" else "↓", d["family"], d["kind"],
-                      f"{lo:g}…{hi:g}", d["weights"] or "—",
-                      "available" if d["unavailable"] is None
-                      else f"unavailable: {d['unavailable']}")
-    Console(width=160).print(table)
+                      f"{lo:g}…{hi:g}",
+                      "available" if why is None else f"unavailable [{list(reasons).index(why) + 1}]")
+    console = Console(width=160)
+    console.print(table)
+    for i, (why, names) in enumerate(reasons.items(), 1):
+        console.print(f"[{i}] {', '.join(names)}: {why}", soft_wrap=True)
     return 0
 
 

@@ -11,7 +11,12 @@ from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
                            TimeElapsedColumn, TimeRemainingColumn)
 from rich.table import Table
 
-console = Console(stderr=False, highlight=False)
+# A pipe or a log file gets 120 columns (rich's 80 would truncate the means table); a terminal
+# keeps its own width.
+console = Console(stderr=False, highlight=False,
+                  width=None if sys.stdout.isatty() else 120)
+#: the per-scene table's metric columns, by preference (every column is in the means table)
+SCENE_COLUMNS = ("psnr", "ssim", "st_lpips", "track_pos_err", "flow_epe_dis")
 
 
 @contextmanager
@@ -64,7 +69,10 @@ def split_column(name: str) -> tuple[str, str]:
 def print_summary(summary: dict, results: list) -> None:
     """Per-scene table, then metric means with their denominators, then failures and cache."""
     # per scene: the primary columns only (visphy, unaligned); every column is in the means
-    metric_names = [n for n in summary["metrics"] if "." not in n][:8]
+    primary = [n for n in summary["metrics"] if "." not in n
+               and not summary["metrics"][n]["unavailable"]]
+    metric_names = ([n for n in SCENE_COLUMNS if n in primary]
+                    or primary)[:5]
     table = Table(title=f"visphy · {summary['model']} × {summary['engine']} · "
                         f"{summary['dataset']} ({summary['n_scenes']} scenes)")
     table.add_column("scene")
@@ -82,13 +90,14 @@ def print_summary(summary: dict, results: list) -> None:
         table.add_row(r.scene_id, status, *[_fmt(r.scores.get(n)) for n in metric_names], render)
     console.print(table)
 
-    means = Table(title="means over model successes (n) · all scenes incl. fallbacks")
+    means = Table(title="means over model successes · n · with fallbacks (all scenes)")
     means.add_column("metric", no_wrap=True)
     views = [v for v in ("visphy", "aligned", "paper", "spec")
              if any(split_column(c)[1] == v for c in summary["metrics"])]
     for v in views:
-        means.add_column(v, justify="right")
-    means.add_column("with fallbacks", justify="right")
+        means.add_column(v, justify="right", no_wrap=True)
+    means.add_column("n", justify="right", no_wrap=True)
+    means.add_column("with fallbacks", justify="right", no_wrap=True)
     rows: dict[str, dict[str, dict]] = {}
     unavailable: dict[str, str] = {}
     for name, m in summary["metrics"].items():
@@ -98,15 +107,25 @@ def print_summary(summary: dict, results: list) -> None:
             continue
         rows.setdefault(base, {})[view] = m
     for base, by_view in rows.items():
-        arrow = "↑" if next(iter(by_view.values()))["direction"] == "higher" else "↓"
-        cells = [f"{_fmt(by_view[v]['mean_model_success'])} ({by_view[v]['n_model_success']})"
-                 if v in by_view else "" for v in views]
         first = by_view.get("visphy") or by_view.get("aligned") or next(iter(by_view.values()))
-        means.add_row(f"{base} {arrow}", *cells,
-                      f"{_fmt(first['mean_with_fallbacks'])} ({first['n_with_fallbacks']})")
+        n = first["n_model_success"]
+        arrow = "↑" if first["direction"] == "higher" else "↓"
+        cells = []
+        for v in views:
+            m = by_view.get(v)
+            cell = "" if m is None else _fmt(m["mean_model_success"])
+            if m is not None and m["n_model_success"] != n:
+                cell += f" (n={m['n_model_success']})"
+            cells.append(cell)
+        means.add_row(f"{base} {arrow}", *cells, str(n),
+                      f"{_fmt(first['mean_with_fallbacks'])} (n={first['n_with_fallbacks']})")
     for base, why in unavailable.items():
-        means.add_row(base, f"unavailable: {why}", *[""] * len(views))
+        means.add_row(base, "unavailable", *[""] * (len(views) + 1))
+    reasons = sorted(set(unavailable.values()))
     console.print(means)
+    for why in reasons:
+        names = ", ".join(b for b, w in unavailable.items() if w == why)
+        console.print(f"unavailable: {names}: {why}", soft_wrap=True)
     n = summary["n_scenes"]
     n_eval = summary.get("n_evaluable", n)
     failures = summary.get("failures") or {}

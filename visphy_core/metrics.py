@@ -91,6 +91,16 @@ class Metric(ABC):
             return float(np.mean(self.pair_values(inp.reference, inp.generated)))
         raise NotImplementedError
 
+    #: metrics that share one breakdown (e.g. every parameter-recovery error) share this key
+    details_key: str | None = None
+
+    def details(self, inp: MetricInput) -> dict | None:
+        """A JSON-serialisable per-scene breakdown behind the value (what was matched, where a
+        value came from), written to the scene's ``metric_details.json`` under `details_key`
+        (or the metric's name). Called on every scoring, cached value or not, so it must be
+        cheap; None: nothing to add."""
+        return None
+
     def describe(self) -> dict:
         return {"name": self.name, "direction": self.direction, "family": self.family,
                 "kind": self.kind, "range": list(self.score_range), "needs": list(self.needs),

@@ -555,11 +555,15 @@ def _score_and_judge(scene: Scene, reference: np.ndarray, generated: np.ndarray,
     if services.references is not None:
         reference_text, result.reference_source = services.references.describe(scene)
         _write(scene_dir / "reference.txt", reference_text)
+    details: dict = {}
     scores, unavailable = score_scene(scene, reference, generated, services.metrics, analysis,
                                       spec, services.cache, reference_text=reference_text,
                                       protocol=services.protocol,
                                       program=program.source if program else None,
-                                      language=program.language if program else None)
+                                      language=program.language if program else None,
+                                      details=details)
+    if details:
+        _write(scene_dir / "metric_details.json", json.dumps(details, indent=1, default=str))
     result.scores.update(scores)
     result.unavailable.update(unavailable)
     if services.judges is None:

@@ -178,7 +178,8 @@ def score_scene(scene: Scene, reference: np.ndarray, generated: np.ndarray,
                 metrics: list[Metric], analysis: str | None, spec: dict | None,
                 cache: Cache, generated_times_s: np.ndarray | None = None,
                 reference_text: str | None = None, protocol: ScoringProtocol | None = None,
-                program: str | None = None, language: str | None = None
+                program: str | None = None, language: str | None = None,
+                details: dict | None = None
                 ) -> tuple[dict[str, float | None], dict[str, str]]:
     """Scores by column, and the reason for each column that could not be computed.
 
@@ -187,6 +188,7 @@ def score_scene(scene: Scene, reference: np.ndarray, generated: np.ndarray,
     ``reference_text``: the scene's reference description, for text metrics.
     ``program``/``language``: the model's program, for metrics that read it (``needs``
     ``program``; only their cached values depend on it).
+    ``details``: a dict filled with the metrics' per-scene breakdowns (`Metric.details`).
     """
     protocol = protocol or ScoringProtocol()
     if generated.shape != reference.shape or generated_times_s is not None:
@@ -238,6 +240,16 @@ def score_scene(scene: Scene, reference: np.ndarray, generated: np.ndarray,
                 scores[column(metric.name, v)] = cached(
                     column(metric.name, v), ident + (_pairs_key(a),),
                     lambda a=a: metric.compute_sequence(inp, a))
+    if details is not None:
+        for metric in metrics:
+            if metric.unavailable_reason():
+                continue
+            try:
+                info = metric.details(inp)
+            except Exception as exc:  # noqa: BLE001 - a breakdown never costs the scores
+                info = {"error": f"{type(exc).__name__}: {exc}"[:300]}
+            if info is not None:
+                details.setdefault(metric.details_key or metric.name, info)
     return scores, unavailable
 
 

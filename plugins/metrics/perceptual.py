@@ -1,10 +1,509 @@
-"""perceptual metrics (being written)."""
+"""Perceptual metrics on aligned frame pairs (family ``perceptual``, kind ``pairs``).
+
+Weight-free (piq 0.8, called as they are, on [0, 1] RGB tensors with ``data_range=1``):
+
+* ``ms_ssim`` ↑ [0, 1]: `piq.multi_scale_ssim` (5 scales, 11-tap Gaussian σ 1.5, Wang 2003
+  weights). Frames need at least 161 px a side; smaller frames give NaN (recorded as None).
+* ``fsim`` ↑ [0, 1]: `piq.fsim` with its default ``chromatic=True`` (FSIMc). piq average-pools
+  by ``round(min(H, W) / 256)`` first (2 at 512²); nothing is pre-downsampled here, so the value
+  is exactly piq's on the full-size frames.
+* ``vsi`` ↑ [0, 1]: `piq.vsi` (its saliency map is computed at 256² inside piq; the frames are
+  passed at full size: VSI pads before pooling, so pre-downsampling would change its value).
+
+Learned (models load once per process, cached by weight file and device, and run under
+``torch.inference_mode`` on ``metrics.device``). Weights are never downloaded: the files below
+are looked up with `visphy_core.weights.find` (``metrics.weights_dir``, ``$VISPHY_WEIGHTS``,
+``$TORCH_HOME/hub/checkpoints``); a missing file makes the metric unavailable with the reason.
+Every metric's identity carries the digest of the files it loaded.
+
+* ``st_lpips`` ↓ [0, ∞): Shift-tolerant LPIPS (Ghildyal & Liu, ECCV 2022), AlexNet
+  ``shift_tolerant`` variant, from the ``stlpips-pytorch`` package, which ships the complete net
+  (``stlpips_pytorch/weights/vST0.0/alex_shift_tolerant.pth``: backbone and linear layers) — the
+  perceptual metric this machine can always compute. A file called ``alex_shift_tolerant.pth``
+  in the weight search replaces the packaged one. Every parameter and buffer is loaded strictly
+  (the package itself loads non-strictly). The package imports ``IPython`` and ``torchsummary``
+  without using them; where those are absent, empty stand-ins are put in place for the import
+  only (and removed right after).
+* ``lpips`` ↓ [0, ∞): LPIPS v0.1 with AlexNet (Zhang et al. 2018, "LPIPS (AlexNet)"), the
+  ``lpips`` package's architecture: torchvision's AlexNet ImageNet backbone
+  ``alexnet-owt-7be5be79.pth`` (or the older ``alexnet-owt-4df8aa71.pth``) from the weight search
+  and the LPIPS v0.1 linear layers the package ships (``lpips/weights/v0.1/alex.pth``).
+* ``dists`` ↓ [0, 1]: `piq.DISTS` (Ding et al. 2020), a distance (1 − the DISTS similarity):
+  torchvision's VGG16 backbone ``vgg16-397923af.pth`` and piq's DISTS α/β ``dists_weights.pt``
+  (the files piq would download from torchvision and from its v0.4.1 release), both from the
+  weight search. α and β are divided by their joint sum as in DISTS' definition (a no-op for
+  piq's file). piq resizes frames whose shorter side exceeds 256 to 256 itself.
+
+Inputs: LPIPS and ST-LPIPS get the frames in [−1, 1] (their convention), DISTS and the piq
+metrics in [0, 1]. Pairs run in chunks of `CHUNK` (bounded memory on 75-frame 512² clips).
+
+Cost and ``max_pairs``. CPU seconds per 512² pair, one core (torch 2.14, this project's 2-core
+machines; 2 threads give at best about half of it as wall time):
+
+============  ==========  ===========================================================
+metric        s / pair    what runs
+============  ==========  ===========================================================
+``vsi``       0.06        piq, saliency at 256², similarity at 256² (pooled by 2)
+``ms_ssim``   0.11        piq, 5 scales from 512²
+``fsim``      0.10–0.13   piq, phase congruency at 256² (pooled by 2)
+``lpips``     0.19        AlexNet at 512²
+``st_lpips``  0.28–0.35   shift-tolerant AlexNet at 256² (1.3–1.6 at 512²)
+``dists``     0.9–1.2     VGG16 at 256² (piq resizes)
+============  ==========  ===========================================================
+
+The scorer computes each distinct pair of a scene once for the three pairings; with
+``max_pairs`` m per pairing a 17-frame scene has about 7 (m 4), 12 (m 8) or 17 (every pair)
+distinct pairs at offset 0, 10 / 18 / 32 when the aligned offset is not 0, and a 75-frame scene
+7–8 / 12–20 / 75–148. Defaults: m = 8 (`PIQ_MAX_PAIRS`, `LPIPS_MAX_PAIRS`, `DISTS_MAX_PAIRS`)
+keeps the paper pairing of a 2D scene whole (every 3rd of 17 frames: 6 pairs) while bounding 3D
+scenes; ST-LPIPS, the costliest offline metric, runs at `STLPIPS_SIZE` = 256 (its ranking of
+shifted, recoloured and resized objects at 256² matched 512² at Spearman 0.99 on synthetic
+scenes, for a quarter of the cost) on m = 4 (`STLPIPS_MAX_PAIRS`). The sampled pairs are evenly
+spaced in time, first and last included; ``metrics.max_pairs.<name>`` overrides (0 or null:
+every pair), and the value is recorded in the identity, as ST-LPIPS' working size is.
+"""
 
 from __future__ import annotations
 
+import importlib.util
+import sys
+import threading
+import types
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from visphy_core import weights as _weights
 from visphy_core.hookspecs import hookimpl
+from visphy_core.metrics import HIGHER, LOWER, PAIRS, Metric
+from visphy_plugins.metrics import _torch
+
+#: Pairs per forward pass.
+CHUNK = 4
+#: ``max_pairs`` defaults (per pairing; see the module docstring for the costs behind them).
+PIQ_MAX_PAIRS = 8
+LPIPS_MAX_PAIRS = 8
+STLPIPS_MAX_PAIRS = 4
+DISTS_MAX_PAIRS = 8
+#: ST-LPIPS' working resolution (shorter side, area resize; None: the frames as they are).
+STLPIPS_SIZE = 256
+
+ALEXNET_FILES = ("alexnet-owt-7be5be79.pth", "alexnet-owt-4df8aa71.pth")
+VGG16_FILES = ("vgg16-397923af.pth",)
+DISTS_FILES = ("dists_weights.pt",)
+STLPIPS_FILES = ("alex_shift_tolerant.pth",)
+MS_SSIM_MIN_SIZE = 161  # (11 - 1) * 2 ** 4 + 1
+
+
+# --------------------------------------------------------------------------- weight-free (piq)
+class _PiqMetric(Metric):
+    family = "perceptual"
+    kind = PAIRS
+    direction = HIGHER
+    score_range = (0.0, 1.0)
+    max_pairs = PIQ_MAX_PAIRS
+
+    def unavailable_reason(self) -> str | None:
+        return _torch.missing_packages("torch", "piq")
+
+    def _piq(self, x, y):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def pair_values(self, reference: np.ndarray, generated: np.ndarray) -> np.ndarray:
+        t = _torch.torch()
+        out = []
+        with t.inference_mode():
+            for s in range(0, len(reference), CHUNK):
+                x = _torch.to_tensor(reference[s:s + CHUNK])
+                y = _torch.to_tensor(generated[s:s + CHUNK])
+                out.append(self._piq(x, y).double().cpu().numpy().reshape(-1))
+        return np.concatenate(out) if out else np.zeros(0)
+
+
+class MSSSIM(_PiqMetric):
+    name = "ms_ssim"
+
+    def pair_values(self, reference: np.ndarray, generated: np.ndarray) -> np.ndarray:
+        if min(np.shape(reference)[1:3]) < MS_SSIM_MIN_SIZE:
+            return np.full(len(reference), np.nan)
+        return super().pair_values(reference, generated)
+
+    def _piq(self, x, y):
+        import piq
+
+        return piq.multi_scale_ssim(x, y, data_range=1.0, reduction="none")
+
+
+class FSIM(_PiqMetric):
+    name = "fsim"
+
+    def _piq(self, x, y):
+        import piq
+
+        return piq.fsim(x, y, data_range=1.0, reduction="none", chromatic=True)
+
+
+class VSI(_PiqMetric):
+    name = "vsi"
+
+    def _piq(self, x, y):
+        import piq
+
+        return piq.vsi(x, y, data_range=1.0, reduction="none")
+
+
+# --------------------------------------------------------------------------- loaded models
+_LOCK = threading.RLock()
+_MODELS: dict[tuple, Any] = {}
+
+
+@dataclass(frozen=True)
+class _Files:
+    """The weight files a learned metric loads (None where one is missing)."""
+
+    paths: tuple[Path | None, ...]
+
+    @property
+    def complete(self) -> bool:
+        return all(p is not None for p in self.paths)
+
+    def key(self) -> tuple:
+        out = []
+        for p in self.paths:
+            st = p.stat()
+            out.append((str(p.resolve()), st.st_size, st.st_mtime_ns))
+        return tuple(out)
+
+    def digest(self) -> str:
+        return "+".join(_weights.digest(p) for p in self.paths)
+
+
+def _torch_load(path: Path) -> dict:
+    t = _torch.torch()
+    obj = t.load(str(path), map_location="cpu", weights_only=True)
+    if isinstance(obj, dict) and "state_dict" in obj and isinstance(obj["state_dict"], dict):
+        obj = obj["state_dict"]
+    if not isinstance(obj, dict):
+        raise RuntimeError(f"{path}: not a state dict")
+    return obj
+
+
+def _load_strict(module, state: dict, what: str, aliases: Callable[[str], str] = lambda k: k
+                 ) -> None:
+    """Every parameter and buffer of ``module`` from ``state`` (key ``aliases(name)``), with
+    matching shapes; nothing left out."""
+    t = _torch.torch()
+    own = module.state_dict()
+    missing, wrong = [], []
+    full = {}
+    for name, value in own.items():
+        src = aliases(name)
+        if src not in state:
+            missing.append(src)
+            continue
+        if tuple(state[src].shape) != tuple(value.shape):
+            wrong.append(f"{src} {tuple(state[src].shape)} != {tuple(value.shape)}")
+            continue
+        full[name] = state[src]
+    if missing or wrong:
+        raise RuntimeError(f"{what}: missing {missing[:6]}{'…' if len(missing) > 6 else ''}"
+                           f"{'; wrong shapes ' + ', '.join(wrong[:4]) if wrong else ''}")
+    with t.no_grad():
+        module.load_state_dict(full, strict=True)
+
+
+def _cached_model(kind: str, files: _Files, build: Callable[[], Any]):
+    dev = _weights.device()
+    key = (kind, files.key(), dev)
+    with _LOCK:
+        if key not in _MODELS:
+            model = build()
+            model = model.eval().to(_torch.device())
+            for p in model.parameters():
+                p.requires_grad_(False)
+            _MODELS[key] = model
+        return _MODELS[key]
+
+
+class _NetMetric(Metric):
+    """A learned distance: lower is better, model loaded once per process."""
+
+    family = "perceptual"
+    kind = PAIRS
+    direction = LOWER
+    score_range = (0.0, float("inf"))
+    packages: tuple[str, ...] = ("torch",)
+    value_range: tuple[float, float] = (-1.0, 1.0)
+    #: working resolution: frames whose shorter side is longer are area-resized to it first
+    size: int | None = None
+
+    # subclasses: files() / missing_reason() / build(files) / forward(model, x, y)
+    def files(self) -> _Files:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def missing_reason(self, files: _Files) -> str:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def unavailable_reason(self) -> str | None:
+        reason = _torch.missing_packages(*self.packages)
+        if reason:
+            return reason
+        files = self.files()
+        return None if files.complete else self.missing_reason(files)
+
+    def identity(self) -> str:
+        files = self.files()
+        ident = super().identity()
+        if self.size is not None:
+            ident += f"/size={self.size}"
+        return f"{ident}/weights={files.digest()}" if files.complete else ident
+
+    def model(self):
+        files = self.files()
+        if not files.complete:
+            raise RuntimeError(self.missing_reason(files))
+        return _cached_model(self.name, files, lambda: self.build(files))
+
+    def _tensor(self, frames: np.ndarray):
+        """uint8 frames → N×3×H×W in ``value_range``, area-resized so the shorter side is
+        ``size`` when it is longer (``size`` None: as they are)."""
+        t = _torch.torch()
+        x = _torch.to_tensor(frames)
+        h, w = x.shape[-2:]
+        if self.size is not None and min(h, w) > self.size:
+            f = self.size / min(h, w)
+            x = t.nn.functional.interpolate(x, size=(max(1, round(h * f)), max(1, round(w * f))),
+                                            mode="area")
+        lo, hi = self.value_range
+        return x * (hi - lo) + lo if (lo, hi) != (0.0, 1.0) else x
+
+    def pair_values(self, reference: np.ndarray, generated: np.ndarray) -> np.ndarray:
+        t = _torch.torch()
+        model = self.model()
+        out = []
+        with t.inference_mode():
+            for s in range(0, len(reference), CHUNK):
+                x = self._tensor(reference[s:s + CHUNK])
+                y = self._tensor(generated[s:s + CHUNK])
+                out.append(self.forward(model, x, y).double().cpu().numpy().reshape(-1))
+        return np.concatenate(out) if out else np.zeros(0)
+
+
+# ----------------------------------------------------------------------------- ST-LPIPS
+def _import_stlpips():
+    """``stlpips_pytorch.stlpips``; its unused ``IPython``/``torchsummary`` imports get empty
+    stand-ins for the import only, where those packages are not installed."""
+    if "stlpips_pytorch.stlpips" in sys.modules:
+        return sys.modules["stlpips_pytorch.stlpips"]
+    stubs = []
+    for name, attr in (("IPython", "embed"), ("torchsummary", "summary")):
+        if name not in sys.modules and importlib.util.find_spec(name) is None:
+            stub = types.ModuleType(name)
+            setattr(stub, attr, lambda *a, **k: None)
+            sys.modules[name] = stub
+            stubs.append(name)
+    try:
+        from stlpips_pytorch import stlpips
+    finally:
+        for name in stubs:
+            sys.modules.pop(name, None)
+    return stlpips
+
+
+def stlpips_packaged_file(net: str = "alex") -> Path | None:
+    spec = importlib.util.find_spec("stlpips_pytorch")
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    p = Path(list(spec.submodule_search_locations)[0]) / "weights" / "vST0.0" \
+        / f"{net}_shift_tolerant.pth"
+    return p if p.is_file() else None
+
+
+def _lins_alias(name: str) -> str:
+    # ``lins`` is a ModuleList over lin0..lin4 (the same modules): its names are aliases
+    if name.startswith("lins."):
+        k, rest = name[len("lins."):].split(".", 1)
+        return f"lin{k}.{rest}"
+    return name
+
+
+class STLPIPS(_NetMetric):
+    name = "st_lpips"
+    packages = ("torch", "torchvision", "stlpips_pytorch")
+    max_pairs = STLPIPS_MAX_PAIRS
+    size = STLPIPS_SIZE
+
+    @property
+    def weights(self) -> str:  # type: ignore[override]
+        f = self.files().paths[0]
+        return ("ST-LPIPS AlexNet shift-tolerant net, backbone + linear layers: "
+                f"{f or 'stlpips_pytorch/weights/vST0.0/alex_shift_tolerant.pth'} "
+                "(stlpips-pytorch)")
+
+    def files(self) -> _Files:
+        return _Files((_weights.find(*STLPIPS_FILES) or stlpips_packaged_file("alex"),))
+
+    def missing_reason(self, files: _Files) -> str:
+        return _weights.missing(
+            "ST-LPIPS AlexNet shift-tolerant net", list(STLPIPS_FILES),
+            extra="the stlpips-pytorch package ships it "
+                  "(stlpips_pytorch/weights/vST0.0/alex_shift_tolerant.pth); reinstall it")
+
+    def build(self, files: _Files):
+        stlpips = _import_stlpips()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model = stlpips.LPIPS(net="alex", variant="shift_tolerant", pretrained=False,
+                                  verbose=False)
+        _load_strict(model, _torch_load(files.paths[0]), f"ST-LPIPS ({files.paths[0]})",
+                     _lins_alias)
+        return model
+
+    def forward(self, model, x, y):
+        return model(x, y)
+
+
+# ----------------------------------------------------------------------------- LPIPS
+def lpips_linear_file(net: str = "alex") -> Path | None:
+    spec = importlib.util.find_spec("lpips")
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    p = Path(list(spec.submodule_search_locations)[0]) / "weights" / "v0.1" / f"{net}.pth"
+    return p if p.is_file() else None
+
+
+class LPIPS(_NetMetric):
+    name = "lpips"
+    packages = ("torch", "torchvision", "lpips")
+    max_pairs = LPIPS_MAX_PAIRS
+
+    @property
+    def weights(self) -> str:  # type: ignore[override]
+        backbone, lin = self.files().paths
+        return (f"AlexNet ImageNet backbone: {backbone or ' or '.join(ALEXNET_FILES)} (torchvision)"
+                f" + LPIPS v0.1 linear layers: {lin or 'lpips/weights/v0.1/alex.pth'} (lpips)")
+
+    def files(self) -> _Files:
+        return _Files((_weights.find(*ALEXNET_FILES), lpips_linear_file("alex")))
+
+    def missing_reason(self, files: _Files) -> str:
+        if files.paths[0] is None:
+            return _weights.missing(
+                "torchvision's AlexNet ImageNet weights (LPIPS backbone)", list(ALEXNET_FILES),
+                extra="the file torchvision.models.alexnet(weights='IMAGENET1K_V1') downloads; "
+                      "the LPIPS v0.1 linear layers come with the lpips package")
+        return ("LPIPS v0.1 linear layers not found: lpips/weights/v0.1/alex.pth ships with the "
+                "lpips package; reinstall it (pip install lpips==0.1.4)")
+
+    def build(self, files: _Files):
+        import lpips
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model = lpips.LPIPS(net="alex", version="0.1", pretrained=False, pnet_rand=True,
+                                verbose=False)
+        backbone = _torch_load(files.paths[0])
+        lins = _torch_load(files.paths[1])
+        # the backbone's slices keep torchvision's layer numbers: net.sliceK.<i>.* ↔ features.<i>.*
+        state = dict(lins)
+        for name in model.net.state_dict():
+            _, idx, rest = name.split(".", 2)
+            state[f"net.{name}"] = backbone.get(f"features.{idx}.{rest}")
+        state = {k: v for k, v in state.items() if v is not None}
+        buffers = {k: v for k, v in model.state_dict().items() if k.startswith("scaling_layer.")}
+        state.update(buffers)  # the fixed input shift/scale constants
+        _load_strict(model, state, f"LPIPS (AlexNet {files.paths[0]}, linear {files.paths[1]})",
+                     _lins_alias)
+        return model
+
+    def forward(self, model, x, y):
+        return model(x, y)
+
+
+# ----------------------------------------------------------------------------- DISTS
+# piq's VGG16 layer names → torchvision ``features`` indices (relu1_2 … relu5_3)
+_DISTS_LAYERS = ("3", "8", "15", "22", "29")
+_DISTS_CHANNELS = (3, 64, 128, 256, 512, 512)
+
+
+class DISTS(_NetMetric):
+    name = "dists"
+    packages = ("torch", "torchvision", "piq")
+    max_pairs = DISTS_MAX_PAIRS
+    score_range = (0.0, 1.0)
+    value_range = (0.0, 1.0)
+
+    @property
+    def weights(self) -> str:  # type: ignore[override]
+        vgg, ab = self.files().paths
+        return (f"VGG16 ImageNet backbone: {vgg or VGG16_FILES[0]} (torchvision) + DISTS "
+                f"alpha/beta: {ab or DISTS_FILES[0]} (piq)")
+
+    def files(self) -> _Files:
+        return _Files((_weights.find(*VGG16_FILES), _weights.find(*DISTS_FILES)))
+
+    def missing_reason(self, files: _Files) -> str:
+        names = [n for p, ns in zip(files.paths, (VGG16_FILES, DISTS_FILES)) if p is None
+                 for n in ns]
+        return _weights.missing(
+            "DISTS weights (torchvision VGG16 + piq's DISTS alpha/beta)", names,
+            extra="vgg16-397923af.pth is what torchvision.models.vgg16(weights='IMAGENET1K_V1') "
+                  "downloads; dists_weights.pt is piq's v0.4.1 release file "
+                  "(github.com/photosynthesis-team/piq/releases/download/v0.4.1/dists_weights.pt)")
+
+    def build(self, files: _Files):
+        import piq
+        from piq.perceptual import IMAGENET_MEAN, IMAGENET_STD, ContentLoss
+
+        t = _torch.torch()
+        try:  # the ``features`` part alone (vgg16().features, without building the classifier)
+            from torchvision.models.vgg import cfgs, make_layers
+
+            features = make_layers(cfgs["D"], batch_norm=False)
+        except ImportError:  # pragma: no cover - a torchvision without these helpers
+            from torchvision.models import vgg16
+
+            features = vgg16(weights=None).features
+        backbone = _torch_load(files.paths[0])
+        _load_strict(features, backbone, f"DISTS VGG16 ({files.paths[0]})",
+                     lambda k: f"features.{k}")
+        ab = _torch_load(files.paths[1])
+        if "alpha" not in ab or "beta" not in ab:
+            raise RuntimeError(f"{files.paths[1]}: no 'alpha'/'beta' (not a DISTS weight file)")
+        alpha, beta = ab["alpha"].float(), ab["beta"].float()
+        n = sum(_DISTS_CHANNELS)
+        if alpha.numel() != n or beta.numel() != n:
+            raise RuntimeError(f"{files.paths[1]}: alpha/beta of {alpha.numel()}/{beta.numel()} "
+                               f"values, DISTS has {n}")
+        total = alpha.sum() + beta.sum()
+        alpha, beta = alpha.view(1, n, 1, 1) / total, beta.view(1, n, 1, 1) / total
+        layer_weights = list(t.split(alpha, list(_DISTS_CHANNELS), dim=1)) \
+            + list(t.split(beta, list(_DISTS_CHANNELS), dim=1))
+
+        class _OfflineDISTS(piq.DISTS):
+            """piq.DISTS built from given weights instead of downloaded ones."""
+
+            def __init__(self):  # noqa: D401 - skips piq.DISTS.__init__'s downloads
+                ContentLoss.__init__(self, feature_extractor=features, layers=_DISTS_LAYERS,
+                                     weights=layer_weights, replace_pooling=True,
+                                     reduction="none", mean=IMAGENET_MEAN, std=IMAGENET_STD,
+                                     normalize_features=False,
+                                     allow_layers_weights_mismatch=True)
+
+        return _OfflineDISTS()
+
+    def forward(self, model, x, y):
+        return model(x, y)
 
 
 @hookimpl
 def visphy_register_metrics(register):
-    pass
+    register(MSSSIM())
+    register(FSIM())
+    register(VSI())
+    register(LPIPS())
+    register(STLPIPS())
+    register(DISTS())

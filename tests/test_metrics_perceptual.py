@@ -1,0 +1,417 @@
+"""Perceptual metrics (`visphy_plugins.metrics.perceptual`) and the pixel metrics' calibration.
+
+* PSNR/SSIM (`visphy_plugins.metrics.pixel`) equal scikit-image's;
+* ``ms_ssim``/``fsim``/``vsi`` equal direct piq calls on the full-size frames;
+* ``st_lpips`` is available from the stlpips-pytorch package alone, every parameter loaded, and
+  reproduces the package's own API (its README's published value, 0.7778 for the LPIPS repo's
+  ``imgs/ex_p0.png`` vs ``imgs/ex_ref.png``, needs images the package does not ship and that cannot
+  be fetched here: the reference values are the package's own outputs on the frames below);
+* ``lpips`` and ``dists`` run their real architectures from weight files in a weight directory
+  (random initialisations saved by the tests: the real checkpoints are not on this machine), equal
+  the upstream implementations (lpips package, piq.DISTS) given the same weights, and are
+  unavailable (None in every column, with the reason) without them;
+* every metric moves the right way with growing noise and blur.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+piq = pytest.importorskip("piq")
+pytest.importorskip("torchvision")
+
+from visphy_core import weights  # noqa: E402
+from visphy_core.cache import Cache  # noqa: E402
+from visphy_core.metrics import HIGHER, LOWER, PAIRS  # noqa: E402
+from visphy_core.scene import ClipInfo, Scene  # noqa: E402
+from visphy_core.scoring import score_scene  # noqa: E402
+from visphy_plugins.metrics import perceptual as P  # noqa: E402
+from visphy_plugins.metrics.pixel import PSNR, SSIM, psnr_frame, ssim_frame  # noqa: E402
+
+
+# ----------------------------------------------------------------------------- frames
+def structured(n: int, size: int, seed: int = 0) -> np.ndarray:
+    """Frames with edges, gradients, colour and a moving disk (what renders look like)."""
+    yy, xx = np.mgrid[:size, :size]
+    out = np.empty((n, size, size, 3), np.uint8)
+    for i in range(n):
+        img = np.empty((size, size, 3), np.float64)
+        img[..., 0] = 40 + 150 * xx / size
+        img[..., 1] = 60 + 120 * yy / size
+        img[..., 2] = 200 - 100 * (xx + yy) / (2 * size)
+        img[((xx // max(1, size // 8)) + (yy // max(1, size // 8))) % 2 == 0] *= 0.8
+        cx, cy, r = size * (0.3 + 0.05 * i), size * (0.45 + 0.02 * seed), size * 0.15
+        img[(xx - cx) ** 2 + (yy - cy) ** 2 < r * r] = (230, 40, 30)
+        img[int(size * 0.8):int(size * 0.85), int(size * 0.1):int(size * 0.9)] = (30, 30, 30)
+        out[i] = np.clip(img, 0, 255).astype(np.uint8)
+    return out
+
+
+def random_frames(n: int, size: int, seed: int) -> np.ndarray:
+    return np.random.default_rng(seed).integers(0, 256, (n, size, size, 3), dtype=np.uint8)
+
+
+def noisy(frames: np.ndarray, sigma: float, seed: int = 1) -> np.ndarray:
+    noise = np.random.default_rng(seed).normal(0, sigma, frames.shape)
+    return np.clip(frames + noise, 0, 255).round().astype(np.uint8)
+
+
+def blurred(frames: np.ndarray, sigma: float) -> np.ndarray:
+    from scipy.ndimage import gaussian_filter
+
+    return np.stack([np.clip(gaussian_filter(f.astype(np.float64), (sigma, sigma, 0)), 0, 255)
+                     .round().astype(np.uint8) for f in frames])
+
+
+def to01(frames: np.ndarray):
+    return torch.from_numpy(np.ascontiguousarray(frames)).permute(0, 3, 1, 2).float() / 255.0
+
+
+# ----------------------------------------------------------------------------- weight dirs
+@pytest.fixture
+def weight_dir(tmp_path, monkeypatch):
+    """An empty configured weight directory as the only place weights are searched (the
+    torch-hub cache pointed at an empty directory too); reset afterwards."""
+    d = tmp_path / "weights"
+    d.mkdir()
+    monkeypatch.delenv("VISPHY_WEIGHTS", raising=False)
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch_home"))
+    weights.configure(d)
+    yield d
+    weights.configure(None)
+
+
+def save_alexnet(path: Path, seed: int) -> dict:
+    """A random-init torchvision AlexNet state dict (the ``features`` part the metric loads; the
+    classifier is left out to keep the file small)."""
+    from torchvision.models.alexnet import AlexNet
+
+    torch.manual_seed(seed)
+    sd = {f"features.{k}": v for k, v in AlexNet().features.state_dict().items()}
+    torch.save(sd, path)
+    return sd
+
+
+def save_vgg16_features(path: Path, seed: int) -> dict:
+    from torchvision.models.vgg import cfgs, make_layers
+
+    torch.manual_seed(seed)
+    sd = {f"features.{k}": v for k, v in make_layers(cfgs["D"]).state_dict().items()}
+    torch.save(sd, path)
+    return sd
+
+
+def save_dists_ab(path: Path, seed: int) -> dict:
+    g = torch.Generator().manual_seed(seed)
+    ab = {"alpha": torch.rand(1, 1475, 1, 1, generator=g) * 0.01 + 0.1,
+          "beta": torch.rand(1, 1475, 1, 1, generator=g) * 0.01 + 0.1}
+    torch.save(ab, path)
+    return ab
+
+
+def scene_for(n: int, size: int) -> Scene:
+    return Scene(scene_id="s0", dim="2d", clip=ClipInfo(fps=5.0, n_frames=n, width=size,
+                                                        height=size), video_path=Path("none.mp4"))
+
+
+# ----------------------------------------------------------------------------- pixel metrics
+def test_psnr_matches_skimage():
+    from skimage.metrics import peak_signal_noise_ratio
+
+    ref = structured(3, 64)
+    gen = noisy(ref, 12.0)
+    ours = PSNR().pair_values(ref, gen)
+    theirs = [peak_signal_noise_ratio(a, b, data_range=255) for a, b in zip(ref, gen)]
+    assert np.allclose(ours, theirs, rtol=0, atol=1e-4)
+    assert psnr_frame(ref[0], ref[0]) == 100.0  # identical: the cap (skimage: inf)
+
+
+@pytest.mark.parametrize("make", ["structured", "random"])
+def test_ssim_matches_skimage_per_channel(make):
+    """pixel.py's SSIM is skimage's (Gaussian window σ 1.5, 11 taps, population covariance,
+    L 255, K1 0.01, K2 0.03, borders of radius 5 cropped) averaged over Y, R, G, B."""
+    from skimage.metrics import structural_similarity
+
+    ref = structured(2, 64) if make == "structured" else random_frames(2, 64, 3)
+    gen = noisy(blurred(ref, 1.0), 8.0)
+
+    def channels(f):
+        f = f.astype(np.float64)
+        return [0.299 * f[..., 0] + 0.587 * f[..., 1] + 0.114 * f[..., 2],
+                f[..., 0], f[..., 1], f[..., 2]]
+
+    for a, b in zip(ref, gen):
+        per = [structural_similarity(x, y, gaussian_weights=True, sigma=1.5,
+                                     use_sample_covariance=False, data_range=255)
+               for x, y in zip(channels(a), channels(b))]
+        # skimage's full map cropped by the same radius gives the same mean
+        maps = [structural_similarity(x, y, gaussian_weights=True, sigma=1.5,
+                                      use_sample_covariance=False, data_range=255,
+                                      full=True)[1][5:-5, 5:-5].mean()
+                for x, y in zip(channels(a), channels(b))]
+        assert ssim_frame(a, b) == pytest.approx(np.mean(per), abs=1e-4)
+        assert np.mean(per) == pytest.approx(np.mean(maps), abs=1e-12)
+    assert np.allclose(SSIM().pair_values(ref, gen),
+                       [ssim_frame(a, b) for a, b in zip(ref, gen)])
+
+
+# ----------------------------------------------------------------------------- piq metrics
+PIQ_CALLS = {
+    "ms_ssim": lambda x, y: piq.multi_scale_ssim(x, y, data_range=1.0, reduction="none"),
+    "fsim": lambda x, y: piq.fsim(x, y, data_range=1.0, reduction="none"),
+    "vsi": lambda x, y: piq.vsi(x, y, data_range=1.0, reduction="none"),
+}
+PIQ_METRICS = {"ms_ssim": P.MSSSIM, "fsim": P.FSIM, "vsi": P.VSI}
+
+
+@pytest.mark.parametrize("name", list(PIQ_METRICS))
+def test_piq_metrics_equal_direct_piq_calls(name):
+    """Five pairs (more than one chunk) at 192² (MS-SSIM needs ≥ 161 px) and 520² (FSIM/VSI
+    pool by 2 inside piq there): the values are piq's on the full-size frames."""
+    metric = PIQ_METRICS[name]()
+    assert metric.unavailable_reason() is None
+    assert (metric.kind, metric.direction, metric.score_range) == (PAIRS, HIGHER, (0.0, 1.0))
+    ref = np.concatenate([structured(3, 192), random_frames(2, 192, 5)])
+    gen = np.concatenate([noisy(structured(3, 192, seed=1), 10.0), random_frames(2, 192, 6)])
+    ours = metric.pair_values(ref, gen)
+    with torch.inference_mode():
+        theirs = PIQ_CALLS[name](to01(ref), to01(gen)).double().numpy()
+    assert ours.shape == (5,)
+    assert np.allclose(ours, theirs, rtol=0, atol=1e-6)
+    assert np.allclose(metric.pair_values(ref[:2], ref[:2]), 1.0, atol=1e-6)
+    if name != "ms_ssim":
+        big_r, big_g = structured(1, 520), noisy(structured(1, 520, seed=2), 10.0)
+        with torch.inference_mode():
+            direct = PIQ_CALLS[name](to01(big_r), to01(big_g)).double().numpy()
+        assert np.allclose(metric.pair_values(big_r, big_g), direct, rtol=0, atol=1e-6)
+
+
+def test_ms_ssim_needs_161_pixels():
+    frames = structured(2, 128)
+    assert np.isnan(P.MSSSIM().pair_values(frames, frames)).all()
+
+
+# ----------------------------------------------------------------------------- ST-LPIPS
+def stlpips_package():
+    from stlpips_pytorch import utils
+
+    stlpips = P._import_stlpips()
+    model = stlpips.LPIPS(net="alex", variant="shift_tolerant", verbose=False)  # its own loader
+    return model.eval(), utils
+
+
+#: ST-LPIPS (alex, shift-tolerant, vST0.0) of structured(3, 64) against the frames below, as the
+#: stlpips-pytorch 0.0.2 API computes them (stlpips.LPIPS(net="alex", variant="shift_tolerant"),
+#: utils.im2tensor): a regression anchor for the packaged net.
+STLPIPS_REFERENCE = {
+    "noisy": [0.17538967728614807, 0.13974657654762268, 0.1489482969045639],
+    "shift4": [0.03942910581827164, 0.03900952637195587, 0.04190894961357117],
+}
+
+
+def st_cases() -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    ref = structured(3, 64)
+    return {"noisy": (ref, noisy(ref, 20.0)), "shift4": (ref, np.roll(ref, 4, axis=2))}
+
+
+def test_st_lpips_is_available_with_every_parameter_loaded():
+    metric = P.STLPIPS()
+    assert metric.unavailable_reason() is None
+    assert (metric.kind, metric.direction, metric.family) == (PAIRS, LOWER, "perceptual")
+    path = metric.files().paths[0]
+    assert path.name == "alex_shift_tolerant.pth" and "stlpips_pytorch" in str(path)
+    state = torch.load(path, map_location="cpu", weights_only=True)
+    model = metric.model()
+    own = model.state_dict()
+    for name, value in own.items():
+        src = P._lins_alias(name)
+        assert torch.equal(value.cpu(), state[src]), name  # backbone, blur filters, linear layers
+    assert {P._lins_alias(n) for n in own} == set(state)
+    assert any(n.startswith("net.slice1.0.") for n in own)
+    assert "weights=" in metric.identity() and "size=256" in metric.identity()
+
+
+def test_st_lpips_reproduces_the_package_api():
+    model, utils = stlpips_package()
+    metric = P.STLPIPS()
+    for name, (ref, gen) in st_cases().items():
+        ours = metric.pair_values(ref, gen)
+        with torch.no_grad():
+            theirs = np.array([model(utils.im2tensor(a), utils.im2tensor(b)).item()
+                               for a, b in zip(ref, gen)])
+        assert np.allclose(ours, theirs, rtol=0, atol=1e-6), name
+        assert np.allclose(ours, STLPIPS_REFERENCE[name], rtol=0, atol=1e-5), name
+
+
+def test_st_lpips_works_at_256_on_larger_frames():
+    """512² frames are area-averaged to 256² (exact 2×2 means) before the net."""
+    model, _ = stlpips_package()
+    ref = structured(1, 512)
+    gen = np.roll(ref, 6, axis=1)
+    ours = P.STLPIPS().pair_values(ref, gen)
+    half = lambda f: to01(f).view(1, 3, 256, 2, 256, 2).mean((3, 5)) * 2 - 1  # noqa: E731
+    with torch.no_grad():
+        theirs = model(half(ref), half(gen)).flatten().double().numpy()
+    assert np.allclose(ours, theirs, rtol=0, atol=1e-6)
+
+
+def test_st_lpips_identical_zero_shift_small_different_large():
+    metric = P.STLPIPS()
+    ref = structured(2, 96)
+    assert np.allclose(metric.pair_values(ref, ref), 0.0, atol=1e-7)
+    shifted = np.roll(ref, 1, axis=2)
+    other = structured(2, 96, seed=9)[:, ::-1].copy()
+    d_shift = metric.pair_values(ref, shifted)
+    d_other = metric.pair_values(ref, other)
+    assert (d_shift < 0.02).all() and (d_other > 0.1).all() and (d_other > 10 * d_shift).all()
+
+
+def test_st_lpips_checkpoint_in_the_weight_dir_replaces_the_packaged_one(weight_dir):
+    metric = P.STLPIPS()
+    packaged = metric.identity()
+    stlpips = P._import_stlpips()
+    torch.manual_seed(3)
+    net = stlpips.LPIPS(net="alex", variant="shift_tolerant", pretrained=False, verbose=False)
+    sd = {k: v for k, v in net.state_dict().items() if not k.startswith("lins.")}
+    torch.save(sd, weight_dir / "alex_shift_tolerant.pth")
+    assert metric.files().paths[0] == weight_dir / "alex_shift_tolerant.pth"
+    assert metric.identity() != packaged
+    ref = structured(2, 64)
+    v = metric.pair_values(ref, noisy(ref, 20.0))
+    assert np.isfinite(v).all()
+    assert torch.equal(metric.model().net.slice1[0].weight, sd["net.slice1.0.weight"])
+
+
+def test_st_lpips_without_its_net_is_unavailable(weight_dir, monkeypatch):
+    monkeypatch.setattr(P, "stlpips_packaged_file", lambda net="alex": None)
+    reason = P.STLPIPS().unavailable_reason()
+    assert "alex_shift_tolerant.pth" in reason and "metrics.weights_dir" in reason
+
+
+# ----------------------------------------------------------------------------- LPIPS / DISTS
+def test_lpips_loads_alexnet_from_the_weight_dir(weight_dir, monkeypatch):
+    import types
+
+    import lpips
+    from torchvision.models.alexnet import AlexNet
+
+    metric = P.LPIPS()
+    sd = save_alexnet(weight_dir / "alexnet-owt-7be5be79.pth", seed=0)
+    assert metric.unavailable_reason() is None
+    ref = structured(3, 64)
+    gen = noisy(ref, 20.0)
+    ours = metric.pair_values(ref, gen)
+    assert ours.shape == (3,) and np.isfinite(ours).all() and (ours > 0).all()
+    assert np.allclose(metric.pair_values(ref, ref), 0.0, atol=1e-7)
+    # the lpips package's own construction with the same backbone gives the same values
+    def alexnet_with(*args, **kwargs):  # what lpips uses of torchvision's alexnet: features
+        features = AlexNet().features
+        features.load_state_dict({k[len("features."):]: v for k, v in sd.items()})
+        return types.SimpleNamespace(features=features)
+
+    monkeypatch.setattr(lpips.pretrained_networks.tv, "alexnet", alexnet_with)
+    upstream = lpips.LPIPS(net="alex", version="0.1", verbose=False).eval()
+    with torch.no_grad():
+        theirs = upstream(to01(ref) * 2 - 1, to01(gen) * 2 - 1).flatten().double().numpy()
+    assert np.allclose(ours, theirs, rtol=0, atol=1e-6)
+    # a different checkpoint: a different identity and different values
+    ident = metric.identity()
+    save_alexnet(weight_dir / "alexnet-owt-7be5be79.pth", seed=1)
+    assert metric.identity() != ident
+    assert not np.allclose(metric.pair_values(ref, gen), ours)
+    assert "alexnet-owt-7be5be79.pth" in metric.weights
+
+
+def test_dists_loads_vgg16_and_alpha_beta_from_the_weight_dir(weight_dir, monkeypatch):
+    import types
+
+    import piq.perceptual as pp
+    from torchvision.models.vgg import cfgs, make_layers
+
+    metric = P.DISTS()
+    assert metric.direction == LOWER and metric.score_range == (0.0, 1.0)
+    vgg = save_vgg16_features(weight_dir / "vgg16-397923af.pth", seed=0)
+    ab = save_dists_ab(weight_dir / "dists_weights.pt", seed=0)
+    assert metric.unavailable_reason() is None
+    ref = structured(3, 64)
+    gen = noisy(ref, 20.0)
+    ours = metric.pair_values(ref, gen)
+    assert np.isfinite(ours).all() and (ours > 0).all()
+    assert np.allclose(metric.pair_values(ref, ref), 0.0, atol=1e-6)
+    # piq.DISTS itself, its two downloads answered with the same files
+    def vgg16_with(*args, **kwargs):  # what piq uses of torchvision's vgg16: its features
+        features = make_layers(cfgs["D"])
+        features.load_state_dict({k[len("features."):]: v for k, v in vgg.items()})
+        return types.SimpleNamespace(features=features)
+
+    monkeypatch.setattr(pp, "vgg16", vgg16_with)
+    total = ab["alpha"].sum() + ab["beta"].sum()
+    monkeypatch.setattr(pp.torch.hub, "load_state_dict_from_url",
+                        lambda *a, **k: {"alpha": ab["alpha"] / total, "beta": ab["beta"] / total})
+    upstream = piq.DISTS(reduction="none")
+    with torch.no_grad():
+        theirs = upstream(to01(ref), to01(gen)).double().numpy()
+    assert np.allclose(ours, theirs, rtol=0, atol=1e-6)
+    ident = metric.identity()
+    save_dists_ab(weight_dir / "dists_weights.pt", seed=1)
+    assert metric.identity() != ident
+
+
+@pytest.mark.parametrize("cls,files", [(P.LPIPS, ["alexnet-owt-7be5be79.pth"]),
+                                       (P.DISTS, ["vgg16-397923af.pth", "dists_weights.pt"])])
+def test_missing_weights_make_the_metric_unavailable_never_a_number(weight_dir, tmp_path,
+                                                                    cls, files):
+    metric = cls()
+    reason = metric.unavailable_reason()
+    assert reason and "weights not found" in reason
+    for f in files:
+        assert f in reason
+    assert "metrics.weights_dir" in reason and str(weight_dir) in reason
+    ref = structured(5, 32)
+    scores, unavailable = score_scene(scene_for(5, 32), ref, noisy(ref, 5.0), [metric], None,
+                                      None, Cache(tmp_path / "cache"))
+    for col in (metric.name, f"{metric.name}.aligned", f"paper.{metric.name}"):
+        assert scores[col] is None and unavailable[col] == reason
+
+
+def test_dists_missing_only_alpha_beta_names_that_file(weight_dir):
+    save_vgg16_features(weight_dir / "vgg16-397923af.pth", seed=0)
+    reason = P.DISTS().unavailable_reason()
+    assert "put dists_weights.pt in metrics.weights_dir" in reason
+
+
+# ----------------------------------------------------------------------------- behaviour
+def _monotone(values, increasing: bool) -> bool:
+    d = np.diff(values)
+    return bool((d > 0).all() if increasing else (d < 0).all())
+
+
+def test_metrics_move_the_right_way_with_noise_and_blur(weight_dir):
+    save_alexnet(weight_dir / "alexnet-owt-7be5be79.pth", seed=0)
+    save_vgg16_features(weight_dir / "vgg16-397923af.pth", seed=0)
+    save_dists_ab(weight_dir / "dists_weights.pt", seed=0)
+    for metric in (P.MSSSIM(), P.FSIM(), P.VSI(), P.STLPIPS(), P.LPIPS(), P.DISTS()):
+        ref = structured(1, 176 if metric.name == "ms_ssim" else 96)
+        for kind, gens in {"noise": [noisy(ref, s) for s in (4.0, 12.0, 30.0, 60.0)],
+                           "blur": [blurred(ref, s) for s in (0.7, 1.5, 3.0, 6.0)]}.items():
+            values = metric.pair_values(np.repeat(ref, 4, axis=0), np.concatenate(gens))
+            assert _monotone(values, increasing=metric.direction == LOWER), \
+                (metric.name, kind, values)
+
+
+def test_registered_with_direction_and_range():
+    from visphy_core.plugins import build_registry
+
+    registry = build_registry()
+    expected = {"ms_ssim": (HIGHER, (0.0, 1.0)), "fsim": (HIGHER, (0.0, 1.0)),
+                "vsi": (HIGHER, (0.0, 1.0)), "lpips": (LOWER, (0.0, float("inf"))),
+                "st_lpips": (LOWER, (0.0, float("inf"))), "dists": (LOWER, (0.0, 1.0))}
+    for name, (direction, rng) in expected.items():
+        d = registry.get("metrics", name).describe()
+        assert (d["direction"], tuple(d["range"]), d["family"], d["kind"]) == \
+            (direction, rng, "perceptual", PAIRS)
+    assert registry.get("metrics", "st_lpips").describe()["unavailable"] is None

@@ -1,0 +1,425 @@
+"""Object-track metrics (plugins/metrics/tracks.py): colour segmentation against the ground
+truth, zero on identical clips, monotone growth with perturbed physics, penalties for frozen and
+recoloured bodies, the event detectors on synthetic motion, and a 3D clip."""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.stats import spearmanr
+
+from visphy_core.alignment import PAPER, align, unaligned
+from visphy_core.bench.box2d_sim import simulate_2d
+from visphy_core.bench.detection import detection_from_spec
+from visphy_core.bench.raster2d import render_clip_2d, render_frame_2d
+from visphy_core.bench.templates_mini import SCENES
+from visphy_core.bench.templates_mini import mini_scenes as make_mini_scenes
+from visphy_core.metrics import LOWER, SEQUENCE, MetricInput
+from visphy_core.scene import Scene
+from visphy_core.scoring import ScoringProtocol, alignments
+from visphy_core.video import ClipInfo, decode_video, encode_video
+from visphy_plugins.metrics import tracks as T
+
+REPO = Path(__file__).resolve().parents[1]
+DATASET = REPO / "visphy-out" / "data" / "visphybench-seed0"
+NAMES = T.NAMES
+CLIP_2D = ClipInfo(fps=5.0, n_frames=17, width=512, height=512)
+DIAG = math.hypot(512, 512)
+
+
+# ------------------------------------------------------------------------------ helpers
+def make_scene(spec: dict, root: Path, clip: ClipInfo = CLIP_2D, video: Path | None = None,
+               with_spec: bool = True, with_detection: bool = True) -> Scene:
+    """A `Scene` backed by files, as the loaders build it."""
+    root.mkdir(parents=True, exist_ok=True)
+    sid = spec["scene_id"]
+    spec_path = det_path = None
+    if with_spec:
+        spec_path = root / f"{sid}.json"
+        spec_path.write_text(json.dumps(spec))
+    if with_detection and spec["dim"] == "2d":
+        det_path = root / f"{sid}_frame_01.json"
+        det_path.write_text(json.dumps(detection_from_spec(spec)))
+    return Scene(scene_id=sid, dim=spec["dim"], clip=clip,
+                 video_path=video or root / f"{sid}.mp4", detection_path=det_path,
+                 spec_path=spec_path)
+
+
+def clean_clip(spec: dict) -> np.ndarray:
+    return render_clip_2d(spec, simulate_2d(spec).frame_poses)
+
+
+def values(scene, ref, gen, alignment=None) -> dict[str, float]:
+    inp = MetricInput(scene=scene, reference=ref, generated=gen)
+    a = alignment if alignment is not None else unaligned(len(ref), len(gen))
+    return {m.name: m.compute_sequence(inp, a) for m in (cls() for cls in T.METRICS)}
+
+
+def perturbed(spec: dict, kind: str, step: int) -> dict:
+    """``spec`` with one physical parameter moved ``step`` (0..5) geometric steps away."""
+    s = copy.deepcopy(spec)
+    red = next(b for b in s["bodies"] if b["id"] == "red_ball")
+    if kind == "speed":
+        red["velocity"]["vx_px_s"] += (0, 2, 4, 8, 16, 32)[step]
+    elif kind == "gravity":
+        s["world"]["gravity_m_s2"][1] *= (1, 1.03, 1.06, 1.12, 1.24, 1.48)[step]
+    elif kind == "restitution":
+        d = (0, 0.05, 0.1, 0.2, 0.35, 0.6)[step]
+        s["contacts"]["default"]["restitution"] = min(
+            1.0, s["contacts"]["default"]["restitution"] + d)
+        for pair in s["contacts"]["pairs"]:
+            pair["restitution"] = min(1.0, pair["restitution"] + d)
+    return s
+
+
+# ------------------------------------------------------------------------------ fixtures
+@pytest.fixture(scope="module")
+def mini(tmp_path_factory):
+    """The five hand-made PHYRE-style scenes: spec, rollout, clean clip and a file-backed
+    Scene; the first three also with their H.264 reference (encoded and decoded as the
+    benchmark writes it)."""
+    root = tmp_path_factory.mktemp("tracks")
+    out = []
+    for i, (spec, rollout) in enumerate(make_mini_scenes()):
+        clip = render_clip_2d(spec, rollout.frame_poses)
+        video = root / f"{spec['scene_id']}.mp4"
+        decoded = None
+        if i < 3:
+            encode_video(clip, video, 5.0)
+            decoded, _ = decode_video(video)
+        out.append({"spec": spec, "rollout": rollout, "clip": clip, "decoded": decoded,
+                    "scene": make_scene(spec, root, video=video)})
+    return out
+
+
+# ------------------------------------------------------------------------------ contract
+def test_five_sequence_metrics_registered_with_their_contract():
+    got = []
+    T.visphy_register_metrics(got.append)
+    assert [m.name for m in got] == list(NAMES)
+    for m in got:
+        assert (m.kind, m.direction, m.family) == (SEQUENCE, LOWER, "physics")
+        assert m.needs == ("frames", "scene_spec") and m.weights is None
+        assert m.unavailable_reason() is None
+
+
+def test_palette_tracks_distinct_dynamic_colours_and_skips_shared_ones(mini, tmp_path):
+    spec = copy.deepcopy(mini[0]["spec"])  # red ball, black bar, purple box, gray ball
+    pal = T.scene_palette(mini[0]["scene"])
+    assert pal.mode == "flat" and pal.ids == ("red_ball", "gray_ball") and not pal.skipped
+    twin = copy.deepcopy(next(b for b in spec["bodies"] if b["id"] == "gray_ball"))
+    twin["id"], twin["pose"]["x_px"] = "gray_ball_2", 300.0
+    spec["bodies"].append(twin)
+    pal = T.scene_palette(make_scene(spec, tmp_path))
+    assert pal.ids == ("red_ball",)
+    assert dict(pal.skipped) == {"gray_ball": "shares its colour with gray_ball_2",
+                                 "gray_ball_2": "shares its colour with gray_ball"}
+    assert (185, 202, 210) in pal.others  # its pixels are nobody else's
+    # no spec: the detection, PHYRE's convention (black and purple are static)
+    pal = T.scene_palette(make_scene(mini[0]["spec"], tmp_path / "det", with_spec=False))
+    assert pal.ids == ("red_ball", "gray_ball")
+    # neither: no palette, every metric NaN
+    bare = make_scene(mini[0]["spec"], tmp_path / "bare", with_spec=False,
+                      with_detection=False)
+    assert T.scene_palette(bare) is None
+    clip = mini[0]["clip"]
+    assert all(math.isnan(v) for v in values(bare, clip, clip).values())
+
+
+# -------------------------------------------------------------------------- segmentation
+def test_segmentation_recovers_ground_truth_positions_on_h264_references(mini):
+    """On the encoded reference every tracked body's centroid is within 1.5 px of the centroid
+    of its visible pixels in the exact render, and a free ball's within 1.5 px of its pose."""
+    checked = 0
+    for m in mini[:3]:
+        spec, scene = m["spec"], m["scene"]
+        pal = T.scene_palette(scene)
+        tracks = T.segment(m["decoded"], pal)
+        ids = [b["id"] for b in spec["bodies"]]
+        for b, bid in enumerate(pal.ids):
+            body = spec["bodies"][ids.index(bid)]
+            visible = (m["clip"] == np.array(body["color_rgb"], np.uint8)).all(-1)
+            for k in range(len(m["clip"])):
+                if visible[k].sum() < 50:
+                    continue
+                ys, xs = np.nonzero(visible[k])
+                want = np.array([xs.mean() + 0.5, ys.mean() + 0.5])
+                err = np.hypot(*(tracks.centroid[k, b] - want))
+                assert err <= 1.5, (spec["scene_id"], bid, k, err)
+                assert abs(tracks.area[k, b] - visible[k].sum()) <= 0.15 * visible[k].sum()
+                if body["shape"]["type"] == "circle":
+                    r = body["shape"]["radius_px"]
+                    if visible[k].sum() >= 0.97 * math.pi * r * r:  # not hidden nor cut
+                        x, y = m["rollout"].frame_poses[k, ids.index(bid), :2]
+                        assert np.hypot(*(tracks.centroid[k, b] - (x, 512 - y))) <= 1.5
+                checked += 1
+    assert checked >= 80
+
+
+def test_identical_clips_score_zero_under_every_pairing(mini):
+    m = mini[1]
+    ref = m["decoded"]
+    inp = MetricInput(scene=m["scene"], reference=ref, generated=ref.copy())
+    for view, a in alignments(ref, inp.generated, ScoringProtocol()).items():
+        got = {cls.name: cls().compute_sequence(inp, a) for cls in T.METRICS}
+        assert got == dict.fromkeys(NAMES, 0.0), (view, got)
+
+
+def test_segmentation_runs_once_per_clip_and_is_fast(mini, monkeypatch):
+    m = mini[0]
+    ref, gen = m["decoded"], clean_clip(perturbed(m["spec"], "speed", 2))
+    calls = []
+    real = T.segment
+    monkeypatch.setattr(T, "segment", lambda *a, **k: calls.append(1) or real(*a, **k))
+    inp = MetricInput(scene=m["scene"], reference=ref, generated=gen)
+    views = alignments(ref, gen, ScoringProtocol())
+    T.segment(ref, T.scene_palette(m["scene"]))  # warm the colour table
+    calls.clear()
+    t0 = time.perf_counter()
+    for a in views.values():
+        for cls in T.METRICS:
+            cls().compute_sequence(inp, a)
+    elapsed = time.perf_counter() - t0
+    assert len(calls) == 2  # reference and generated, shared by 5 metrics × 3 pairings
+    assert inp.extra["tracks"]["value"]["tracked"] == ["red_ball", "gray_ball"]
+    assert elapsed < 0.5, elapsed  # ~0.05 s on an idle core
+
+
+# ------------------------------------------------------------------------------ validity
+def _assert_monotone(spec: dict, kind: str, ref: np.ndarray, scene) -> None:
+    rows = [values(scene, ref, clean_clip(perturbed(spec, kind, k))) for k in range(6)]
+    for name in ("track_pos_err", "track_vel_err"):
+        xs = [r[name] for r in rows]
+        assert xs[0] == 0.0
+        rho = spearmanr(range(5), xs[1:]).statistic
+        assert rho >= 0.9 - 1e-9 and xs[5] > xs[1] > 0, (spec["scene_id"], kind, name, xs)
+
+
+@pytest.mark.parametrize("index", [0, 1, 3])
+def test_errors_grow_with_the_initial_speed(mini, index):
+    m = mini[index]
+    _assert_monotone(m["spec"], "speed", m["clip"], m["scene"])
+
+
+@pytest.mark.parametrize("index", [0, 1, 2, 3, 4])
+def test_errors_grow_with_gravity(mini, index):
+    m = mini[index]
+    _assert_monotone(m["spec"], "gravity", m["clip"], m["scene"])
+
+
+def test_errors_grow_with_restitution_where_it_is_identifiable(mini):
+    chosen = [m for m in mini if m["spec"]["ground_truth"]["identifiable"]["restitution"]]
+    assert len(chosen) >= 2
+    for m in chosen:
+        _assert_monotone(m["spec"], "restitution", m["clip"], m["scene"])
+
+
+def test_a_frozen_clip_scores_worse_than_a_slightly_wrong_simulation(mini):
+    for m in mini[:3]:
+        ref = m["clip"]
+        frozen = np.repeat(ref[:1], len(ref), axis=0)
+        slight = clean_clip(perturbed(m["spec"], "speed", 1))
+        got_frozen, got_slight = (values(m["scene"], ref, g) for g in (frozen, slight))
+        assert got_frozen["track_pos_err"] > 3 * got_slight["track_pos_err"] > 0
+        assert got_frozen["track_vel_err"] > got_slight["track_vel_err"]
+
+
+def test_a_recoloured_body_is_not_found_and_costs_the_diagonal(mini):
+    m = mini[0]
+    ref = m["clip"]
+    gen = ref.copy()
+    red = (gen == np.array([243, 79, 70], np.uint8)).all(-1)
+    gen[red] = (255, 0, 255)  # the model drew the red ball magenta
+    inp = MetricInput(scene=m["scene"], reference=ref, generated=gen)
+    got = T.track_values(inp, unaligned(len(ref), len(gen)))
+    st = inp.extra["tracks"]["value"]
+    assert not st["gen_present"][:, 0].any() and st["gen_present"][:, 1].all()
+    pr = st["ref_present"]
+    n_red, n_gray = pr[:, 0].sum(), pr[:, 1].sum()
+    assert got["track_pos_err"] == pytest.approx(DIAG * n_red / (n_red + n_gray))
+    i_red, i_gray = (pr[1:] & pr[:-1]).sum(axis=0)
+    # each interval of the red ball costs at least D / T (T = 16 / 5 s), the gray ball's nothing
+    assert got["track_vel_err"] >= DIAG / (16 / 5.0) * i_red / (i_red + i_gray)
+
+
+def test_aligned_pairing_undoes_a_delay_and_events_use_the_reference_clock(mini):
+    m = mini[3]
+    ref = m["clip"]
+    late = np.concatenate([np.repeat(ref[:1], 2, axis=0), ref[:-2]])
+    plain = values(m["scene"], ref, late)
+    a = align(ref, late)
+    assert a.offset == 2
+    shifted = values(m["scene"], ref, late, a)
+    assert plain["track_pos_err"] > 10
+    assert shifted == dict.fromkeys(NAMES, 0.0)
+    paper = values(m["scene"], ref, late, align(ref, late, PAPER))
+    assert paper["track_pos_err"] < plain["track_pos_err"]
+
+
+def test_no_tracked_body_in_the_reference_is_nan(mini):
+    m = mini[0]
+    blank = np.full_like(m["clip"], 255)
+    got = values(m["scene"], blank, m["clip"])
+    assert all(math.isnan(v) for v in got.values())
+    got = values(m["scene"], m["clip"], blank)  # all lost in the generated clip
+    assert got["track_pos_err"] == pytest.approx(DIAG)
+
+
+# ------------------------------------------------------------------------------- events
+def _ball_spec(path_xy) -> tuple[dict, np.ndarray]:
+    """A one-ball scene and its clip along the given image-space path (x, y down)."""
+    spec = SCENES[-1]()  # the corner drop: a red ball of radius 20 px
+    spec["bodies"] = [b for b in spec["bodies"] if b["id"] == "red_ball"]
+    frames = np.stack([render_frame_2d(spec, np.array([[x, 512 - y, 0.0]]))
+                       for x, y in path_xy])
+    return spec, frames
+
+
+def _event_values(path_a, path_b, tmp_path) -> tuple[dict, dict]:
+    spec, ref = _ball_spec(path_a)
+    _, gen = _ball_spec(path_b)
+    scene = make_scene(spec, tmp_path)
+    inp = MetricInput(scene=scene, reference=ref, generated=gen)
+    a = unaligned(len(ref), len(gen))
+    return T.track_values(inp, a), T.track_events(inp, a)
+
+
+def test_exit_event_time_difference(tmp_path):
+    """A ball rolling right at 40 px/frame leaves the frame; the other at 50 px/frame."""
+    a = [(100 + 40 * k, 300.0) for k in range(17)]    # last seen at x = 500 (frame 10)
+    b = [(100 + 50 * k, 300.0) for k in range(17)]    # last seen at x = 500 (frame 8)
+    got, ev = _event_values(a, b, tmp_path)
+    assert ev["ref"]["exit"] == [pytest.approx(11 / 5)]
+    assert ev["gen"]["exit"] == [pytest.approx(9 / 5)]
+    assert got["event_exit_err"] == pytest.approx(0.4)
+    got, _ = _event_values(a, [(100.0, 300.0)] * 17, tmp_path)  # never leaves: one-sided
+    assert got["event_exit_err"] == pytest.approx(16 / 5)
+
+
+def test_rest_event_time_difference(tmp_path):
+    def decelerating(stop: int):
+        v0 = 60.0
+        xs = [100 + v0 * min(k, stop) - v0 / (2 * stop) * min(k, stop) ** 2 for k in range(17)]
+        return [(x, 400.0) for x in xs]
+
+    got, ev = _event_values(decelerating(6), decelerating(9), tmp_path)
+    ref_rest, gen_rest = ev["ref"]["rest"][0], ev["gen"]["rest"][0]
+    assert ref_rest == pytest.approx(6 / 5, abs=0.21) and gen_rest == pytest.approx(9 / 5, abs=0.21)
+    assert got["event_rest_err"] == pytest.approx(gen_rest - ref_rest)
+    got, _ = _event_values(decelerating(6), [(100 + 30.0 * k, 400.0) for k in range(17)],
+                           tmp_path)  # the other never stops
+    assert got["event_rest_err"] == pytest.approx(16 / 5)
+
+
+def test_contact_event_time_difference(tmp_path):
+    """Free fall (constant acceleration), then a bounce off the floor at frame 7 or 10."""
+    def bounce(k_hit: int):
+        g = 6.0  # px/frame^2
+        floor = 50 + 0.5 * g * k_hit ** 2
+        out = []
+        for k in range(17):
+            y = 50 + 0.5 * g * k ** 2
+            if k > k_hit:  # reflected with restitution 0.5
+                v = 0.5 * g * k_hit
+                y = floor - (v * (k - k_hit) - 0.5 * g * (k - k_hit) ** 2)
+                y = min(y, floor)
+            out.append((250.0, y))
+        return out
+
+    got, ev = _event_values(bounce(7), bounce(10), tmp_path)
+    ref_t, gen_t = ev["ref"]["contact"][0], ev["gen"]["contact"][0]
+    assert ref_t == pytest.approx(7.5 / 5, abs=0.21) and gen_t == pytest.approx(10.5 / 5, abs=0.21)
+    assert got["event_contact_err"] == pytest.approx(gen_t - ref_t)
+    assert got["event_contact_err"] == pytest.approx(3 / 5, abs=0.21)
+    # parabola without a bounce in the other clip: one-sided
+    free = [(250.0, 50 + 0.5 * 1.0 * k ** 2) for k in range(17)]
+    got, ev = _event_values(bounce(7), free, tmp_path)
+    assert ev["gen"]["contact"] == [None] and got["event_contact_err"] == pytest.approx(16 / 5)
+
+
+def test_contact_detection_matches_the_simulated_first_contacts(mini):
+    """The red ball's first collision in each mini scene, detected from its track, lies within
+    a frame interval of Box2D's first contact event (clip time)."""
+    for m in mini:
+        spec = m["spec"]
+        w = spec["world"]
+        first = min(e["step"] for e in spec["ground_truth"]["events"]
+                    if "red_ball" in (e["a"], e["b"]))
+        t_gt = (first - w["first_frame_after_steps"]) / w["steps_per_frame"] / w["video_fps"]
+        ev = T.track_events(MetricInput(scene=m["scene"], reference=m["clip"],
+                                        generated=m["clip"]), unaligned(17, 17))
+        t_det = ev["ref"]["contact"][0]
+        assert t_det is not None and abs(t_det - max(t_gt, 0.5)) <= 0.21, \
+            (spec["scene_id"], t_det, t_gt)
+
+
+# ----------------------------------------------------------------------------------- 3D
+def _check_3d(scene, frames: np.ndarray, poses: np.ndarray | None) -> None:
+    from visphy_core.bench.detection3d import project_points
+
+    pal = T.scene_palette(scene)
+    assert pal.mode == "shaded" and pal.ids and "red_ball" in pal.ids
+    tracks = T.segment(frames, pal)
+    inp = MetricInput(scene=scene, reference=frames, generated=frames.copy())
+    st = T.scene_tracks(inp)
+    found = st["ref_present"].mean(axis=0)
+    assert found.min() >= 0.8, dict(zip(pal.ids, found))
+    if poses is not None:
+        ids = [b["id"] for b in scene.spec["bodies"]]
+        want = project_points(scene.spec, poses[:len(frames), ids.index("red_ball"), :3])
+        err = np.hypot(*(tracks.centroid[:, pal.ids.index("red_ball")] - want).T)
+        assert np.nanmax(err) <= 2.0, err
+    got = T.track_values(inp, unaligned(len(frames), len(frames)))
+    assert got == dict.fromkeys(NAMES, 0.0)
+    moved = np.roll(frames, 3, axis=2)  # everything 3 px to the right
+    got = values(scene, frames, moved)
+    assert 2.0 <= got["track_pos_err"] <= 4.0
+
+
+@pytest.mark.browser
+def test_3d_rendered_clip_segments_every_dynamic_body(tmp_path):
+    import shutil
+
+    from visphy_plugins.engines.js_assets import assets_installed
+
+    if shutil.which("node") is None or not assets_installed():
+        pytest.skip("Node.js or the browser engine libraries are missing")
+    from visphy_core.bench.cannon3d import simulate_3d
+    from visphy_core.bench.render3d import render_clip_3d
+    from visphy_core.bench.spec3d import validate_spec_3d
+    from visphy_core.bench.templates_3d import TEMPLATES_3D, validity_problems_3d
+    from visphy_core.sandbox.browser import BrowserPool
+
+    template = next(t for t in TEMPLATES_3D if t.template_id == 10)  # ball, box, ball
+    for k in range(4):
+        spec = template.make(np.random.default_rng(template.template_id * 100 + k), 0)
+        validate_spec_3d(spec)
+        rollout = simulate_3d(spec)
+        if not validity_problems_3d(spec, rollout):
+            break
+    n = 40
+    with BrowserPool() as pool:
+        clip = render_clip_3d(spec, rollout.frame_poses[:n], pool)
+    encode_video(clip, tmp_path / "c.mp4", 15.0)
+    frames, _ = decode_video(tmp_path / "c.mp4")
+    scene = make_scene(spec, tmp_path, clip=ClipInfo(15.0, n, 512, 512))
+    _check_3d(scene, frames, rollout.frame_poses)
+
+
+def test_3d_dataset_clip_segments_every_dynamic_body():
+    """A 3D reference of the built benchmark, when one is here (visphy-out is not tracked)."""
+    from visphy_core.dataset.generated import load_generated
+
+    if not (DATASET / "metadata.jsonl").is_file():
+        pytest.skip(f"no built benchmark at {DATASET}")
+    scenes = [s for s in load_generated(DATASET) if s.dim == "3d"]
+    if not scenes:
+        pytest.skip("the built benchmark has no 3D scene")
+    scene = next((s for s in scenes if s.scene_id == "03_tmpl_02"), scenes[0])
+    _check_3d(scene, scene.reference_frames(), scene.trajectory["frame_poses"])
