@@ -56,10 +56,25 @@ def visphy_home(tmp_path, mini_root) -> Path:
     return home
 
 
+#: Runs that are not about the metrics score only these (loading the learned metrics in every
+#: CLI subprocess would cost minutes over the suite); tests of the metric suite name their own.
+FAST_METRICS = "metrics.names=[psnr,ssim]"
+SUBCOMMANDS = ("plugins", "setup", "build-dataset", "normalise", "render", "metrics")
+
+
+def with_fast_metrics(args: tuple[str, ...]) -> tuple[str, ...]:
+    if not args or args[0] in SUBCOMMANDS or args[0].startswith("-"):
+        return args
+    if any(a.lstrip("+~").startswith("metrics") for a in args):
+        return args
+    return (*args, FAST_METRICS)
+
+
 def run_cli(*args: str, home: Path, env: dict | None = None, timeout: int = 600,
             check: bool = True) -> subprocess.CompletedProcess:
     """Run `python -m visphy_core ARGS` as a user would, with VISPHY_HOME=home."""
     full_env = dict(os.environ, VISPHY_HOME=str(home), **(env or {}))
+    args = with_fast_metrics(args)
     proc = subprocess.run([sys.executable, "-m", "visphy_core", *args], cwd=REPO,
                           env=full_env, capture_output=True, text=True, timeout=timeout)
     if check and proc.returncode != 0:

@@ -72,10 +72,11 @@ def to01(frames: np.ndarray):
 
 
 # ----------------------------------------------------------------------------- weight dirs
-@pytest.fixture
+@pytest.fixture(autouse=True)
 def weight_dir(tmp_path, monkeypatch):
     """An empty configured weight directory as the only place weights are searched (the
-    torch-hub cache pointed at an empty directory too); reset afterwards."""
+    torch-hub cache pointed at an empty directory too), for every test: weights this machine
+    may hold elsewhere never leak in; reset afterwards."""
     d = tmp_path / "weights"
     d.mkdir()
     monkeypatch.delenv("VISPHY_WEIGHTS", raising=False)
@@ -404,14 +405,16 @@ def test_metrics_move_the_right_way_with_noise_and_blur(weight_dir):
 
 
 def test_registered_with_direction_and_range():
-    from visphy_core.plugins import build_registry
-
-    registry = build_registry()
+    registered = []
+    P.visphy_register_metrics(registered.append)
     expected = {"ms_ssim": (HIGHER, (0.0, 1.0)), "fsim": (HIGHER, (0.0, 1.0)),
                 "vsi": (HIGHER, (0.0, 1.0)), "lpips": (LOWER, (0.0, float("inf"))),
                 "st_lpips": (LOWER, (0.0, float("inf"))), "dists": (LOWER, (0.0, 1.0))}
-    for name, (direction, rng) in expected.items():
-        d = registry.get("metrics", name).describe()
+    assert sorted(m.name for m in registered) == sorted(expected)
+    for metric in registered:
+        d = metric.describe()
         assert (d["direction"], tuple(d["range"]), d["family"], d["kind"]) == \
-            (direction, rng, "perceptual", PAIRS)
-    assert registry.get("metrics", "st_lpips").describe()["unavailable"] is None
+            (*expected[metric.name], "perceptual", PAIRS)
+        assert d["max_pairs"] == metric.max_pairs and d["max_pairs"] is not None
+    st = next(m for m in registered if m.name == "st_lpips").describe()
+    assert st["unavailable"] is None and "alex_shift_tolerant.pth" in st["weights"]

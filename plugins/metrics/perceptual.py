@@ -393,8 +393,9 @@ class LPIPS(_NetMetric):
         if files.paths[0] is None:
             return _weights.missing(
                 "torchvision's AlexNet ImageNet weights (LPIPS backbone)", list(ALEXNET_FILES),
-                extra="the file torchvision.models.alexnet(weights='IMAGENET1K_V1') downloads; "
-                      "the LPIPS v0.1 linear layers come with the lpips package")
+                extra=f"{ALEXNET_FILES[0]} is what torchvision.models.alexnet("
+                      "weights='IMAGENET1K_V1') downloads; the LPIPS v0.1 linear layers come "
+                      "with the lpips package")
         return ("LPIPS v0.1 linear layers not found: lpips/weights/v0.1/alex.pth ships with the "
                 "lpips package; reinstall it (pip install lpips==0.1.4)")
 
@@ -446,10 +447,9 @@ class DISTS(_NetMetric):
         return _Files((_weights.find(*VGG16_FILES), _weights.find(*DISTS_FILES)))
 
     def missing_reason(self, files: _Files) -> str:
-        names = [n for p, ns in zip(files.paths, (VGG16_FILES, DISTS_FILES)) if p is None
-                 for n in ns]
+        absent = [ns[0] for p, ns in zip(files.paths, (VGG16_FILES, DISTS_FILES)) if p is None]
         return _weights.missing(
-            "DISTS weights (torchvision VGG16 + piq's DISTS alpha/beta)", names,
+            "DISTS weights (torchvision VGG16 + piq's DISTS alpha/beta)", [" and ".join(absent)],
             extra="vgg16-397923af.pth is what torchvision.models.vgg16(weights='IMAGENET1K_V1') "
                   "downloads; dists_weights.pt is piq's v0.4.1 release file "
                   "(github.com/photosynthesis-team/piq/releases/download/v0.4.1/dists_weights.pt)")
