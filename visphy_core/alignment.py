@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 
@@ -69,6 +70,12 @@ def gray_features(frames: np.ndarray, size: int) -> np.ndarray:
     """N×H×W×3 uint8 → N×(size·size) float32 grayscale in [0, 1], area-averaged."""
     frames = np.asarray(frames)
     n, h, w = frames.shape[:3]
+    luma = np.array([0.299, 0.587, 0.114], dtype=np.float32)
+    if h % size == 0 and w % size == 0:  # whole blocks: block means (OpenCV's area
+        # resampling is the exact block mean for integer factors), then luma (both linear)
+        means = np.stack([cv2.resize(f[..., :3].astype(np.float32), (size, size),
+                                     interpolation=cv2.INTER_AREA) for f in frames])
+        return ((means @ luma) / 255.0).reshape(n, size * size).astype(np.float32)
     gray = (frames[..., :3].astype(np.float32)
             @ np.array([0.299, 0.587, 0.114], dtype=np.float32)) / 255.0
     ys = (np.arange(size + 1) * h) // size
