@@ -182,7 +182,8 @@ def _run(home: Path, *overrides: str) -> tuple[dict, dict]:
     from visphy_core.run import run_experiment
 
     cfg = compose([f"paths.root={home}", "dataset.limit=1", "tracking=none",
-                   "run.progress=false", "model=oracle", "engine=threejs", *overrides])
+                   "run.progress=false", "model=oracle", "engine=threejs",
+                   "metrics.names=[psnr,ssim]", "metrics.spec_track=false", *overrides])
     summary = run_experiment(cfg)
     row = json.loads((Path(summary["run_dir"]) / "results.jsonl").read_text().splitlines()[0])
     return summary, row

@@ -8,6 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from conftest import FAST_METRICS
+
 from visphy_core.hookspecs import hookimpl
 from visphy_core.metrics import HIGHER, Metric
 from visphy_core.plugins import PluginError, build_plugin_manager, build_registry
@@ -80,7 +82,8 @@ def test_visphy_register_metrics(pm):
     metric = build_registry(pm).get("metrics", "inline_const")
     assert metric.describe() == {"name": "inline_const", "direction": "higher",
                                  "range": [0.0, 1.0], "needs": ["frames"], "family": "pixel",
-                                 "kind": "scene", "weights": None, "unavailable": None}
+                                 "kind": "scene", "weights": None, "max_pairs": None,
+                                 "unavailable": None}
 
 
 def test_visphy_register_judges(pm):
@@ -134,7 +137,7 @@ def recorded_run(tmp_path_factory, mini_root):
     home = tmp_path_factory.mktemp("home")
     shutil.copytree(mini_root, home / "data" / mini_root.name)
     cfg = compose([f"paths.root={home}", "dataset.limit=2", "tracking=none",
-                   "run.progress=false"])
+                   "run.progress=false", FAST_METRICS])
     recorder = Recorder()
     pm = get_plugin_manager()
     pm.register(recorder, name="recorder")

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from conftest import with_fast_metrics
+
 from visphy_core.hookspecs import hookimpl
 from visphy_core.model import Model, ModelResponse
 
@@ -52,8 +54,9 @@ def run_with(mini_root, tmp_path):
         pm.register(Plugin(), name="scripted")
         get_registry.cache_clear()
         try:
-            cfg = compose([f"paths.root={home}", "dataset.limit=1", "tracking=none",
-                           "run.progress=false", "model.name=scripted", *overrides])
+            cfg = compose(list(with_fast_metrics((f"paths.root={home}", "dataset.limit=1",
+                                                  "tracking=none", "run.progress=false",
+                                                  "model.name=scripted", *overrides))))
             summary = run_experiment(cfg)
         finally:
             pm.unregister(name="scripted")

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from conftest import with_fast_metrics
+
 from visphy_core.engine import Engine, FailureClass, Program, RenderResult
 from visphy_core.hookspecs import hookimpl
 from visphy_core.model import Model, ModelResponse
@@ -28,8 +30,9 @@ def _compose_run(home: Path, *overrides: str, plugins: dict | None = None):
         pm.register(plugin, name=name)
     get_registry.cache_clear()
     try:
-        cfg = compose([f"paths.root={home}", "tracking=none", "run.progress=false",
-                       "model=oracle", "engine=threejs", *overrides])
+        cfg = compose(list(with_fast_metrics((f"paths.root={home}", "tracking=none",
+                                              "run.progress=false", "model=oracle",
+                                              "engine=threejs", *overrides))))
         return run_experiment(cfg)
     finally:
         for name in plugins or {}:

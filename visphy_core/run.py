@@ -189,6 +189,8 @@ def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache,
         "flags": {f: sum(f in r.flags for r in results) for r in results for f in r.flags},
         "isolation": sorted({r.isolation for r in results if r.isolation}),
         "metrics": per_metric,
+        # what each metric is and loads (weights, the BERTScore model…), as declared
+        "metric_info": {m.name: m.describe() for m in metrics},
         "cache": cache.stats(),
         "model_calls": sum(r.model_calls for r in results),
         "renders_done": sum(1 for r in results if r.render_wall_s is not None

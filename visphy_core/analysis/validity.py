@@ -118,18 +118,31 @@ def run_case(spec: dict, param: str, metrics: list[Metric], steps: int = STEPS,
     return Case(spec["scene_id"], param, values)
 
 
+def pick_cases(specs: list[dict], per_param: int, params: Iterable[str] = PARAMS
+               ) -> list[tuple[dict, str]]:
+    """Up to ``per_param`` 2D scenes revealing each parameter, in the order of ``specs``."""
+    out = []
+    for param in params:
+        hits = [s for s in specs if s["dim"] == "2d" and revealed(s, param)]
+        out += [(s, param) for s in hits[:per_param]]
+    return out
+
+
 def run_study(specs: list[dict], metrics: list[Metric], params: Iterable[str] = PARAMS,
-              steps: int = STEPS, progress: Callable[[str], None] | None = None) -> list[Case]:
-    """Every revealed (scene, parameter) case of ``specs`` (2D), scored by the frame and
-    sequence ``metrics`` that are available here."""
+              steps: int = STEPS, progress: Callable[[str], None] | None = None,
+              per_param: int | None = None) -> list[Case]:
+    """Every revealed (scene, parameter) case of ``specs`` (2D) — or ``per_param`` scenes per
+    parameter — scored by the frame and sequence ``metrics`` that are available here."""
     usable = [m for m in metrics if m.kind != SCENE and m.unavailable_reason() is None]
+    if per_param is None:
+        todo = [(s, p) for s in specs for p in params if s["dim"] == "2d" and revealed(s, p)]
+    else:
+        todo = pick_cases(specs, per_param, params)
     cases = []
-    for spec in specs:
-        for param in params:
-            if spec["dim"] == "2d" and revealed(spec, param):
-                if progress:
-                    progress(f"{spec['scene_id']} {param}")
-                cases.append(run_case(spec, param, usable, steps))
+    for spec, param in todo:
+        if progress:
+            progress(f"{spec['scene_id']} {param}")
+        cases.append(run_case(spec, param, usable, steps))
     return cases
 
 
@@ -144,10 +157,13 @@ def rho(values: list[float | None], direction: str) -> float | None:
     return None if np.isnan(r) else float(r)
 
 
-def summarise(cases: list[Case], directions: dict[str, str], threshold: float = 0.9) -> dict:
+def summarise(cases: list[Case], directions: dict[str, str], threshold: float = 0.9,
+              param: str | None = None) -> dict:
     """Per column: cases, how many pass (ρ ≥ threshold), the mean and minimum ρ; a case whose
-    ρ is undefined (the metric did not move at all) counts as a failure."""
+    ρ is undefined (the metric did not move at all) counts as a failure. ``param``: only the
+    cases of that parameter."""
     out = {}
+    cases = [c for c in cases if param is None or c.param == param]
     for col, direction in directions.items():
         rhos = [rho(c.values[col], direction) for c in cases if col in c.values]
         defined = [r for r in rhos if r is not None]

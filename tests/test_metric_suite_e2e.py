@@ -1,0 +1,79 @@
+"""The default (offline) metric suite through the real CLI: every metric gives a number or says
+why not, the oracle scores near perfect, the frozen baseline scores far worse on physics."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from omegaconf import OmegaConf
+
+from conftest import REPO, run_cli
+
+pytestmark = [pytest.mark.slow, pytest.mark.browser]
+
+DEFAULT = list(OmegaConf.load(REPO / "conf" / "metrics" / "default.yaml").names)
+
+
+def _run(home, model: str) -> tuple[dict, dict, object]:
+    run_cli(f"model={model}", "metrics=default", "tracking=none", "run.progress=false",
+            home=home)
+    run_dir = max((home / "runs").iterdir(), key=lambda p: p.stat().st_mtime)
+    rows = {r["scene_id"]: r for r in map(json.loads, (run_dir / "results.jsonl").open())}
+    return json.loads((run_dir / "summary.json").read_text()), rows, run_dir
+
+
+@pytest.fixture(scope="module")
+def oracle_and_static(tmp_path_factory, mini_root):
+    import shutil
+
+    home = tmp_path_factory.mktemp("suite") / "home"
+    shutil.copytree(mini_root, home / "data" / mini_root.name)
+    return _run(home, "oracle"), _run(home, "static")
+
+
+def test_every_default_metric_is_scored_or_says_why(oracle_and_static):
+    (summary, rows, run_dir), _ = oracle_and_static
+    metrics = summary["metrics"]
+    for name in DEFAULT:
+        m = metrics[name]
+        assert m["unavailable"] is None, (name, m["unavailable"])
+        if not name.startswith("param_"):  # a parameter may be revealed by no mini scene
+            assert m["n_model_success"] == summary["n_scenes"], name
+    # the views: unaligned, aligned and paper for every frame/sequence metric
+    for name in ("psnr", "st_lpips", "flow_epe_dis", "track_pos_err"):
+        for col in (name, f"{name}.aligned", f"paper.{name}", f"spec.{name}"):
+            assert metrics[col]["mean_model_success"] is not None, col
+    # BERTScore says which model it used; ST-LPIPS which net
+    assert "MiniLM" in json.dumps(summary["metric_info"]["bertscore"])
+    assert summary["metric_info"]["st_lpips"]["weights"]
+    details = json.loads(next(run_dir.glob("scenes/*/metric_details.json")).read_text())
+    assert {"param_recovery", "tracks"} <= set(details)
+    assert details["tracks"]["tracked"]
+
+
+def test_the_oracle_is_near_perfect(oracle_and_static):
+    (summary, rows, _), _ = oracle_and_static
+    m = {k: v["mean_model_success"] for k, v in summary["metrics"].items()}
+    assert m["psnr"] > 40 and m["ssim"] > 0.99 and m["ms_ssim"] > 0.99
+    assert m["fsim"] > 0.99 and m["vsi"] > 0.99 and m["st_lpips"] < 0.01
+    assert m["track_pos_err"] < 0.5 and m["track_vel_err"] < 2.0
+    assert m["flow_epe_dis"] < 0.05
+    for name in ("event_contact_err", "event_rest_err", "event_exit_err"):
+        assert m[name] == 0.0
+    for name in DEFAULT:
+        if name.startswith("param_") and m[name] is not None:
+            assert m[name] == pytest.approx(0.0, abs=1e-9), name
+    assert m["rouge_l"] == pytest.approx(1.0) and m["bertscore"] == pytest.approx(1.0, abs=1e-4)
+
+
+def test_the_frozen_baseline_is_far_worse_on_physics(oracle_and_static):
+    (oracle, _, _), (static, _, _) = oracle_and_static
+    o = {k: v["mean_with_fallbacks"] for k, v in oracle["metrics"].items()}
+    s = {k: v["mean_with_fallbacks"] for k, v in static["metrics"].items()}
+    for name in ("track_pos_err", "track_vel_err", "flow_epe_dis", "flow_epe_moving_dis",
+                 "st_lpips"):
+        assert s[name] > 10 * max(o[name], 1e-3), name
+    assert s["psnr"] < o["psnr"]
+    # a pixel-space model writes no S and no program: no parameter is determinable
+    assert all(s[n] is None for n in DEFAULT if n.startswith("param_"))
