@@ -60,7 +60,9 @@ def main() -> None:
     picked = ([s for s in scenes if s.dim == "2d"][:args.n2d]
               + [s for s in scenes if s.dim == "3d"][:args.n3d])
     protocol = ScoringProtocol()
-    cache = Cache(Path("/nonexistent"), enabled=False)
+    import tempfile
+
+    cache = Cache(Path(tempfile.mkdtemp(prefix="visphy-bench-metrics-")), enabled=False)
 
     # warm-up: load every model once (timed apart)
     warm = picked[0]

@@ -220,7 +220,7 @@ def test_an_interrupted_20_scene_run_repeats_no_call(tmp_path):
     home = tmp_path / "home"
     server = FakeOpenAIServer(default=lambda req: delay(0.4, ok(reply("html"))))
     args = ["model=gpt41", "engine=threejs", "dataset=original", f"dataset.root={root}",
-            "tracking=none", "run.progress=false", "run.prefetch=4", FAST_METRICS]
+            "tracking=none", "run.progress=false", "run.prefetch=4", *FAST_METRICS]
     with server:
         args.append(f"model.base_url={server.url}/v1")
         env = dict(_env("OPENAI_API_KEY"), VISPHY_HOME=str(home))

@@ -137,7 +137,7 @@ def recorded_run(tmp_path_factory, mini_root):
     home = tmp_path_factory.mktemp("home")
     shutil.copytree(mini_root, home / "data" / mini_root.name)
     cfg = compose([f"paths.root={home}", "dataset.limit=2", "tracking=none",
-                   "run.progress=false", FAST_METRICS])
+                   "run.progress=false", *FAST_METRICS])
     recorder = Recorder()
     pm = get_plugin_manager()
     pm.register(recorder, name="recorder")

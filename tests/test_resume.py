@@ -21,7 +21,7 @@ from conftest import REPO, FAST_METRICS
 pytestmark = pytest.mark.browser
 
 ARGS = ["model=oracle", "model.name=counting", "engine=threejs", "dataset=mini",
-        "dataset.limit=4", "tracking=none", "run.progress=false", FAST_METRICS]
+        "dataset.limit=4", "tracking=none", "run.progress=false", *FAST_METRICS]
 COMPARED = ("scene_id", "model_success", "system_success", "fallback", "attempts",
             "failure_class", "first_failure_class", "frame_digests", "flags")
 

@@ -98,7 +98,8 @@ def test_run_scores_s_apart_from_a_broken_program(visphy_home, mini_scenes, tmp_
     (replies / f"{scenes[2].scene_id}.txt").write_text(_reply_text(invalid, broken))
     ids = ",".join(s.scene_id for s in scenes)
     run_cli("model=replay", f"model.source={replies}", f"dataset.scenes=[{ids}]",
-            "tracking=none", "run.progress=false", home=visphy_home)
+            "tracking=none", "run.progress=false", "metrics.names=[psnr,ssim]",
+            "metrics.spec_track=true", home=visphy_home)
     run_dir = max((visphy_home / "runs").iterdir())
     rows = {r["scene_id"]: r for r in map(json.loads, (run_dir / "results.jsonl").open())}
     first, second, third = (rows[s.scene_id] for s in scenes)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import tempfile
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -114,14 +115,15 @@ def run_case(spec: dict, param: str, metrics: list[Metric], steps: int = STEPS,
              protocol: ScoringProtocol = UNALIGNED) -> Case:
     scene = scene_of(spec)
     reference = clip_2d(spec)
-    cache = Cache(Path("/nonexistent"), enabled=False)
     values: dict[str, list[float | None]] = {}
-    for k in range(1, steps + 1):
-        clip = clip_2d(perturb(spec, param, k))
-        scores, _ = score_scene(scene, reference, clip, metrics, None, None, cache,
-                                protocol=protocol)
-        for col, v in scores.items():
-            values.setdefault(col, []).append(v)
+    with tempfile.TemporaryDirectory(prefix="visphy-validity-") as scratch:
+        cache = Cache(Path(scratch), enabled=False)  # nothing reused, nothing kept
+        for k in range(1, steps + 1):
+            clip = clip_2d(perturb(spec, param, k))
+            scores, _ = score_scene(scene, reference, clip, metrics, None, None, cache,
+                                    protocol=protocol)
+            for col, v in scores.items():
+                values.setdefault(col, []).append(v)
     return Case(spec["scene_id"], param, values)
 
 
