@@ -74,3 +74,15 @@ def test_subsampling_keeps_the_ends_and_spreads_evenly():
     picked = subsample_pairs(pairs, 5)
     assert picked[0] == (0, 0) and picked[-1] == (16, 16) and len(picked) == 5
     assert subsample_pairs(pairs, 1) == [(0, 0)]
+
+
+def test_an_empty_directory_never_hides_a_hugging_face_cache_copy(tmp_path, monkeypatch):
+    monkeypatch.setenv("HF_HOME", str(tmp_path / "hf"))
+    weights.configure(tmp_path / "w")
+    (tmp_path / "w" / "roberta-large").mkdir(parents=True)  # empty: not a model
+    snap = tmp_path / "hf" / "hub" / "models--FacebookAI--roberta-large" / "snapshots" / "abc"
+    snap.mkdir(parents=True)
+    (snap / "config.json").write_text("{}")
+    assert weights.find_hf("FacebookAI/roberta-large") == snap
+    (tmp_path / "w" / "roberta-large" / "config.json").write_text("{}")
+    assert weights.find_hf("FacebookAI/roberta-large") == tmp_path / "w" / "roberta-large"

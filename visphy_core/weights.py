@@ -77,9 +77,11 @@ def find(*names: str) -> Path | None:
 def find_hf(repo_id: str) -> Path | None:
     """A local copy of a Hugging Face model: ``<weights dir>/<repo_id>`` (or its last part), or
     the newest snapshot in the HF hub cache."""
-    hit = find(repo_id, repo_id.split("/")[-1])
-    if hit is not None and hit.is_dir():
-        return hit
+    for d in search_dirs():
+        for name in (repo_id, repo_id.split("/")[-1]):
+            hit = d / name
+            if hit.is_dir() and any(p.is_file() for p in hit.iterdir()):
+                return hit  # an empty directory of that name never hides a real copy
     snaps = hf_hub_cache() / ("models--" + repo_id.replace("/", "--")) / "snapshots"
     if snaps.is_dir():
         found = sorted((p for p in snaps.iterdir() if p.is_dir()), key=lambda p: p.stat().st_mtime)
