@@ -2,15 +2,16 @@
 
     .venv/bin/python benchmarks/validity_study.py [--n 10] [--home visphy-out] [--json out.json]
 
-1. Perturbation: for each parameter, the first ``n`` 2D scenes of the generated benchmark that
-   reveal it (its ``ground_truth.identifiable``); the parameter (restitution, friction, initial speed, gravity) is pushed from the truth in
-   5 growing steps, re-simulated (Box2D) and rendered like the ground truth; every pixel, motion
+1. Perturbation: for each parameter (restitution, friction, initial speed, gravity), the first
+   ``n`` non-chaotic 2D scenes of the generated benchmark that reveal it (its
+   ``ground_truth.identifiable``); the parameter is pushed from the truth in 5 growing steps,
+   re-simulated (Box2D) and rendered like the ground truth; every pixel, motion
    and object-track metric scores the result (visphy's unaligned pairing). Per metric: the cases,
    how many have Spearman ρ(step, worsening) ≥ 0.9, and the mean ρ
    (`visphy_core.analysis.validity`).
-2. Ranking: ten 2D scenes of the ``test`` split run through the real CLI with the default (offline) suite for the
-   oracle and the two pixel-space baselines (`static`: the first key frame held;
-   `flow_extrapolate`: DIS flow between the key frames extrapolated) — the means of each.
+2. Ranking: ten 2D scenes of the ``test`` split run through the real CLI with the default
+   (offline) suite for the oracle and the two pixel-space baselines (`static`: the first key
+   frame held; `flow_extrapolate`: DIS flow between the key frames extrapolated) — the means.
 Prints both tables as Markdown (the README's).
 """
 

@@ -577,7 +577,7 @@ def test_replay_of_a_run_directory_reproduces_its_model_error_row(replay_runs):
 
 
 @pytest.mark.browser
-def test_replay_folder_of_videos(replay_runs):
+def test_replay_of_a_video_folder_keeps_each_video(replay_runs):
     run_dir, _ = replay_runs["videos"]
     rows = _rows(run_dir)
     assert list(rows) == [S0, S1, S2, S3]

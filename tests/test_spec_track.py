@@ -1,4 +1,4 @@
-"""The spec track: S simulated by visphy's physics and replayed by the engine's reference program."""
+"""The spec track: S simulated by visphy's physics, replayed by the engine's reference program."""
 
 from __future__ import annotations
 

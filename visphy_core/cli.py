@@ -208,9 +208,9 @@ def cmd_metrics(argv: list[str]) -> int:
         why = d["unavailable"]
         if why is not None:
             reasons.setdefault(why, []).append(name)
+        here = "available" if why is None else f"unavailable [{list(reasons).index(why) + 1}]"
         table.add_row(name, "↑" if d["direction"] == "higher" else "↓", d["family"], d["kind"],
-                      f"{lo:g}…{hi:g}",
-                      "available" if why is None else f"unavailable [{list(reasons).index(why) + 1}]")
+                      f"{lo:g}…{hi:g}", here)
     console = Console(width=160)
     console.print(table)
     for i, (why, names) in enumerate(reasons.items(), 1):
