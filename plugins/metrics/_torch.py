@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import threading
 from functools import lru_cache
+from typing import Any, Callable
 
 import numpy as np
 
@@ -37,6 +39,19 @@ def torch():
         n = os.cpu_count() or 1
     _torch.set_num_threads(max(1, n))
     return _torch
+
+
+_LOCK = threading.RLock()
+_LOADED: dict[tuple, Any] = {}
+
+
+def load_once(key: tuple, build: Callable[[], Any]) -> Any:
+    """The model for ``key`` (what it was built from: kind, weight files, device), built by
+    ``build`` the first time and shared by every metric and scene of the process after."""
+    with _LOCK:
+        if key not in _LOADED:
+            _LOADED[key] = build()
+        return _LOADED[key]
 
 
 def device():

@@ -67,7 +67,6 @@ from __future__ import annotations
 
 import importlib.util
 import sys
-import threading
 import types
 import warnings
 from dataclasses import dataclass
@@ -156,8 +155,6 @@ class VSI(_PiqMetric):
 
 
 # --------------------------------------------------------------------------- loaded models
-_LOCK = threading.RLock()
-_MODELS: dict[tuple, Any] = {}
 
 
 @dataclass(frozen=True)
@@ -216,16 +213,13 @@ def _load_strict(module, state: dict, what: str, aliases: Callable[[str], str] =
 
 
 def _cached_model(kind: str, files: _Files, build: Callable[[], Any]):
-    dev = _weights.device()
-    key = (kind, files.key(), dev)
-    with _LOCK:
-        if key not in _MODELS:
-            model = build()
-            model = model.eval().to(_torch.device())
-            for p in model.parameters():
-                p.requires_grad_(False)
-            _MODELS[key] = model
-        return _MODELS[key]
+    def frozen():
+        model = build().eval().to(_torch.device())
+        for p in model.parameters():
+            p.requires_grad_(False)
+        return model
+
+    return _torch.load_once((kind, files.key(), _weights.device()), frozen)
 
 
 class _NetMetric(Metric):

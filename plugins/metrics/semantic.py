@@ -194,8 +194,7 @@ def dino_missing() -> str:
 
 
 # --------------------------------------------------------------------------- models
-_LOCK = threading.RLock()
-_MODELS: dict[tuple, Any] = {}
+_LOCK = threading.RLock()  # the embedding memo below
 _EMBEDS: OrderedDict[tuple, np.ndarray] = OrderedDict()
 
 
@@ -220,55 +219,51 @@ def load_clip(found: Found) -> _Clip:
     """The open_clip model for ``found`` on the metrics' device (eval mode), once per process."""
     from visphy_plugins.metrics import _torch
 
-    t = _torch.torch()
-    dev = _weights.device()
-    key = _model_key(found, dev)
-    with _LOCK:
-        if key in _MODELS:
-            return _MODELS[key]
-        import open_clip
+    key = _model_key(found, _weights.device())
+    return _torch.load_once(key, lambda: _build_clip(found, key))
 
-        try:
-            if found.source == "openai":
-                from open_clip.openai import load_openai_model
 
-                model = load_openai_model(str(found.path), precision="fp32", device="cpu")
-                conv = model.visual.conv1.weight.shape
-                if tuple(conv) != (768, 3, 32, 32):
-                    raise RuntimeError(f"not a ViT-B/32 CLIP (patch embedding {tuple(conv)})")
-            else:
-                model = open_clip.create_model(found.arch, pretrained=str(found.path),
-                                               precision="fp32", device="cpu")
-        except Exception as exc:
-            raise RuntimeError(f"cannot load {found.path} as open_clip {found.arch}: {exc}") \
-                from exc
-        model = model.eval().to(t.device(dev))
-        from open_clip.model import get_model_preprocess_cfg
+def _build_clip(found: Found, key: tuple) -> _Clip:
+    from visphy_plugins.metrics import _torch
 
-        cfg = dict(get_model_preprocess_cfg(model) or {})
-        size = cfg.get("size", 224)
-        size = (size, size) if isinstance(size, int) else tuple(size)
-        from open_clip.constants import OPENAI_DATASET_MEAN, OPENAI_DATASET_STD
+    import open_clip
 
-        entry = _Clip(model=model, tokenizer=open_clip.get_tokenizer("ViT-B-32"), size=size,
-                      mean=tuple(cfg.get("mean", OPENAI_DATASET_MEAN)),
-                      std=tuple(cfg.get("std", OPENAI_DATASET_STD)),
-                      interpolation=str(cfg.get("interpolation", "bicubic")),
-                      resize_mode=str(cfg.get("resize_mode", "shortest")), key=key)
-        _MODELS[key] = entry
-        return entry
+    try:
+        if found.source == "openai":
+            from open_clip.openai import load_openai_model
+
+            model = load_openai_model(str(found.path), precision="fp32", device="cpu")
+            conv = model.visual.conv1.weight.shape
+            if tuple(conv) != (768, 3, 32, 32):
+                raise RuntimeError(f"not a ViT-B/32 CLIP (patch embedding {tuple(conv)})")
+        else:
+            model = open_clip.create_model(found.arch, pretrained=str(found.path),
+                                           precision="fp32", device="cpu")
+    except Exception as exc:
+        raise RuntimeError(f"cannot load {found.path} as open_clip {found.arch}: {exc}") \
+            from exc
+    model = model.eval().to(_torch.device())
+    from open_clip.model import get_model_preprocess_cfg
+
+    cfg = dict(get_model_preprocess_cfg(model) or {})
+    size = cfg.get("size", 224)
+    size = (size, size) if isinstance(size, int) else tuple(size)
+    from open_clip.constants import OPENAI_DATASET_MEAN, OPENAI_DATASET_STD
+
+    return _Clip(model=model, tokenizer=open_clip.get_tokenizer("ViT-B-32"), size=size,
+                 mean=tuple(cfg.get("mean", OPENAI_DATASET_MEAN)),
+                 std=tuple(cfg.get("std", OPENAI_DATASET_STD)),
+                 interpolation=str(cfg.get("interpolation", "bicubic")),
+                 resize_mode=str(cfg.get("resize_mode", "shortest")), key=key)
 
 
 def load_dino(found: Found):
     """The timm DINO ViT for ``found`` on the metrics' device (eval mode), once per process."""
     from visphy_plugins.metrics import _torch
 
-    t = _torch.torch()
-    dev = _weights.device()
-    key = _model_key(found, dev)
-    with _LOCK:
-        if key in _MODELS:
-            return _MODELS[key]
+    key = _model_key(found, _weights.device())
+
+    def build():
         import timm
 
         try:
@@ -276,9 +271,9 @@ def load_dino(found: Found):
                                       pretrained_cfg_overlay=dict(file=str(found.path)))
         except Exception as exc:
             raise RuntimeError(f"cannot load {found.path} as timm {found.arch}: {exc}") from exc
-        model = model.eval().to(t.device(dev))
-        _MODELS[key] = (model, key)
-        return _MODELS[key]
+        return model.eval().to(_torch.device()), key
+
+    return _torch.load_once(key, build)
 
 
 # --------------------------------------------------------------------------- preprocessing
