@@ -176,7 +176,7 @@ def test_detection_schema_and_projection(valid_scenes):
 # ------------------------------------------------------------------------------ rendering
 @pytest.fixture(scope="module")
 def pool():
-    from visphy_plugins.engines.js_assets import assets_installed
+    from visphy_core.js_assets import assets_installed
 
     if not assets_installed():
         pytest.skip("browser engine libraries not installed (`python -m visphy_core setup`)")

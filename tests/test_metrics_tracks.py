@@ -386,7 +386,7 @@ def _check_3d(scene, frames: np.ndarray, poses: np.ndarray | None) -> None:
 def test_3d_rendered_clip_segments_every_dynamic_body(tmp_path):
     import shutil
 
-    from visphy_plugins.engines.js_assets import assets_installed
+    from visphy_core.js_assets import assets_installed
 
     if shutil.which("node") is None or not assets_installed():
         pytest.skip("Node.js or the browser engine libraries are missing")

@@ -56,7 +56,7 @@ def _external_user_errors() -> tuple[type[BaseException], ...]:
     types: list[type[BaseException]] = []
     for module, name in (("visphy_core.plugins", "PluginError"),
                          ("visphy_core.sandbox.browser", "BrowserUnavailable"),
-                         ("visphy_plugins.engines.js_assets", "AssetsMissing")):
+                         ("visphy_core.js_assets", "AssetsMissing")):
         try:
             mod = __import__(module, fromlist=[name])
             types.append(getattr(mod, name))
@@ -123,7 +123,7 @@ def cmd_plugins(argv: list[str]) -> int:
 
 
 def cmd_setup(argv: list[str]) -> int:
-    from visphy_plugins.engines.js_assets import install_assets
+    from visphy_core.js_assets import install_assets
 
     path = install_assets()
     print(f"browser engine libraries ready in {path}")

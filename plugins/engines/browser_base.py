@@ -229,7 +229,7 @@ class BrowserEngine(Engine):
 
     @cached_property
     def vendor(self):
-        from visphy_plugins.engines.js_assets import VendorFiles
+        from visphy_core.js_assets import VendorFiles
 
         return VendorFiles()
 

@@ -84,7 +84,7 @@ def cannon_es_path() -> Path:
     if env:
         path = Path(env)
     else:
-        from visphy_plugins.engines.js_assets import require_assets
+        from visphy_core.js_assets import require_assets
 
         path = require_assets() / "cannon-es" / "dist" / "cannon-es.js"
     if not path.is_file():

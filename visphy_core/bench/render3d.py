@@ -1,6 +1,6 @@
 """The reference clip of a 3D scene: the ground-truth poses replayed by three.js in Chromium.
 
-`replay_html_3d` fills ``plugins/engines/templates/threejs_replay_3d.html`` with a JSON payload
+`replay_html_3d` fills ``visphy_core/bench/threejs_replay_3d.html`` with a JSON payload
 (camera, lights, floor, bodies' shapes and colours, per-frame poses); it is a pure function of
 (spec, poses, fps, n_frames), and the threejs engine's reference program for 3D scenes is the
 same page. `render_clip_3d` renders it in the sandbox's virtual time (frame k captured at
@@ -18,10 +18,9 @@ from pathlib import Path
 import numpy as np
 
 def _template_path() -> Path:
-    """plugins/engines/templates/threejs_replay_3d.html (package `visphy_plugins.engines`)."""
-    import visphy_plugins.engines as engines
-
-    return Path(engines.__file__).with_name("templates") / "threejs_replay_3d.html"
+    """visphy_core/bench/threejs_replay_3d.html: the replay page of the ground truth (the
+    threejs engine's reference program for 3D scenes uses it too)."""
+    return Path(__file__).with_name("threejs_replay_3d.html")
 
 
 def _round(v: float, nd: int) -> float:
@@ -63,7 +62,7 @@ def replay_html_3d(spec: dict, frame_poses, fps: float, n_frames: int) -> str:
 
 def render_clip_3d(spec: dict, frame_poses, pool, timeout_s: float = 180.0) -> np.ndarray:
     """Render the reference clip (N×H×W×3 uint8, N = len(frame_poses)) with a BrowserPool."""
-    from visphy_plugins.engines.js_assets import VendorFiles
+    from visphy_core.js_assets import VendorFiles
 
     poses = np.asarray(frame_poses, dtype=np.float64)
     fps = float(spec["world"]["video_fps"])

@@ -1,6 +1,6 @@
 """The JavaScript libraries of the browser engines, installed from npm into a local cache.
 
-`plugins/engines/assets/package-lock.json` pins every library with its integrity hash; `npm ci`
+`visphy_core/js_vendor/package-lock.json` pins every library with its integrity hash; `npm ci`
 installs exactly those files into ``$VISPHY_ASSETS`` (default ``~/.cache/visphy/js``), in a folder
 named after the lock file's hash, so a changed pin never mixes with an old install. Pages load
 them from the fake origin ``/vendor/<package>/<file>`` and never from a CDN.
@@ -16,7 +16,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Iterator
 
-ASSETS_SRC = Path(__file__).with_name("assets")
+ASSETS_SRC = Path(__file__).with_name("js_vendor")
 
 #: Short names the engines' templates use, and the package file each one is.
 LIBRARIES = {
