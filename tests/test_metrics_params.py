@@ -17,12 +17,31 @@ from visphy_core.metrics import LOWER, SCENE, MetricInput
 from visphy_plugins.metrics import params as P
 from visphy_plugins.metrics.program_params import analyse_program, eval_number, match_name
 
-REPO = Path(__file__).resolve().parents[1]
-SPECS_DIR = REPO / "visphy-out" / "data" / "visphybench-seed0" / "specs"
 NAMES = ("param_gravity_err", "param_restitution_err", "param_friction_err",
          "param_mass_ratio_err", "param_speed_err")
 
 # ------------------------------------------------------------------------------ fixtures
+@pytest.fixture(scope="module")
+def specs_dir(mini_root, tmp_path_factory) -> Path:
+    """Every scene's spec of the generated benchmark, one ``<id>.json`` each as a full build
+    writes ``specs/``. The session's build renders only the `mini` split, but its catalogue
+    holds every scene's spec (simulated, not rendered); a rendered scene's spec file is the
+    catalogue's plus the path of its trajectory, which this checks on the rendered ones."""
+    catalogue = json.loads((mini_root / "catalogue.json").read_text())
+    out = tmp_path_factory.mktemp("specs")
+    rendered = 0
+    for scene in catalogue["scenes"]:
+        spec, sid = scene["spec"], scene["spec"]["scene_id"]
+        spec["ground_truth"]["trajectory"] = f"trajectories/{sid}.npz"
+        built = mini_root / "specs" / f"{sid}.json"
+        if built.is_file():
+            assert json.loads(built.read_text()) == spec, sid
+            rendered += 1
+        (out / f"{sid}.json").write_text(json.dumps(spec, indent=1) + "\n")
+    assert rendered == len(catalogue["splits"]["mini"]) > 0
+    return out
+
+
 PPM, T = 6.0, 5.0  # PHYRE scale; 2D clips: 60 steps of 1/60 s per frame at 5 fps
 
 
@@ -143,9 +162,8 @@ def test_unrevealed_parameters_are_nan(make):
     assert all(rec[p]["status"] == "not_revealed" and rec[p]["err"] is None for p in P.PARAMS)
 
 
-@pytest.mark.skipif(not SPECS_DIR.is_dir(), reason="no built dataset under visphy-out")
-def test_oracle_on_every_dataset_spec():
-    files = sorted(SPECS_DIR.glob("*.json"))
+def test_oracle_on_every_dataset_spec(specs_dir):
+    files = sorted(specs_dir.glob("*.json"))
     assert files
     for f in files:
         gt = json.loads(f.read_text())
@@ -569,11 +587,10 @@ def test_gt_parameter_table_synthetic():
     assert md.count("\n") == 6 and "| gravity |" in md
 
 
-@pytest.mark.skipif(not SPECS_DIR.is_dir(), reason="no built dataset under visphy-out")
-def test_gt_parameter_table_dataset():
-    table = P.gt_parameter_table(sorted(SPECS_DIR.glob("*.json")))
+def test_gt_parameter_table_dataset(specs_dir):
+    table = P.gt_parameter_table(sorted(specs_dir.glob("*.json")))
     print("\n" + P.format_gt_table(table))
-    assert table["all"]["n_scenes"] == len(list(SPECS_DIR.glob("*.json")))
+    assert table["all"]["n_scenes"] == len(list(specs_dir.glob("*.json")))
     for p in P.PAPER_GT_MEANS:
         e = table["all"][p]
         assert e["n"] > 0 and e["mean"] is not None and math.isfinite(e["mean"])

@@ -26,8 +26,7 @@ from visphy_core.scoring import ScoringProtocol, alignments
 from visphy_core.video import ClipInfo, decode_video, encode_video
 from visphy_plugins.metrics import tracks as T
 
-REPO = Path(__file__).resolve().parents[1]
-DATASET = REPO / "visphy-out" / "data" / "visphybench-seed0"
+SCENE_3D = "03_tmpl_02"  # a 3D scene of the generated benchmark: seven bodies
 NAMES = T.NAMES
 CLIP_2D = ClipInfo(fps=5.0, n_frames=17, width=512, height=512)
 DIAG = math.hypot(512, 512)
@@ -412,14 +411,35 @@ def test_3d_rendered_clip_segments_every_dynamic_body(tmp_path):
     _check_3d(scene, frames, rollout.frame_poses)
 
 
-def test_3d_dataset_clip_segments_every_dynamic_body():
-    """A 3D reference of the built benchmark, when one is here (visphy-out is not tracked)."""
+@pytest.fixture(scope="module")
+def built_3d(mini_root, tmp_path_factory) -> Path:
+    """A dataset root holding one 3D scene of the generated benchmark (`SCENE_3D`), written by
+    the builder as a full build writes it (the `mini` split is 2D only): the session build's
+    catalogue, the scene re-simulated against its digest and rendered, and its metadata."""
+    import shutil
+
+    from visphy_core.bench.build import dataset_root, load_or_build_catalogue, write_scene
+    from visphy_core.js_assets import assets_installed
+    from visphy_core.sandbox.browser import BrowserPool
+
+    if not assets_installed():
+        pytest.skip("browser engine libraries not installed (`python -m visphy_core setup`)")
+    root = dataset_root(tmp_path_factory.mktemp("data3d"))
+    root.mkdir(parents=True)
+    shutil.copy(mini_root / "catalogue.json", root / "catalogue.json")
+    catalogue = load_or_build_catalogue(root, seed=0, progress=False)
+    entry = next(e for e in catalogue.entries if e.spec["scene_id"] == SCENE_3D)
+    with BrowserPool(untrusted=False) as pool:  # visphy's own reference page, as in a build
+        meta = write_scene(entry, root, pool)
+    (root / "metadata.jsonl").write_text(json.dumps(meta) + "\n")
+    return root
+
+
+@pytest.mark.browser
+def test_3d_dataset_clip_segments_every_dynamic_body(built_3d):
+    """A 3D reference of the built benchmark, loaded as a run loads it."""
     from visphy_core.dataset.generated import load_generated
 
-    if not (DATASET / "metadata.jsonl").is_file():
-        pytest.skip(f"no built benchmark at {DATASET}")
-    scenes = [s for s in load_generated(DATASET) if s.dim == "3d"]
-    if not scenes:
-        pytest.skip("the built benchmark has no 3D scene")
-    scene = next((s for s in scenes if s.scene_id == "03_tmpl_02"), scenes[0])
+    (scene,) = load_generated(built_3d)
+    assert scene.scene_id == SCENE_3D and scene.dim == "3d"
     _check_3d(scene, scene.reference_frames(), scene.trajectory["frame_poses"])
