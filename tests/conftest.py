@@ -58,7 +58,8 @@ def visphy_home(tmp_path, mini_root) -> Path:
 
 #: Runs that are not about the metrics score only these (loading the learned metrics in every
 #: CLI subprocess would cost minutes over the suite); tests of the metric suite name their own.
-FAST_METRICS = ("metrics.names=[psnr,ssim]", "metrics.spec_track=false")
+FAST_METRICS = ("metrics.names=[psnr,ssim]", "metrics.spec_track=false",
+                "metrics.variance_norm=false")
 SUBCOMMANDS = ("plugins", "setup", "build-dataset", "normalise", "render", "metrics")
 
 

@@ -183,7 +183,8 @@ def _run(home: Path, *overrides: str) -> tuple[dict, dict]:
 
     cfg = compose([f"paths.root={home}", "dataset.limit=1", "tracking=none",
                    "run.progress=false", "model=oracle", "engine=threejs",
-                   "metrics.names=[psnr,ssim]", "metrics.spec_track=false", *overrides])
+                   "metrics.names=[psnr,ssim]", "metrics.spec_track=false",
+                   "metrics.variance_norm=false", *overrides])
     summary = run_experiment(cfg)
     row = json.loads((Path(summary["run_dir"]) / "results.jsonl").read_text().splitlines()[0])
     return summary, row

@@ -141,6 +141,9 @@ class MetricsConfig:
     # The spec track: the model's S simulated by visphy and replayed by the engine's reference
     # program, scored under the same protocol (``spec.`` columns; visphy_core.spec_track).
     spec_track: bool = True
+    # Variance-normalised columns (``norm.<metric>``: 0 = the frozen first frame, 1 = the ground
+    # truth re-simulated with an imperceptible nudge; visphy_core.normalisation).
+    variance_norm: bool = True
     device: str = "cpu"           # torch device of the learned metrics (cpu, cuda, cuda:1…)
     max_pairs: dict[str, int] = field(default_factory=dict)  # per metric: pairs scored at most
 

@@ -57,6 +57,8 @@ def split_column(name: str) -> tuple[str, str]:
     if name.startswith("spec."):
         base, view = split_column(name[len("spec."):])
         return base, "spec" if view == "visphy" else f"spec.{view}"
+    if name.startswith("norm."):
+        return name[len("norm."):], "norm"
     if name.startswith("paper."):
         return name[len("paper."):], "paper"
     if name.endswith(".aligned"):
@@ -92,7 +94,7 @@ def print_summary(summary: dict, results: list) -> None:
 
     means = Table(title="means over model successes · n · with fallbacks (all scenes)")
     means.add_column("metric", no_wrap=True)
-    views = [v for v in ("visphy", "aligned", "paper", "spec")
+    views = [v for v in ("visphy", "aligned", "paper", "spec", "norm")
              if any(split_column(c)[1] == v for c in summary["metrics"])]
     for v in views:
         means.add_column(v, justify="right", no_wrap=True)

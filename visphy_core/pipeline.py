@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import tempfile
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -29,6 +30,7 @@ from visphy_core.reply_spec import spec_problems
 from visphy_core.scene import Scene, SceneDataError
 from visphy_core.scoring import (SPEC_PREFIX, ScoringProtocol, clip_digest, score_columns,
                                  score_scene)
+from visphy_core.normalisation import norm_column, normalised, perturbation, twin_scene
 from visphy_core.spec_track import SpecTrackError, spec_scene
 from visphy_core.secrets import redact, redact_obj
 from visphy_core.usage import CostCapReached
@@ -466,9 +468,7 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
         # Fallback: the first key frame held for the whole clip ("nothing moves"). It uses only
         # what the model was given, keeps every metric defined, and is never a model success.
         result.fallback = result.system_success = True
-        generated = np.repeat(scene.key_frame(1)[None], contract.n_frames, axis=0)
-        encode_video(generated, scene_dir / "video.mp4", contract.fps)
-        generated = decode_video(scene_dir / "video.mp4")[0]
+        generated = _frozen_clip(scene, contract, scene_dir / "video.mp4")
     else:
         generated = None
     if generated is not None:
@@ -477,6 +477,16 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
     if services.protocol.spec_track and model.output_kind == "program":
         _spec_track(scene, reference, spec, result.spec_valid, services, scene_dir, result,
                     contract)
+    if services.protocol.variance_norm:
+        _normalise(scene, reference, services, scene_dir, result, contract)
+
+
+def _frozen_clip(scene: Scene, contract: RenderContract, path: Path) -> np.ndarray:
+    """The first key frame held for the whole clip, through the run's video codec (written to
+    ``path``): the fallback clip and the normalisation floor."""
+    frames = np.repeat(scene.key_frame(1)[None], contract.n_frames, axis=0)
+    encode_video(frames, path, contract.fps)
+    return decode_video(path)[0]
 
 
 def _render_with_infra_retry(engine: Engine, program: Program, contract: RenderContract,
@@ -545,6 +555,60 @@ def _spec_track(scene: Scene, reference: np.ndarray, spec: dict | None,
     result.spec_track = "rendered"
     result.scores.update({f"{SPEC_PREFIX}{k}": v for k, v in scores.items()})
     result.unavailable.update({f"{SPEC_PREFIX}{k}": v for k, v in unavailable.items()})
+
+
+def _normalise(scene: Scene, reference: np.ndarray, services: SceneServices, scene_dir: Path,
+               result: SceneResult, contract: RenderContract) -> None:
+    """``norm.`` columns: each frame/sequence metric between the frozen clip (0) and the
+    ground truth's twin (1), visphy_core.normalisation; the anchors in normalisation.json."""
+    metrics = [m for m in services.metrics if m.kind != SCENE]
+    targets = [c for c in (m.name for m in metrics) if c in result.scores] + [
+        SPEC_PREFIX + m.name for m in metrics if SPEC_PREFIX + m.name in result.scores]
+    if not targets:
+        return
+    direction = {m.name: m.direction for m in metrics}
+
+    def unavailable(why: str) -> None:
+        for col in targets:
+            result.scores[norm_column(col)] = None
+            result.unavailable[norm_column(col)] = why
+
+    try:
+        program = services.engine.program_from_spec(twin_scene(scene))
+    except (SpecTrackError, ValueError, NotImplementedError) as exc:
+        unavailable(f"normalisation: no twin of the ground truth: {_one_line(str(exc))}")
+        return
+    outcome = render_cached(services.engine, program, contract, services.cache)
+    if outcome.failure is not None:
+        unavailable(f"normalisation: the reference program failed to render the twin: "
+                    f"{outcome.failure.value} {_one_line(outcome.error or '')}")
+        return
+    _write(scene_dir / "twin_video.mp4", outcome.video_path.read_bytes())
+    with tempfile.TemporaryDirectory(prefix="visphy-frozen-") as tmp:
+        frozen = _frozen_clip(scene, contract, Path(tmp) / "frozen.mp4")
+    plain = ScoringProtocol(unaligned=True, aligned=False, paper=False)
+    ceiling, why_c = score_scene(scene, reference, outcome.frames, metrics, None, None,
+                                 services.cache, protocol=plain)
+    floor, why_f = score_scene(scene, reference, frozen, metrics, None, None, services.cache,
+                               protocol=plain)
+    anchors = {}
+    for col in targets:
+        base = col[len(SPEC_PREFIX):] if col.startswith(SPEC_PREFIX) else col
+        why = why_c.get(base) or why_f.get(base)
+        if why:
+            result.scores[norm_column(col)] = None
+            result.unavailable[norm_column(col)] = why
+            continue
+        value, reason = normalised(result.scores.get(col), floor.get(base), ceiling.get(base),
+                                   direction[base])
+        result.scores[norm_column(col)] = value
+        anchors[base] = {"floor": floor.get(base), "ceiling": ceiling.get(base)}
+        if reason and not col.startswith(SPEC_PREFIX):
+            anchors[base]["undefined"] = reason
+    _write(scene_dir / "normalisation.json", json.dumps(
+        {"perturbation": perturbation(), "twin_video": "twin_video.mp4",
+         "floor": "the first key frame held (the fallback clip)",
+         "pairing": "visphy (unaligned)", "anchors": anchors}, indent=1))
 
 
 def _score_and_judge(scene: Scene, reference: np.ndarray, generated: np.ndarray,

@@ -35,7 +35,7 @@ import numpy as np
 
 from visphy_core.alignment import EVERY_FRAME, PAPER, AlignParams, Alignment, align, unaligned
 from visphy_core.cache import Cache, content_key
-from visphy_core.metrics import LOWER, PAIRS, SCENE, Metric, MetricInput
+from visphy_core.metrics import HIGHER, LOWER, PAIRS, SCENE, Metric, MetricInput
 from visphy_core.scene import Scene
 from visphy_core.video import resample_by_time, resize_with_padding
 from visphy_core import weights
@@ -82,12 +82,13 @@ class ScoringProtocol:
     aligned_params: AlignParams = EVERY_FRAME
     paper_params: AlignParams = PAPER
     spec_track: bool = False               # also score S simulated and replayed (``spec.``)
+    variance_norm: bool = False            # variance-normalised columns (``norm.``)
 
     @classmethod
     def from_cfg(cls, cfg: Any) -> "ScoringProtocol":
         """From the ``metrics`` config node (``protocol``: ``[visphy, paper]`` or a subset;
         ``aligned``; ``paper.*`` and ``align.*`` overrides of the search parameters;
-        ``spec_track``)."""
+        ``spec_track``; ``variance_norm``)."""
         if cfg is None:
             return cls()
         names = [str(n) for n in (cfg.get("protocol") or ["visphy", "paper"])]
@@ -98,7 +99,8 @@ class ScoringProtocol:
                    paper="paper" in names,
                    aligned_params=replace(EVERY_FRAME, **align_over),
                    paper_params=replace(PAPER, **paper_over),
-                   spec_track=bool(cfg.get("spec_track", False)))
+                   spec_track=bool(cfg.get("spec_track", False)),
+                   variance_norm=bool(cfg.get("variance_norm", False)))
 
     def views(self) -> list[str]:
         """The pairings in column order: ``""`` (unaligned), ``"aligned"``, ``"paper"``."""
@@ -140,10 +142,18 @@ SPEC_PREFIX = "spec."  # the spec track's columns (visphy_core.spec_track)
 def score_columns(metrics: list[Metric], protocol: ScoringProtocol | None = None
                   ) -> list[tuple[str, str]]:
     """Every score column (name, direction) a run with these metrics writes, in order (with
-    the spec track on: then its ``spec.``-prefixed frame and sequence metric columns)."""
+    the spec track on: then its ``spec.``-prefixed frame and sequence metric columns; with
+    normalisation on: then ``norm.<metric>`` and ``spec.norm.<metric>``, all ↑)."""
     protocol = protocol or ScoringProtocol()
+    frame = [m for m in metrics if m.kind != SCENE]
+    if protocol.variance_norm:
+        from visphy_core.normalisation import norm_column
+
+        plain = replace(protocol, variance_norm=False)
+        prefixes = ("", SPEC_PREFIX) if protocol.spec_track else ("",)
+        return score_columns(metrics, plain) + [
+            (norm_column(p + m.name), HIGHER) for p in prefixes for m in frame]
     if protocol.spec_track:
-        frame = [m for m in metrics if m.kind != SCENE]
         plain = replace(protocol, spec_track=False)
         return score_columns(metrics, plain) + [
             (SPEC_PREFIX + c, d) for c, d in score_columns(frame, plain)]

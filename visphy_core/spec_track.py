@@ -104,7 +104,12 @@ def spec_scene(scene: Scene, reply: dict, timeout_s: float = 60.0) -> Scene:
     of S, so ``engine.program_from_spec`` replays S exactly like it replays the ground truth."""
     if scene.spec is None:
         raise SpecTrackError("the scene has no ground-truth spec (only generated benchmarks do)")
-    spec = merged_spec(scene.spec, reply)
+    return simulated_scene(scene, merged_spec(scene.spec, reply), timeout_s=timeout_s)
+
+
+def simulated_scene(scene: Scene, spec: dict, timeout_s: float = 60.0) -> Scene:
+    """``scene`` with ``spec`` (a full, valid scene spec) as its spec and the rollout of
+    ``spec`` as its trajectory."""
     rollout = simulate(spec, timeout_s=timeout_s)
     trajectory: dict[str, Any] = {
         "body_ids": np.array(rollout.body_ids, dtype=str),
