@@ -45,8 +45,8 @@ def main() -> None:
     parser.add_argument("--engines", default="threejs,p5,svg,manim,blender")
     args = parser.parse_args()
 
-    from visphy_core.bench.build import build_dataset
-    from visphy_core.dataset.generated import load_generated
+    from visphy_plugins.datasets.visphybench.build import build_dataset
+    from visphy_plugins.datasets.visphybench.loader import load_generated
     from visphy_core.engine import RenderContract
     from visphy_core.plugins import get_registry
     from visphy_plugins.metrics.pixel import psnr_frame, ssim_frame

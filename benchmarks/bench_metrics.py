@@ -39,9 +39,9 @@ def main() -> None:
 
     from omegaconf import OmegaConf
 
-    from visphy_core.bench.build import build_dataset
+    from visphy_plugins.datasets.visphybench.build import build_dataset
     from visphy_core.cache import Cache
-    from visphy_core.dataset.generated import load_generated
+    from visphy_plugins.datasets.visphybench.loader import load_generated
     from visphy_core.plugins import get_registry
     from visphy_core.scoring import ScoringProtocol, alignments, score_scene
 

@@ -21,8 +21,8 @@ def main() -> None:
     parser.add_argument("--data-dir", default="visphy-out/data")
     args = parser.parse_args()
 
-    from visphy_core.bench.build import build_dataset
-    from visphy_core.dataset.generated import load_generated
+    from visphy_plugins.datasets.visphybench.build import build_dataset
+    from visphy_plugins.datasets.visphybench.loader import load_generated
     from visphy_core.engine import RenderContract
     from visphy_core.video import frame_digest
     from visphy_plugins.engines.threejs import ThreeJsEngine

@@ -72,8 +72,8 @@ def main() -> None:
 
     from playwright.sync_api import sync_playwright
 
-    from visphy_core.bench.build import build_dataset
-    from visphy_core.dataset.generated import load_generated
+    from visphy_plugins.datasets.visphybench.build import build_dataset
+    from visphy_plugins.datasets.visphybench.loader import load_generated
     from visphy_core.engine import RenderContract
     from visphy_core.sandbox.browser import CHROMIUM_ARGS, find_chromium
     from visphy_core.video import decode_video, frame_digest

@@ -8,7 +8,7 @@
    re-simulated (Box2D) and rendered like the ground truth; every pixel, motion
    and object-track metric scores the result (visphy's unaligned pairing). Per metric: the cases,
    how many have Spearman ρ(step, worsening) ≥ 0.9, and the mean ρ
-   (`visphy_core.analysis.validity`).
+   (`visphy_plugins.datasets.visphybench.validity`).
 2. Ranking: ten 2D scenes of the ``test`` split run through the real CLI with the default
    (offline) suite for the oracle and the two pixel-space baselines (`static`: the first key
    frame held; `flow_extrapolate`: DIS flow between the key frames extrapolated) — the means.
@@ -36,7 +36,7 @@ def _fmt(v) -> str:
 
 
 def perturbation(specs: list[dict], per_param: int, progress: bool) -> tuple[dict, list]:
-    from visphy_core.analysis.validity import PARAMS, run_study, summarise
+    from visphy_plugins.datasets.visphybench.validity import PARAMS, run_study, summarise
     from visphy_core.plugins import get_registry
 
     registry = get_registry()
@@ -77,7 +77,7 @@ def main() -> None:
     parser.add_argument("--skip-ranking", action="store_true")
     args = parser.parse_args()
 
-    from visphy_core.bench.build import build_dataset
+    from visphy_plugins.datasets.visphybench.build import build_dataset
 
     home = Path(args.home).resolve()
     root = build_dataset(home / "data", split="test", progress=False)

@@ -36,14 +36,14 @@ def pytest_collection_modifyitems(config, items):
 def mini_root(tmp_path_factory) -> Path:
     """The generated benchmark with its `mini` split rendered, built once per test session
     (the whole catalogue is simulated: labels and splits are benchmark-wide)."""
-    from visphy_core.bench.build import build_dataset
+    from visphy_plugins.datasets.visphybench.build import build_dataset
 
     return build_dataset(tmp_path_factory.mktemp("data"), split="mini", progress=False)
 
 
 @pytest.fixture(scope="session")
 def mini_scenes(mini_root):
-    from visphy_core.dataset.generated import load_generated
+    from visphy_plugins.datasets.visphybench.loader import load_generated
 
     return load_generated(mini_root, split="mini")
 

@@ -11,8 +11,9 @@ import pytest
 from visphy_core.model import ImageInput, ModelRequest, OutputContract
 from visphy_core.plugins import get_registry
 from visphy_core.video import decode_video, resize_with_padding
-from visphy_plugins.models.baselines import (FlowExtrapolateModel, StaticModel, decode_png,
-                                             extrapolate, key_frame_index, png_bytes,
+from visphy_core.png import decode_png, png_bytes
+from visphy_plugins.models.baselines import (FlowExtrapolateModel, StaticModel,
+                                             extrapolate, key_frame_index,
                                              static_frames)
 
 SIZE = 128

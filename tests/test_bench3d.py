@@ -8,10 +8,10 @@ import shutil
 import numpy as np
 import pytest
 
-from visphy_core.bench.cannon3d import simulate_3d, trajectory_digest_3d
-from visphy_core.bench.detection3d import detection_from_spec_3d, project_points
-from visphy_core.bench.spec3d import RED_RGB, validate_spec_3d
-from visphy_core.bench.templates_3d import (
+from visphy_plugins.physics.cannon import simulate_3d, trajectory_digest_3d
+from visphy_plugins.datasets.visphybench.detection3d import detection_from_spec_3d, project_points
+from visphy_core.spec3d import RED_RGB, validate_spec_3d
+from visphy_plugins.datasets.visphybench.templates_3d import (
     REASONS,
     TEMPLATES_3D,
     difficulty_features_3d,
@@ -195,7 +195,8 @@ def _red_centroid(frame: np.ndarray) -> tuple[np.ndarray, int]:
 
 @pytest.mark.browser
 def test_replay_is_deterministic_and_matches_the_projection(valid_scenes, pool):
-    from visphy_core.bench.render3d import render_clip_3d, replay_html_3d
+    from visphy_core.replay3d import replay_html_3d
+    from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
     from visphy_core.video import frame_digest
 
     spec, rollout, _ = valid_scenes[4]  # sphere collision: the red ball is never hidden
@@ -225,7 +226,8 @@ def test_replay_is_deterministic_and_matches_the_projection(valid_scenes, pool):
 def test_threejs_engine_runs_the_replay_page_unchanged(valid_scenes, pool):
     """The engine's reference program for 3D scenes (same page, engine's trusted template)
     reproduces the ground-truth frames exactly."""
-    from visphy_core.bench.render3d import render_clip_3d, replay_html_3d
+    from visphy_core.replay3d import replay_html_3d
+    from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
     from visphy_core.engine import Program, RenderContract
     from visphy_plugins.engines.threejs import ThreeJsEngine
 

@@ -1,4 +1,4 @@
-"""Rasteriser (`visphy_core.bench.raster2d`): the pixel-centre fill rule, orientation, palette
+"""Rasteriser (`visphy_plugins.datasets.visphybench.raster2d`): the pixel-centre fill rule, orientation, palette
 only (no anti-aliasing), draw order and speed."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ import time
 import numpy as np
 import pytest
 
-from visphy_core.bench.box2d_sim import simulate_2d
-from visphy_core.bench.raster2d import render_clip_2d, render_frame_2d
-from visphy_core.bench.templates_mini import ball, box, mini_scenes, scene
+from visphy_plugins.physics.box2d import simulate_2d
+from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d, render_frame_2d
+from mini_templates import ball, box, mini_scenes, scene
 
 
 def _one(body: dict) -> dict:

@@ -1,4 +1,4 @@
-"""Box2D ground truth (`visphy_core.bench.box2d_sim`): PHYRE timing and gravity, frame/step
+"""Box2D ground truth (`visphy_plugins.physics.box2d`): PHYRE timing and gravity, frame/step
 bookkeeping, determinism, explicit per-pair contact materials, contact events."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from visphy_core.bench.box2d_sim import simulate_2d, trajectory_digest
-from visphy_core.bench.templates_mini import ball, box, scene
+from visphy_plugins.physics.box2d import simulate_2d, trajectory_digest
+from mini_templates import ball, box, scene
 
 
 def _drop(y: float = 490.0, n_frames: int = 4, **ball_kw) -> dict:

@@ -1,4 +1,4 @@
-"""Hand-made mini scenes (`visphy_core.bench.templates_mini`): PHYRE conventions, a clean initial
+"""Hand-made mini scenes (`mini_templates (tests/mini_templates.py)`): PHYRE conventions, a clean initial
 layout, visible motion, honest annotations and deterministic output."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ import re
 import numpy as np
 import pytest
 
-from visphy_core.bench.raster2d import PALETTE, body_mask
-from visphy_core.bench.spec import shape_area_centroid
-from visphy_core.bench.templates_mini import mini_scenes
+from visphy_plugins.datasets.visphybench.raster2d import PALETTE, body_mask
+from visphy_core.spec2d import shape_area_centroid
+from mini_templates import mini_scenes
 
 
 @pytest.fixture(scope="module")

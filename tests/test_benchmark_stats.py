@@ -62,8 +62,8 @@ def test_law_templates_vary_the_world(catalogue):
 
 def test_stored_digests_reproduce_on_resimulation(catalogue):
     """A sample of 2D and 3D scenes simulated again gives the stored trajectory digest."""
-    from visphy_core.bench.box2d_sim import simulate_2d, trajectory_digest
-    from visphy_core.bench.cannon3d import simulate_3d, trajectory_digest_3d
+    from visphy_plugins.physics.box2d import simulate_2d, trajectory_digest
+    from visphy_plugins.physics.cannon import simulate_3d, trajectory_digest_3d
 
     scenes = catalogue["scenes"]
     sample = scenes[::40] + [s for s in scenes if s["spec"]["dim"] == "3d"][:2]
@@ -89,7 +89,7 @@ def test_mini_is_a_selectable_subset(mini_root, catalogue):
 
 def test_free_fall_in_a_generated_clip_advances_58_8_px_per_frame_squared(mini_scenes):
     """Measured on the red ball's pixels in the rendered clip, while it flies freely."""
-    from visphy_core.bench.box2d_sim import simulate_2d
+    from visphy_plugins.physics.box2d import simulate_2d
 
     checked = 0
     for scene in mini_scenes:

@@ -141,7 +141,7 @@ def test_oracle_program_of_a_mini_scene_renders_byte_identically(engine, mini_sc
     assert first.ok and first.frames.shape == (scene.clip.n_frames, 512, 512, 3)
     assert [frame_digest(f) for f in first.frames] == [frame_digest(f) for f in second.frames]
     # and the replay lands on the ground truth: same pixels up to rasterisation of edges
-    from visphy_core.bench.raster2d import render_clip_2d
+    from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
 
     truth = render_clip_2d(scene.spec, scene.trajectory["frame_poses"])
     mismatch = np.any(first.frames != truth, axis=-1).mean()
@@ -152,9 +152,9 @@ def test_oracle_program_of_a_3d_scene_reproduces_the_ground_truth(engine, mini_r
     """A 3D scene rendered by the builder, then by the engine's reference program: same frames."""
     import json
 
-    from visphy_core.bench.build import write_scene
-    from visphy_core.bench.catalogue import Entry
-    from visphy_core.dataset.generated import load_generated
+    from visphy_plugins.datasets.visphybench.build import write_scene
+    from visphy_plugins.datasets.visphybench.catalogue import Entry
+    from visphy_plugins.datasets.visphybench.loader import load_generated
     from visphy_core.sandbox.browser import BrowserPool
 
     data = json.loads((mini_root / "catalogue.json").read_text())

@@ -23,7 +23,7 @@ BAD_INPUTS = [
     ("tracking.backend=mlfow",
      ["tracking.backend=mlfow is not a valid choice; valid: mlflow, none"]),
     ("dataset.source=orignal",
-     ["dataset.source=orignal is not a valid choice; valid: generated, original"]),
+     ["dataset.source=orignal is not an installed dataset; valid: generated, original, tiny"]),
     ("engine=blender engine.render_engine=cyclez",
      ["engine.render_engine=cyclez is not a valid choice; valid: workbench, cycles, eevee"]),
     ("engine=blender engine.timeout_s=0",
@@ -147,7 +147,7 @@ def test_dataset_errors_of_the_run_are_one_line(name, make_args, fragments, tmp_
 
 def test_scene_ids_and_split_are_checked_against_a_built_catalogue(tmp_path):
     """With the generated benchmark's catalogue on disk, unknown ids fail before the run."""
-    from visphy_core.bench.build import BUILDER_VERSION, dataset_root
+    from visphy_plugins.datasets.visphybench.build import BUILDER_VERSION, dataset_root
 
     home = tmp_path / "home"
     root = dataset_root(home / "data", 0)

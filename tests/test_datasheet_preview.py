@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from visphy_core.bench.datasheet import LINE_RULE, write_datasheet
-from visphy_core.bench.preview import (
+from visphy_plugins.datasets.visphybench.datasheet import LINE_RULE, write_datasheet
+from visphy_plugins.datasets.visphybench.preview import (
     GAP,
     LABEL_H,
     cell_origin,

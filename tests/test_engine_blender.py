@@ -288,8 +288,8 @@ def test_render_engine_is_an_enum_in_the_schema():
 def jar_scene(tmp_path_factory):
     """A hand-made 2D mini scene (ball into a jar: circle, bars, a compound jar), its spec and
     trajectory written the way a generated dataset stores them, plus its exact reference frames."""
-    from visphy_core.bench.raster2d import render_clip_2d
-    from visphy_core.bench.templates_mini import mini_scenes
+    from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
+    from mini_templates import mini_scenes
     from visphy_core.scene import Scene
     from visphy_core.video import ClipInfo
 

@@ -258,9 +258,9 @@ def reference_error(engine, scene, gt: np.ndarray) -> tuple[float, float]:
 
 def test_reference_program_tracks_ground_truth_handmade(engine, tmp_path):
     """Every hand-made mini scene (circles, boxes, a jar), against the exact rasteriser."""
-    from visphy_core.bench.build import _npz_bytes
-    from visphy_core.bench.raster2d import render_clip_2d
-    from visphy_core.bench.templates_mini import mini_scenes
+    from visphy_plugins.datasets.visphybench.build import _npz_bytes
+    from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
+    from mini_templates import mini_scenes
     from visphy_core.scene import Scene
     from visphy_core.video import ClipInfo
 

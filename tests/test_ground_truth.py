@@ -8,12 +8,12 @@ import json
 import numpy as np
 import pytest
 
-from visphy_core.bench.box2d_sim import simulate_2d, trajectory_digest
-from visphy_core.bench.detection import detection_from_spec
-from visphy_core.bench.raster2d import render_frame_2d
-from visphy_core.bench.spec import validate_spec
-from visphy_core.bench.templates_mini import layout_problems, mini_specs
-from visphy_core.dataset.generated import load_generated
+from visphy_plugins.physics.box2d import simulate_2d, trajectory_digest
+from visphy_plugins.datasets.visphybench.detection import detection_from_spec
+from visphy_plugins.datasets.visphybench.raster2d import render_frame_2d
+from visphy_core.spec2d import validate_spec
+from mini_templates import layout_problems, mini_specs
+from visphy_plugins.datasets.visphybench.loader import load_generated
 
 
 @pytest.fixture(scope="module")
@@ -84,8 +84,8 @@ def test_detection_centres_agree_with_the_rendered_first_frame(specs):
 
 
 def test_build_is_byte_identical_and_seeds_matter(tmp_path):
-    from visphy_core.bench.build import write_scene
-    from visphy_core.bench.catalogue import build_catalogue, units
+    from visphy_plugins.datasets.visphybench.build import write_scene
+    from visphy_plugins.datasets.visphybench.catalogue import build_catalogue, units
 
     some = [u for u in units() if u.dim == "2d"][:2]
     first = build_catalogue(seed=0, workers=1, progress=False, only=some)

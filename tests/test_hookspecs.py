@@ -20,7 +20,8 @@ def test_hooks_follow_the_naming_and_lifecycle_order():
     order = [m.group(1) for m in re.finditer(r"^def (visphy_\w+)\(", source, re.M)]
     assert order == ["visphy_register_configs", "visphy_register_models",
                      "visphy_register_engines", "visphy_register_metrics",
-                     "visphy_register_judges", "visphy_run_start", "visphy_scene_done",
+                     "visphy_register_judges", "visphy_register_datasets",
+                     "visphy_register_physics", "visphy_run_start", "visphy_scene_done",
                      "visphy_run_end"]
     assert sorted(order) == sorted(HOOKS)
 

@@ -1,5 +1,5 @@
 """Metric validity: physics departing from the truth in growing steps worsens the motion and
-object-track metrics monotonically (`visphy_core.analysis.validity`; the README's table comes
+object-track metrics monotonically (`visphy_plugins.datasets.visphybench.validity`; the README's table comes
 from benchmarks/validity_study.py on more scenes)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from visphy_core.analysis.validity import (PARAMS, RELATIVE_STEP, perturb, pick_cases, revealed,
+from visphy_plugins.datasets.visphybench.validity import (PARAMS, RELATIVE_STEP, perturb, pick_cases, revealed,
                                            rho, run_study,
                                            summarise)
 from visphy_core.plugins import get_registry

@@ -15,11 +15,11 @@ import pytest
 from scipy.stats import spearmanr
 
 from visphy_core.alignment import PAPER, align, unaligned
-from visphy_core.bench.box2d_sim import simulate_2d
-from visphy_core.bench.detection import detection_from_spec
-from visphy_core.bench.raster2d import render_clip_2d, render_frame_2d
-from visphy_core.bench.templates_mini import SCENES
-from visphy_core.bench.templates_mini import mini_scenes as make_mini_scenes
+from visphy_plugins.physics.box2d import simulate_2d
+from visphy_plugins.datasets.visphybench.detection import detection_from_spec
+from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d, render_frame_2d
+from mini_templates import SCENES
+from mini_templates import mini_scenes as make_mini_scenes
 from visphy_core.metrics import LOWER, SEQUENCE, MetricInput
 from visphy_core.scene import Scene
 from visphy_core.scoring import ScoringProtocol, alignments
@@ -360,7 +360,7 @@ def test_contact_detection_matches_the_simulated_first_contacts(mini):
 
 # ----------------------------------------------------------------------------------- 3D
 def _check_3d(scene, frames: np.ndarray, poses: np.ndarray | None) -> None:
-    from visphy_core.bench.detection3d import project_points
+    from visphy_plugins.datasets.visphybench.detection3d import project_points
 
     pal = T.scene_palette(scene)
     assert pal.mode == "shaded" and pal.ids and "red_ball" in pal.ids
@@ -389,10 +389,10 @@ def test_3d_rendered_clip_segments_every_dynamic_body(tmp_path):
 
     if shutil.which("node") is None or not assets_installed():
         pytest.skip("Node.js or the browser engine libraries are missing")
-    from visphy_core.bench.cannon3d import simulate_3d
-    from visphy_core.bench.render3d import render_clip_3d
-    from visphy_core.bench.spec3d import validate_spec_3d
-    from visphy_core.bench.templates_3d import TEMPLATES_3D, validity_problems_3d
+    from visphy_plugins.physics.cannon import simulate_3d
+    from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
+    from visphy_core.spec3d import validate_spec_3d
+    from visphy_plugins.datasets.visphybench.templates_3d import TEMPLATES_3D, validity_problems_3d
     from visphy_core.sandbox.browser import BrowserPool
 
     template = next(t for t in TEMPLATES_3D if t.template_id == 10)  # ball, box, ball
@@ -418,7 +418,7 @@ def built_3d(mini_root, tmp_path_factory) -> Path:
     catalogue, the scene re-simulated against its digest and rendered, and its metadata."""
     import shutil
 
-    from visphy_core.bench.build import dataset_root, load_or_build_catalogue, write_scene
+    from visphy_plugins.datasets.visphybench.build import dataset_root, load_or_build_catalogue, write_scene
     from visphy_core.js_assets import assets_installed
     from visphy_core.sandbox.browser import BrowserPool
 
@@ -438,7 +438,7 @@ def built_3d(mini_root, tmp_path_factory) -> Path:
 @pytest.mark.browser
 def test_3d_dataset_clip_segments_every_dynamic_body(built_3d):
     """A 3D reference of the built benchmark, loaded as a run loads it."""
-    from visphy_core.dataset.generated import load_generated
+    from visphy_plugins.datasets.visphybench.loader import load_generated
 
     (scene,) = load_generated(built_3d)
     assert scene.scene_id == SCENE_3D and scene.dim == "3d"

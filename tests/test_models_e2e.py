@@ -26,7 +26,7 @@ from visphy_plugins.testing.fake_gemini import FakeGeminiServer
 from visphy_plugins.testing.fake_openai import FakeOpenAIServer
 from visphy_plugins.testing.fake_server import delay, ok
 from visphy_plugins.testing.replies import reply
-from visphy_plugins.testing.tiny_dataset import make_tiny_dataset
+from visphy_plugins.datasets.tiny import make_tiny_dataset
 
 pytestmark = pytest.mark.browser
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from visphy_core.dataset.original import (
+from visphy_plugins.datasets.original import (
     difficulty_label,
     load_original,
     probe_clip,

@@ -27,7 +27,7 @@ def test_wheel_contains_configs_assets_and_templates(wheel):
                      "visphy_conf/hydra/launcher/local.yaml",
                      "visphy_core/sandbox/virtual_time.js", "visphy_core/prompts/default.txt",
                      "visphy_core/js_vendor/package-lock.json",
-                     "visphy_core/bench/threejs_replay_3d.html",
+                     "visphy_core/replay3d.html",
                      "visphy_plugins/engines/templates/threejs_replay_2d.html"):
         assert required in names, required
     entry_points = next(n for n in names if n.endswith("entry_points.txt"))

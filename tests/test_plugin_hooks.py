@@ -105,6 +105,85 @@ def test_visphy_register_judges(pm):
         build_registry(pm)
 
 
+def test_visphy_register_datasets(pm, tmp_path):
+    from visphy_core.dataset.base import Dataset
+    from visphy_core.scene import Scene
+    from visphy_core.video import ClipInfo
+
+    class Listing(Dataset):
+        name = "listing"
+
+        def load(self, cfg, data_dir, progress=True):
+            clip = ClipInfo(fps=5.0, n_frames=17, width=64, height=64)
+            return [Scene(scene_id=f"task{10000 + i:05d}_000", dim="2d", clip=clip,
+                          video_path=data_dir / f"{i}.mp4") for i in range(cfg["n"])]
+
+    class Plugin:
+        @hookimpl
+        def visphy_register_datasets(self, register):
+            register("listing", Listing)
+
+    pm.register(Plugin(), name="inline")
+    registry = build_registry(pm)
+    dataset = registry.get("datasets", "listing")()
+    assert [s.scene_id for s in dataset.load({"n": 2}, tmp_path)] == ["task10000_000",
+                                                                     "task10001_000"]
+    with pytest.raises(NotImplementedError, match="not generated"):
+        dataset.build(tmp_path)
+    # the built-in sources are plugins of the same hook
+    assert {"generated", "original", "tiny"} <= set(registry.datasets)
+    assert registry.datasets["generated"][1] == "dataset_visphybench"
+    with pytest.raises(KeyError, match="unknown dataset 'nope'; installed: .*listing"):
+        registry.get("datasets", "nope")
+    with pytest.raises(PluginError, match="dataset 'listing' registered twice"):
+        class Twice:
+            @hookimpl
+            def visphy_register_datasets(self, register):
+                register("listing", Listing)
+
+        pm.register(Twice(), name="twice")
+        build_registry(pm)
+
+
+def test_visphy_register_physics(pm):
+    from visphy_core.physics import Physics, physics_for
+
+    class Ballistic(Physics):
+        """A point mass under gravity, nothing else."""
+
+        name, dim = "ballistic", "2d"
+
+        def simulate(self, spec, timeout_s=60.0):
+            t = np.arange(spec["n"]) / 5.0
+            y = spec["y0"] - 0.5 * 9.8 * t ** 2
+
+            @dataclass
+            class R:
+                body_ids: list
+                frame_poses: np.ndarray
+                frame_steps: np.ndarray
+                frame_times_s: np.ndarray
+
+            poses = np.stack([np.zeros_like(t), y, np.zeros_like(t)], axis=1)[:, None, :]
+            return R(["ball"], poses, np.arange(spec["n"]), t)
+
+    class Plugin:
+        @hookimpl
+        def visphy_register_physics(self, register):
+            register("ballistic", Ballistic)
+
+    pm.register(Plugin(), name="inline")
+    registry = build_registry(pm)
+    rollout = registry.get("physics", "ballistic")().simulate({"n": 3, "y0": 10.0})
+    assert rollout.frame_poses[:, 0, 1].tolist() == pytest.approx([10.0, 9.804, 9.216])
+    # scene specs name their simulator in world.engine; the built-ins are plugins too
+    assert {"box2d", "cannon-es"} <= set(registry.physics)
+    assert physics_for({"world": {"engine": "box2d"}}).dim == "2d"
+    assert physics_for({"world": {"engine": "cannon-es"}}).dim == "3d"
+    with pytest.raises(KeyError, match="unknown physics engine 'havok'; installed: box2d"):
+        physics_for({"world": {"engine": "havok"}})
+
+
 class Recorder:
     """Records every lifecycle call of a real (tiny) run."""
 

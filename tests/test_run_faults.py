@@ -53,7 +53,7 @@ def home(tmp_path, mini_root):
 
 
 def _middle(home: Path, mini_root: Path) -> tuple[Path, str]:
-    from visphy_core.dataset.generated import load_generated
+    from visphy_plugins.datasets.visphybench.loader import load_generated
 
     root = home / "data" / mini_root.name
     return root, load_generated(root, split="mini")[1].scene_id
@@ -118,7 +118,7 @@ def test_a_broken_middle_scene_is_one_data_error_row(home, mini_root, kind):
 def test_the_original_layout_keeps_a_broken_scene_for_a_row(tmp_path, mini_scenes):
     """The lenient loader a run uses turns a scene's bad files into a data_error scene, while
     split-level errors still fail before any work."""
-    from visphy_core.dataset.original import load_original
+    from visphy_plugins.datasets.original import load_original
     from visphy_core.scene import SceneDataError
 
     split = tmp_path / "sub"

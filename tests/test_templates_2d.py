@@ -9,20 +9,20 @@ import time
 import numpy as np
 import pytest
 
-from visphy_core.bench import blocks2d as bk
-from visphy_core.bench import templates_2d as t2d
-from visphy_core.bench.box2d_sim import simulate_2d
-from visphy_core.bench.features import difficulty_features, difficulty_score
-from visphy_core.bench.filters import REASONS, validity_problems
-from visphy_core.bench.raster2d import PALETTE
-from visphy_core.bench.spec import (
+from visphy_plugins.datasets.visphybench import blocks2d as bk
+from visphy_plugins.datasets.visphybench import templates_2d as t2d
+from visphy_plugins.physics.box2d import simulate_2d
+from visphy_plugins.datasets.visphybench.features import difficulty_features, difficulty_score
+from visphy_plugins.datasets.visphybench.filters import REASONS, validity_problems
+from visphy_plugins.datasets.visphybench.raster2d import PALETTE
+from visphy_core.spec2d import (
     PHYRE_PROFILE,
     WALL_IDS,
     category_of,
     shape_area_centroid,
     validate_spec,
 )
-from visphy_core.bench.templates_2d import TARGET_SHARES, TEMPLATES_2D, category_shares
+from visphy_plugins.datasets.visphybench.templates_2d import TARGET_SHARES, TEMPLATES_2D, category_shares
 
 DRAWS = 4
 DYNAMIC_RGB = {tuple(PALETTE[c]) for c in ("gray", "green", "blue")}

@@ -24,8 +24,9 @@ from types import TracebackType
 from visphy_core.config_check import check_inputs, check_overrides
 from visphy_core.errors import UserError
 
-#: Modules whose ValueError / FileNotFoundError is about the user's dataset, not a bug.
-DATASET_MODULES = ("visphy_core.dataset", "visphy_core.bench.build")
+#: A ValueError / FileNotFoundError raised below these (a dataset plugin loading or building its
+#: data) is about the user's dataset, not a bug.
+DATASET_MODULES = ("visphy_core.dataset",)
 HYDRA_FLAGS = ("--help", "-h", "--hydra-help", "--info", "--cfg", "-c", "--resolve",
                "--package", "-p", "--shell-completion", "-sc")
 
@@ -91,7 +92,8 @@ def is_user_error(exc: BaseException) -> bool:
     tb = exc.__traceback__
     if isinstance(exc, (FileNotFoundError, NotADirectoryError)) and _in_dataset_loading(tb):
         return True
-    return isinstance(exc, ValueError) and _raise_site(tb).startswith(DATASET_MODULES)
+    return isinstance(exc, ValueError) and (_raise_site(tb).startswith(DATASET_MODULES)
+                                            or _in_dataset_loading(tb))
 
 
 def one_line(exc: BaseException) -> str:
@@ -135,21 +137,24 @@ def cmd_build_dataset(argv: list[str]) -> int:
     import time
     from pathlib import Path
 
-    from visphy_core.bench.build import build_dataset
+    from visphy_core.dataset import build_dataset
 
     home = os.environ.get("VISPHY_HOME", "visphy-out")
     parser = argparse.ArgumentParser(
         prog="python -m visphy_core build-dataset",
-        description="Generate VisPhyBench (simulate every scene, render the requested split).")
+        description="Generate a dataset that is built, not downloaded (VisPhyBench by default: "
+                    "simulate every scene, render the requested split).")
+    parser.add_argument("--source", default="generated",
+                        help="the dataset plugin (default: generated, i.e. VisPhyBench)")
     parser.add_argument("--split", default=None, help="sub, test or mini (default: all scenes)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--data-dir", default=f"{home}/data")
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     args = parser.parse_args(argv)
     start = time.perf_counter()
-    root = build_dataset(Path(args.data_dir), seed=args.seed, split=args.split,
+    root = build_dataset(args.source, Path(args.data_dir), seed=args.seed, split=args.split,
                          workers=args.workers)
-    print(f"VisPhyBench (seed {args.seed}, split {args.split or 'all'}) ready in {root} "
+    print(f"{args.source} (seed {args.seed}, split {args.split or 'all'}) ready in {root} "
           f"({time.perf_counter() - start:.1f} s)")
     return 0
 

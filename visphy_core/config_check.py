@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from pathlib import Path
 from typing import Any, Iterator
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
@@ -429,65 +428,13 @@ def check_protocol(cfg: DictConfig) -> None:
 
 
 def check_inputs(cfg: DictConfig) -> None:
-    """The files a config names exist (cheap checks only; the run loads them later)."""
-    source = str(OmegaConf.select(cfg, "dataset.source", default=""))
-    if source == "original":
-        try:
-            root = OmegaConf.select(cfg, "dataset.root", default=None)
-        except Exception as exc:  # noqa: BLE001
-            raise ConfigError(f"dataset.root: {exc}".splitlines()[0]) from None
-        if not root:
-            raise ConfigError("dataset=original needs dataset.root (the folder holding "
-                              "<split>/videos), or set VISPHYBENCH_ROOT")
-        if not Path(str(root)).is_dir():
-            raise ConfigError(f"dataset.root={root} is not a directory (the folder holding "
-                              f"<split>/videos; or set VISPHYBENCH_ROOT)")
-        split = OmegaConf.select(cfg, "dataset.split", default=None) or "sub"
-        if not (Path(str(root)) / str(split)).is_dir():
-            present = sorted(p.name for p in Path(str(root)).iterdir() if p.is_dir()
-                             and not p.name.startswith("."))
-            raise ConfigError(f"dataset.split={split}: no folder {Path(str(root)) / str(split)}; "
-                              f"folders in dataset.root: {_listing(present)}")
-    elif source == "generated":
-        _check_generated_selection(cfg)
+    """The files a config names exist (cheap checks only; the run loads them later): the
+    dataset plugin of ``dataset.source`` checks its own node (`Dataset.check`)."""
+    from visphy_core.plugins import get_registry
 
-
-def _listing(names: list[str], most: int = 12) -> str:
-    if not names:
-        return "none"
-    more = f", … ({len(names) - most} more)" if len(names) > most else ""
-    return ", ".join(names[:most]) + more
-
-
-def _check_generated_selection(cfg: DictConfig) -> None:
-    """Where the generated benchmark's catalogue is already on disk, ``dataset.split`` and
-    ``dataset.scenes`` are checked against it (else the run checks them once it is built)."""
-    import json
-
-    from visphy_core.bench.build import BUILDER_VERSION, dataset_root
-
-    try:
-        data_dir = OmegaConf.select(cfg, "paths.data_dir")
-        seed = int(OmegaConf.select(cfg, "dataset.seed", default=0) or 0)
-        path = dataset_root(Path(str(data_dir)), seed) / "catalogue.json"
-        if not path.is_file():
-            return
-        data = json.loads(path.read_text())
-        if data.get("builder") != BUILDER_VERSION or data.get("seed") != seed:
-            return
-        splits = {str(k): [str(i) for i in v] for k, v in data["splits"].items()}
-        all_ids = sorted({str(s["spec"]["scene_id"]) for s in data["scenes"]})
-    except Exception:  # noqa: BLE001 - anything odd: the run's own loading reports it
-        return
-    split = OmegaConf.select(cfg, "dataset.split", default=None)
-    if split is not None and str(split) not in splits:
-        raise ConfigError(f"dataset.split={split} is not a split of the generated benchmark; "
-                          f"valid: {', '.join(sorted(splits))}")
-    wanted = OmegaConf.select(cfg, "dataset.scenes", default=None)
-    if wanted:
-        valid = sorted(splits[str(split)]) if split is not None else all_ids
-        missing = [str(s) for s in wanted if str(s) not in valid]
-        if missing:
-            where = f"split {split!r}" if split is not None else "the generated benchmark"
-            raise ConfigError(f"dataset.scenes: {where} has no scene(s) {', '.join(missing)}; "
-                              f"valid: {_listing(valid)}")
+    source = str(OmegaConf.select(cfg, "dataset.source", default="") or "")
+    datasets = get_registry().datasets
+    if source not in datasets:
+        raise ConfigError(f"dataset.source={source} is not an installed dataset; valid: "
+                          f"{', '.join(sorted(datasets)) or 'none installed'}")
+    datasets[source][0]().check(cfg)

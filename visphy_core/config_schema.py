@@ -26,11 +26,6 @@ from omegaconf import MISSING
 from visphy_core.hookspecs import hookimpl
 
 
-class DatasetSource(StrEnum):
-    generated = "generated"   # visphy's builder (VisPhyBench regenerated from its templates)
-    original = "original"     # the original VisPhyBench-Data layout on disk
-
-
 class TrackingBackend(StrEnum):
     mlflow = "mlflow"
     none = "none"
@@ -84,7 +79,9 @@ class ReferenceConfig:
 @dataclass
 class DatasetConfig:
     name: str = MISSING
-    source: DatasetSource = DatasetSource.generated
+    # a dataset plugin's name (`python -m visphy_core plugins`): generated (VisPhyBench regenerated
+    # from its templates), original (the published layout on disk), tiny (a fixture)
+    source: str = "generated"
     seed: int = field(default=0, metadata={"min": 0})  # generated: the benchmark's seed
     root: Optional[str] = None         # original layout: folder holding <split>/
     split: Optional[str] = None

@@ -59,6 +59,25 @@ def visphy_register_judges(register: Callable[..., None]) -> None:
     """
 
 
+@hookspec
+def visphy_register_datasets(register: Callable[..., None]) -> None:
+    """Register dataset sources: ``register(name, factory)``; ``dataset.source=<name>`` selects
+    one.
+
+    :param register: callback taking a unique source name and a factory ``factory() ->
+        visphy_core.dataset.base.Dataset``.
+    """
+
+
+@hookspec
+def visphy_register_physics(register: Callable[..., None]) -> None:
+    """Register ground-truth simulators: ``register(world_engine, factory)``.
+
+    :param register: callback taking the ``world.engine`` name a scene spec uses (``box2d``,
+        ``cannon-es``) and a factory ``factory() -> visphy_core.physics.Physics``.
+    """
+
+
 # ---------------------------------------------------------------- lifecycle (during a run)
 
 

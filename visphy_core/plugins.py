@@ -20,7 +20,7 @@ import pluggy
 from visphy_core import hookspecs
 
 ENTRY_POINT_GROUP = "visphy"
-KINDS = ("configs", "models", "engines", "metrics", "judges")
+KINDS = ("configs", "models", "engines", "metrics", "judges", "datasets", "physics")
 
 
 class PluginError(RuntimeError):
@@ -47,13 +47,19 @@ class Registry:
     metrics: dict[str, tuple[Any, str]] = field(default_factory=dict)
     judges: dict[str, tuple[Callable[..., Any], str]] = field(default_factory=dict)
     configs: dict[str, tuple[Any, str]] = field(default_factory=dict)
+    datasets: dict[str, tuple[Callable[..., Any], str]] = field(default_factory=dict)
+    physics: dict[str, tuple[Callable[..., Any], str]] = field(default_factory=dict)
 
     def get(self, kind: str, name: str) -> Any:
         table = getattr(self, kind)
         if name not in table:
             valid = ", ".join(sorted(table)) or "none installed"
-            raise KeyError(f"unknown {kind[:-1]} {name!r}; installed: {valid}")
+            raise KeyError(f"unknown {_singular(kind)} {name!r}; installed: {valid}")
         return table[name][0]
+
+
+def _singular(kind: str) -> str:
+    return {"physics": "physics engine", "datasets": "dataset"}.get(kind, kind[:-1])
 
 
 def _env_list(var: str) -> set[str] | None:
@@ -151,9 +157,9 @@ def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
                     obj, key = factory, name
                     if not callable(obj):
                         raise PluginError(
-                            f"plugin {_plugin!r}: {_kind[:-1]} {key!r} needs a factory")
+                            f"plugin {_plugin!r}: {_singular(_kind)} {key!r} needs a factory")
                 if key in _table and _table[key][1] != _plugin:
-                    raise PluginError(f"{_kind[:-1]} {key!r} registered twice: by "
+                    raise PluginError(f"{_singular(_kind)} {key!r} registered twice: by "
                                       f"{_table[key][1]!r} and by {_plugin!r}")
                 _table[key] = (obj, _plugin)
 

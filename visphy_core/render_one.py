@@ -32,7 +32,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--dataset", default="visphybench",
                    help="dataset config holding the scene (default: visphybench)")
     p.add_argument("--metrics", default=None, help="comma-separated metric names")
-    p.add_argument("--judge", default=None, help="judge config(s), e.g. gemini or gemini,gpt_frames")
+    p.add_argument("--judge", default=None,
+                   help="judge config(s), e.g. gemini or gemini,gpt_frames")
     p.add_argument("-o", "--out", default=None,
                    help=f"output folder (default: {home}/render/<scene>_<engine>_<time>)")
     p.add_argument("overrides", nargs="*", help="more Hydra overrides, e.g. engine.timeout_s=20")

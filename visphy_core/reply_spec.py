@@ -15,9 +15,9 @@ import jsonschema
 @lru_cache(maxsize=2)
 def _validator(dim: str) -> jsonschema.protocols.Validator:
     if dim == "3d":
-        from visphy_core.bench.spec3d import REPLY_SCHEMA_3D as schema
+        from visphy_core.spec3d import REPLY_SCHEMA_3D as schema
     else:
-        from visphy_core.bench.spec import REPLY_SCHEMA_2D as schema
+        from visphy_core.spec2d import REPLY_SCHEMA_2D as schema
     return jsonschema.Draft202012Validator(schema)
 
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from visphy_core.video import ClipInfo, decode_video
 
-#: Version tag of the scene specification schema (`visphy_core/bench/spec.py`).
+#: Version tag of the scene specification schema (`visphy_core/spec2d.py`).
 SPEC_SCHEMA = "visphy-scene/1"
 
 

@@ -56,11 +56,11 @@ def merged_spec(gt: dict, reply: dict) -> dict:
     _check_speeds(spec)
     try:
         if gt["dim"] == "2d":
-            from visphy_core.bench.spec import validate_spec
+            from visphy_core.spec2d import validate_spec
 
             validate_spec(spec)
         else:
-            from visphy_core.bench.spec3d import validate_spec_3d
+            from visphy_core.spec3d import validate_spec_3d
 
             validate_spec_3d(spec)
     except (ValueError, KeyError, TypeError) as exc:
@@ -82,16 +82,16 @@ def _check_speeds(spec: dict) -> None:
 
 
 def simulate(spec: dict, timeout_s: float = 60.0):
-    """The rollout of a merged spec (2D Box2D in process; 3D cannon-es in a node process)."""
+    """The rollout of a merged spec by the simulator registered for its ``world.engine``
+    (`visphy_core.physics`: Box2D in 2D, cannon-es in 3D)."""
+    from visphy_core.physics import physics_for
+
     try:
-        if spec["dim"] == "2d":
-            from visphy_core.bench.box2d_sim import simulate_2d
-
-            rollout = simulate_2d(spec)
-        else:
-            from visphy_core.bench.cannon3d import simulate_3d
-
-            rollout = simulate_3d(spec, timeout_s=timeout_s)
+        physics = physics_for(spec)
+    except KeyError as exc:
+        raise SpecTrackError(str(exc.args[0]) if exc.args else str(exc)) from None
+    try:
+        rollout = physics.simulate(spec, timeout_s=timeout_s)
     except Exception as exc:  # noqa: BLE001 - any simulator failure is S's failure here
         raise SpecTrackError(f"simulation failed: {str(exc).splitlines()[0][:300]}") from None
     if not np.all(np.isfinite(rollout.frame_poses)):

@@ -298,7 +298,7 @@ def replay_payload_2d(scene, engine_name: str) -> dict:
     """What a 2D reference program replays: size, fps, background, each body's colour and local
     geometry (a circle radius, or convex polygons in px around the body origin, y up) and the
     ground-truth poses [frame][body] = [x_px, y_px, angle_rad] (origin bottom-left, y up, CCW)."""
-    from visphy_core.bench.spec import local_polygons
+    from visphy_core.spec2d import local_polygons
 
     spec, traj = scene.spec, scene.trajectory
     if scene.dim == "3d":

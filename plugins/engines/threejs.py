@@ -46,7 +46,7 @@ class ThreeJsEngine(BrowserEngine):
             raise ValueError(f"{scene.scene_id}: the reference program needs the scene's spec and "
                              "trajectory (generated benchmarks have both)")
         if scene.dim == "3d":
-            from visphy_core.bench.render3d import replay_html_3d
+            from visphy_core.replay3d import replay_html_3d
 
             html = replay_html_3d(spec, traj["frame_poses"], scene.clip.fps, scene.clip.n_frames)
             return Program(language=self.language, source=html, spec=spec)

@@ -20,7 +20,6 @@ serve the other video models too.
 
 from __future__ import annotations
 
-import io
 import re
 import tempfile
 import time
@@ -29,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from visphy_core.hookspecs import hookimpl
+from visphy_core.png import decode_png, png_bytes  # noqa: F401 - png_bytes: for plugin users
 from visphy_core.model import ImageInput, Model, ModelRequest, ModelResponse, OutputContract
 from visphy_core.video import encode_video, resize_with_padding
 
@@ -41,22 +41,6 @@ def key_frame_index(image: ImageInput) -> int:
     if not m:
         raise ValueError(f"key frame name {image.name!r} carries no frame number")
     return int(m.group(1))
-
-
-def decode_png(data: bytes) -> np.ndarray:
-    """RGB uint8 H×W×3 from PNG (or any Pillow-readable) bytes."""
-    from PIL import Image
-
-    with Image.open(io.BytesIO(data)) as img:
-        return np.asarray(img.convert("RGB"), dtype=np.uint8).copy()
-
-
-def png_bytes(frame: np.ndarray) -> bytes:
-    from PIL import Image
-
-    buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(frame, dtype=np.uint8)).save(buf, format="PNG")
-    return buf.getvalue()
 
 
 def write_clip(frames: np.ndarray | list[np.ndarray], contract: OutputContract,

@@ -1,4 +1,6 @@
-"""Dataset sources: which scenes a run evaluates."""
+"""Dataset sources: which scenes a run evaluates. Each source is a dataset plugin
+(`visphy_core.dataset.base.Dataset`, hook ``visphy_register_datasets``) selected by
+``dataset.source``."""
 
 from __future__ import annotations
 
@@ -6,7 +8,16 @@ from pathlib import Path
 
 from visphy_core.scene import Scene
 
-SOURCES = ("generated", "original")
+
+def get_dataset(source: str):
+    """The dataset plugin registered as ``source`` (``ValueError`` naming the installed ones)."""
+    from visphy_core.plugins import get_registry
+
+    datasets = get_registry().datasets
+    if source not in datasets:
+        raise ValueError(f"dataset.source={source!r} is not an installed dataset; valid: "
+                         f"{', '.join(sorted(datasets)) or 'none installed'}")
+    return datasets[source][0]()
 
 
 def load_dataset(cfg, data_dir: Path, progress: bool = True) -> list[Scene]:
@@ -15,23 +26,7 @@ def load_dataset(cfg, data_dir: Path, progress: bool = True) -> list[Scene]:
     Dataset-level errors (missing root, unknown scene ids, empty selection) raise before any
     work; a scene whose own files are bad is kept and becomes a ``data_error`` row.
     """
-    if cfg.source == "generated":
-        from visphy_core.bench.build import build_dataset
-        from visphy_core.dataset.generated import load_generated
-
-        root = build_dataset(data_dir, seed=cfg.seed, split=cfg.split, progress=progress)
-        scenes = load_generated(root, split=cfg.split, scene_ids=cfg.scenes, strict=False)
-    elif cfg.source == "original":
-        from visphy_core.dataset.original import load_original
-
-        if not cfg.root:
-            raise ValueError("dataset.source=original needs dataset.root (the folder holding "
-                             "<split>/videos; or set VISPHYBENCH_ROOT)")
-        scenes = load_original(Path(cfg.root), split=cfg.split or "sub", scene_ids=cfg.scenes,
-                               strict=False)
-    else:
-        raise ValueError(f"dataset.source={cfg.source!r} is not a known source; "
-                         f"valid: {', '.join(SOURCES)}")
+    scenes = get_dataset(str(cfg.source)).load(cfg, Path(data_dir), progress=progress)
     if cfg.scenes:
         missing = sorted(set(cfg.scenes) - {s.scene_id for s in scenes})
         if missing:
@@ -41,3 +36,10 @@ def load_dataset(cfg, data_dir: Path, progress: bool = True) -> list[Scene]:
     if not scenes:
         raise ValueError(f"dataset {cfg.name!r} selected no scenes (split={cfg.split!r})")
     return scenes
+
+
+def build_dataset(source: str, data_dir: Path, *, seed: int = 0, split: str | None = None,
+                  workers: int = 1, progress: bool = True) -> Path:
+    """Generate dataset ``source`` under ``data_dir`` (``build-dataset``); its root."""
+    return get_dataset(source).build(Path(data_dir), seed=seed, split=split, workers=workers,
+                                     progress=progress)

@@ -12,16 +12,15 @@ part of the response cache key.
 
 from __future__ import annotations
 
-import io
 import json
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from string import Template
 
-import numpy as np
 
 from visphy_core.model import ImageInput
+from visphy_core.png import png_bytes
 from visphy_core.scene import Scene
 
 _DIR = Path(__file__).parent
@@ -54,14 +53,6 @@ class PromptSettings:
     def from_cfg(cls, cfg) -> "PromptSettings":
         return cls(frames=tuple(int(f) for f in cfg.frames), detection=bool(cfg.detection),
                    forecast_only=bool(cfg.forecast_only), timed=bool(cfg.timed))
-
-
-def png_bytes(frame: np.ndarray) -> bytes:
-    from PIL import Image
-
-    buf = io.BytesIO()
-    Image.fromarray(frame).save(buf, format="PNG", optimize=False)
-    return buf.getvalue()
 
 
 def build_prompt(scene: Scene, engine_instructions: str, language: str,

@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import asyncio
 import base64
-import io
 import json
 import mimetypes
 import os
@@ -52,6 +51,7 @@ from urllib.parse import urlparse
 
 import numpy as np
 
+from visphy_core.png import decode_png
 from visphy_core.sandbox.chromium import (CHROMIUM_UID, ChromiumProcess, bwrap_for_chromium,
                                           bwrap_launcher, chromium_env, kill_all, netns_prefix,
                                           rss_bytes, sh_quote)
@@ -186,24 +186,12 @@ class PageCapture:
 
 
 def _png_to_rgb(data_url: str) -> np.ndarray:
-    from PIL import Image
-
-    raw = base64.b64decode(data_url.split(",", 1)[1])
-    img = Image.open(io.BytesIO(raw))
-    img.load()
-    if img.mode != "RGBA":
-        img = img.convert("RGBA")
     # Transparent canvas pixels are shown as the white page behind them.
-    white = Image.new("RGBA", img.size, (255, 255, 255, 255))
-    return np.asarray(Image.alpha_composite(white, img).convert("RGB"))
+    return decode_png(base64.b64decode(data_url.split(",", 1)[1]), background=(255, 255, 255))
 
 
 def _png_bytes_to_rgb(png: bytes) -> np.ndarray:
-    from PIL import Image
-
-    img = Image.open(io.BytesIO(png))
-    img.load()
-    return np.asarray(img.convert("RGB"))
+    return decode_png(png)
 
 
 class BrowserPool:

@@ -25,7 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from visphy_core.bench.spec3d import body_mass
+from visphy_core.hookspecs import hookimpl
+from visphy_core.physics import Physics
+from visphy_core.spec3d import body_mass
 
 SIM_SCRIPT = Path(__file__).with_name("sim3d.mjs")
 POSE_LAYOUT = ("x_m", "y_m", "z_m", "qx", "qy", "qz", "qw")
@@ -65,7 +67,7 @@ class Rollout3D:
 
 def trajectory_digest_3d(rollout: Rollout3D) -> str:
     """The same digest as 2D rollouts (body ids, frame steps/times, frame and step poses)."""
-    from visphy_core.bench.box2d_sim import trajectory_digest
+    from visphy_plugins.physics.box2d import trajectory_digest
 
     return trajectory_digest(rollout)
 
@@ -142,3 +144,18 @@ def simulate_3d(spec: dict, n_steps: int | None = None, timeout_s: float = 120.0
                      pair_stats=out["pair_stats"],
                      initial_penetration_m={k: float(v)
                                             for k, v in out["initial_penetration_m"].items()})
+
+
+class CannonPhysics(Physics):
+    """``world.engine = "cannon-es"``: the 3D benchmark's simulator, run by Node.js."""
+
+    name = "cannon-es"
+    dim = "3d"
+
+    def simulate(self, spec: dict, timeout_s: float = 60.0) -> Rollout3D:
+        return simulate_3d(spec, timeout_s=timeout_s)
+
+
+@hookimpl
+def visphy_register_physics(register):
+    register(CannonPhysics.name, CannonPhysics)

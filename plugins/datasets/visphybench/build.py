@@ -14,14 +14,16 @@ from __future__ import annotations
 
 import io
 import json
-import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-from visphy_core.bench.catalogue import Catalogue, Entry, build_catalogue
+from visphy_core.files import atomic_write
+from visphy_core.png import png_bytes
+
+from visphy_plugins.datasets.visphybench.catalogue import Catalogue, Entry, build_catalogue
 
 #: Bump when anything that changes the written files changes: older builds are redone.
 BUILDER_VERSION = "visphy-bench/2"
@@ -33,23 +35,8 @@ def dataset_root(data_dir: Path, seed: int = 0) -> Path:
     return Path(data_dir) / f"{DATASET_NAME}-seed{seed}"
 
 
-def atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
-
-
 def json_bytes(obj) -> bytes:
     return (json.dumps(obj, indent=1) + "\n").encode()
-
-
-def _png_bytes(frame: np.ndarray) -> bytes:
-    from PIL import Image
-
-    buf = io.BytesIO()
-    Image.fromarray(frame).save(buf, format="PNG")
-    return buf.getvalue()
 
 
 def _npz_bytes(rollout, dim: str) -> bytes:
@@ -103,12 +90,12 @@ def _note_time(root: Path, key: str, seconds: float) -> None:
 
 def _simulate_checked(spec: dict, digest: str):
     if spec["dim"] == "2d":
-        from visphy_core.bench.box2d_sim import simulate_2d, trajectory_digest
+        from visphy_plugins.physics.box2d import simulate_2d, trajectory_digest
 
         rollout = simulate_2d(spec)
         got = trajectory_digest(rollout)
     else:
-        from visphy_core.bench.cannon3d import simulate_3d, trajectory_digest_3d
+        from visphy_plugins.physics.cannon import simulate_3d, trajectory_digest_3d
 
         rollout = simulate_3d(spec)
         got = trajectory_digest_3d(rollout)
@@ -120,13 +107,13 @@ def _simulate_checked(spec: dict, digest: str):
 
 def _frames_and_detection(spec: dict, rollout, pool) -> tuple[np.ndarray, dict]:
     if spec["dim"] == "2d":
-        from visphy_core.bench.detection import detection_from_spec
-        from visphy_core.bench.raster2d import render_clip_2d
+        from visphy_plugins.datasets.visphybench.detection import detection_from_spec
+        from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
 
         return (render_clip_2d(spec, rollout.frame_poses),
                 detection_from_spec(spec, rollout.frame_poses[0]))
-    from visphy_core.bench.detection3d import detection_from_spec_3d
-    from visphy_core.bench.render3d import render_clip_3d
+    from visphy_plugins.datasets.visphybench.detection3d import detection_from_spec_3d
+    from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
 
     return (render_clip_3d(spec, rollout.frame_poses, pool),
             detection_from_spec_3d(spec, rollout.frame_poses[0]))
@@ -157,7 +144,7 @@ def write_scene(entry: Entry, root: Path, pool=None) -> dict:
             f"{sid}: rendered {frames.shape}, expected {(n_frames, height, width, 3)}")
     encode_video(frames, root / "videos" / f"{sid}.mp4", fps)
     for k in KEY_FRAMES:
-        atomic_write(root / "keyframes" / f"{sid}_frame_{k:02d}.png", _png_bytes(frames[k - 1]))
+        atomic_write(root / "keyframes" / f"{sid}_frame_{k:02d}.png", png_bytes(frames[k - 1]))
     atomic_write(root / "detection_json" / f"{sid}_frame_01.json", json_bytes(detection))
     atomic_write(root / "specs" / f"{sid}.json", json_bytes(spec))
     atomic_write(root / "trajectories" / f"{sid}.npz", _npz_bytes(rollout, spec["dim"]))
@@ -187,7 +174,7 @@ def _write_2d(args: tuple[Entry, str]) -> dict:
 
 
 def _render(entries: list[Entry], root: Path, progress: bool, workers: int) -> None:
-    from visphy_core.bench.catalogue import _track
+    from visphy_plugins.datasets.visphybench.catalogue import _track
 
     two_d = [e for e in entries if e.spec["dim"] == "2d"]
     three_d = [e for e in entries if e.spec["dim"] == "3d"]
@@ -219,7 +206,7 @@ def _built_metas(root: Path, catalogue: Catalogue) -> list[dict]:
 
 def _write_indexes(root: Path, catalogue: Catalogue, metas: list[dict],
                    build_seconds: float | None) -> None:
-    from visphy_core.bench.datasheet import write_datasheet
+    from visphy_plugins.datasets.visphybench.datasheet import write_datasheet
 
     atomic_write(root / "metadata.jsonl", "".join(json.dumps(m) + "\n" for m in metas).encode())
     table = {e.spec["scene_id"]: {"difficulty": e.spec["difficulty"]["label"],
@@ -236,7 +223,7 @@ def _write_indexes(root: Path, catalogue: Catalogue, metas: list[dict],
 def _write_previews(root: Path, metas: list[dict]) -> None:
     from PIL import Image
 
-    from visphy_core.bench.preview import write_contact_sheet, write_preview
+    from visphy_plugins.datasets.visphybench.preview import write_contact_sheet, write_preview
     from visphy_core.video import decode_video
 
     firsts = [(m["scene_id"], np.asarray(Image.open(

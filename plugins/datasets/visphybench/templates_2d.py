@@ -25,8 +25,8 @@ from typing import Callable
 
 import numpy as np
 
-from visphy_core.bench import blocks2d as bk
-from visphy_core.bench.blocks2d import (
+from visphy_plugins.datasets.visphybench import blocks2d as bk
+from visphy_plugins.datasets.visphybench.blocks2d import (
     ALL,
     BAR,
     GAP,
@@ -49,7 +49,7 @@ from visphy_core.bench.blocks2d import (
     mirror,
     uniform,
 )
-from visphy_core.bench.spec import CATEGORIES, category_of
+from visphy_core.spec2d import CATEGORIES, category_of
 
 W, H = bk.CANVAS
 LAYOUT_TRIES = 40

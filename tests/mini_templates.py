@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from visphy_core.bench.box2d_sim import Rollout, simulate_2d
-from visphy_core.bench.raster2d import PALETTE, body_mask
-from visphy_core.bench.spec import (
+from visphy_plugins.physics.box2d import Rollout, simulate_2d
+from visphy_plugins.datasets.visphybench.raster2d import PALETTE, body_mask
+from visphy_core.spec2d import (
     PHYRE_PROFILE,
     category_of,
     shape_area_centroid,
@@ -80,7 +80,7 @@ def on_bar(bar: dict, along: float, above: float) -> tuple[float, float]:
 
 def scene(template: int, variant: int, description: str, bodies: list[dict]) -> dict:
     """Wrap bodies into a PHYRE-profile `visphy-scene/1` spec (ground truth still empty)."""
-    from visphy_core.bench.blocks2d import scene2d
+    from visphy_plugins.datasets.visphybench.blocks2d import scene2d
 
     spec = scene2d(template, variant, "mini", description, bodies)
     spec["seed"] = template * 1000 + variant
@@ -177,8 +177,8 @@ def difficulty_of(spec: dict, rollout: Rollout) -> dict:
 
 
 def identifiable_of(spec: dict, rollout: Rollout) -> dict:
-    """Which physical parameters the clip can reveal (`visphy_core.bench.identifiable`)."""
-    from visphy_core.bench.identifiable import identifiable_params
+    """Which physical parameters the clip can reveal (visphybench's `identifiable`)."""
+    from visphy_plugins.datasets.visphybench.identifiable import identifiable_params
 
     return identifiable_params(spec, rollout)
 

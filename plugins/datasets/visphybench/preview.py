@@ -8,11 +8,12 @@ grey. Thumbnails keep their clip's aspect ratio (white padding). Files are writt
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
+from visphy_core.files import atomic_write
+from visphy_core.png import png_bytes
 from visphy_core.video import encode_video, resize_with_padding
 
 GAP = 2
@@ -78,7 +79,6 @@ def _paste(canvas: np.ndarray, index: int, cols: int, thumb: int, frame: np.ndar
 def write_contact_sheet(first_frames: list[tuple[str, np.ndarray]], path: Path,
                         columns: int = 16, thumb: int = 96) -> Path:
     """PNG grid of first frames (row-major, ``min(columns, n)`` per row), each labelled."""
-    from PIL import Image
 
     path = Path(path)
     ids = [sid for sid, _ in first_frames]
@@ -86,11 +86,7 @@ def write_contact_sheet(first_frames: list[tuple[str, np.ndarray]], path: Path,
     canvas = _label_canvas(ids, cols, rows, width, height, thumb)
     for i, (_, frame) in enumerate(first_frames):
         _paste(canvas, i, cols, thumb, frame)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    Image.fromarray(canvas).save(tmp, format="PNG")
-    os.replace(tmp, path)
-    return path
+    return atomic_write(path, png_bytes(canvas))
 
 
 def resample_indices(n_source: int, n_target: int) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Load a benchmark written by `visphy_core.bench.build` into `Scene` objects."""
+"""Load a benchmark written by `visphy_plugins.datasets.visphybench.build` into `Scene` objects."""
 
 from __future__ import annotations
 

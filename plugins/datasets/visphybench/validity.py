@@ -86,8 +86,8 @@ def revealed(spec: dict, param: str) -> bool:
 
 def clip_2d(spec: dict) -> np.ndarray:
     """The clip of a 2D spec: Box2D rollout, rendered like the ground truth (raw frames)."""
-    from visphy_core.bench.box2d_sim import simulate_2d
-    from visphy_core.bench.raster2d import render_clip_2d
+    from visphy_plugins.physics.box2d import simulate_2d
+    from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
 
     return render_clip_2d(spec, simulate_2d(spec).frame_poses)
 

@@ -30,6 +30,11 @@ from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
+from omegaconf import OmegaConf
+
+from visphy_core.dataset.base import Dataset
+from visphy_core.errors import ConfigError
+from visphy_core.hookspecs import hookimpl
 from visphy_core.scene import Scene, read_json, scene_dim
 from visphy_core.video import ClipInfo
 
@@ -286,3 +291,43 @@ def load_original(root: Path, split: str, scene_ids: list[str] | None = None,
             template_id=str(template) if template is not None else default_template_id(sid),
             dataset=f"visphybench/{split}", load_error=load_error))
     return scenes
+
+
+class OriginalLayout(Dataset):
+    """``dataset.source=original``: the published VisPhyBench-Data folders on disk."""
+
+    name = "original"
+    description = ("the published VisPhyBench-Data layout: <root>/<split>/videos, "
+                   "detection_json, metadata.jsonl, difficulty_table.json")
+
+    def load(self, cfg: Any, data_dir: Path, progress: bool = True) -> list[Scene]:
+        if not cfg.root:
+            raise ValueError("dataset.source=original needs dataset.root (the folder holding "
+                             "<split>/videos; or set VISPHYBENCH_ROOT)")
+        return load_original(Path(cfg.root), split=cfg.split or "sub", scene_ids=cfg.scenes,
+                             strict=False)
+
+    def check(self, cfg: Any) -> None:
+        try:
+            root = OmegaConf.select(cfg, "dataset.root", default=None)
+        except Exception as exc:  # noqa: BLE001
+            raise ConfigError(f"dataset.root: {exc}".splitlines()[0]) from None
+        if not root:
+            raise ConfigError("dataset=original needs dataset.root (the folder holding "
+                              "<split>/videos), or set VISPHYBENCH_ROOT")
+        if not Path(str(root)).is_dir():
+            raise ConfigError(f"dataset.root={root} is not a directory (the folder holding "
+                              f"<split>/videos; or set VISPHYBENCH_ROOT)")
+        split = OmegaConf.select(cfg, "dataset.split", default=None) or "sub"
+        if not (Path(str(root)) / str(split)).is_dir():
+            present = sorted(p.name for p in Path(str(root)).iterdir() if p.is_dir()
+                             and not p.name.startswith("."))
+            more = f", … ({len(present) - 12} more)" if len(present) > 12 else ""
+            raise ConfigError(f"dataset.split={split}: no folder {Path(str(root)) / str(split)}; "
+                              f"folders in dataset.root: "
+                              f"{', '.join(present[:12]) + more if present else 'none'}")
+
+
+@hookimpl
+def visphy_register_datasets(register):
+    register(OriginalLayout.name, OriginalLayout)

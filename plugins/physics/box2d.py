@@ -20,7 +20,9 @@ from dataclasses import dataclass, field
 import Box2D
 import numpy as np
 
-from visphy_core.bench.spec import WALL_IDS, contact_table, local_polygons
+from visphy_core.hookspecs import hookimpl
+from visphy_core.physics import Physics
+from visphy_core.spec2d import WALL_IDS, contact_table, local_polygons
 
 #: Tangential speed (m/s) above which a touching contact counts as sliding for `pair_stats`.
 SLIDE_SPEED_M_S = 0.05
@@ -238,3 +240,19 @@ def frame_second_differences(rollout: Rollout, body: int = 0, axis: int = 1) -> 
     """Second differences of one body's frame coordinate (px/frame^2); -g*ppm in free fall."""
     y = rollout.frame_poses[:, body, axis]
     return y[2:] - 2 * y[1:-1] + y[:-2]
+
+
+class Box2DPhysics(Physics):
+    """``world.engine = "box2d"``: the 2D benchmark's simulator (the spec track and the
+    variance normalisation re-simulate 2D specs through it)."""
+
+    name = "box2d"
+    dim = "2d"
+
+    def simulate(self, spec: dict, timeout_s: float = 60.0) -> Rollout:
+        return simulate_2d(spec)
+
+
+@hookimpl
+def visphy_register_physics(register):
+    register(Box2DPhysics.name, Box2DPhysics)

@@ -1,6 +1,6 @@
 """Scene specification `visphy-scene/1` with ``dim: "3d"``: JSON Schema, validation, geometry.
 
-The 3D spec has the same top-level keys as the 2D one (`visphy_core/bench/spec.py`) plus a
+The 3D spec has the same top-level keys as the 2D one (`visphy_core/spec2d.py`) plus a
 ``camera``; it is the single source of ground truth for a generated 3D scene (cannon-es rollout,
 three.js replay, detection context). Conventions, fixed here once:
 
@@ -34,7 +34,7 @@ from typing import Any
 import jsonschema
 import numpy as np
 
-from visphy_core.bench.spec import (  # schema building blocks shared with the 2D schema
+from visphy_core.spec2d import (  # schema building blocks shared with the 2D schema
     _CONTACT,
     _EVENT,
     _ID_LIST,
@@ -470,7 +470,7 @@ def contact_table_3d(spec: dict
 
 
 #: JSON Schema of the scene specification S a model writes for a 3D scene (see
-#: `visphy_core.bench.spec.REPLY_SCHEMA_2D`): the ground truth's bodies and contacts.
+#: `visphy_core.spec2d.REPLY_SCHEMA_2D`): the ground truth's bodies and contacts.
 REPLY_SCHEMA_3D: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
     "title": "visphy scene specification S written by a model (3D)",

@@ -24,7 +24,7 @@ from typing import Callable
 
 import numpy as np
 
-from visphy_core.bench.spec3d import (
+from visphy_core.spec3d import (
     FLOOR_ID,
     IDENTITY_QUAT,
     PROFILE_3D,
@@ -41,7 +41,7 @@ from visphy_core.bench.spec3d import (
 from visphy_core.scene import SPEC_SCHEMA
 
 try:  # share the dataclass with the 2D templates when they exist (and import cleanly)
-    from visphy_core.bench.templates_2d import Template
+    from visphy_plugins.datasets.visphybench.templates_2d import Template
 except Exception:  # noqa: BLE001 - missing or mid-edit: an identical local dataclass
     @dataclass(frozen=True)
     class Template:  # type: ignore[no-redef]
@@ -116,7 +116,7 @@ def wedge_shape(length: float, height: float, width: float) -> dict:
 def _centred_compound(parts: list[tuple[dict, list[float]]]) -> tuple[dict, np.ndarray]:
     """A compound of (primitive, offset) parts shifted so its volume centroid is the origin;
     returns the shape and the shift (old origin -> centroid)."""
-    from visphy_core.bench.spec3d import primitive_volume
+    from visphy_core.spec3d import primitive_volume
 
     vols = np.array([primitive_volume(s) for s, _ in parts])
     offs = np.array([o for _, o in parts], dtype=np.float64)
@@ -832,7 +832,7 @@ def action_index_3d(spec: dict) -> int | None:
 
 
 def _last_step(spec: dict, rollout) -> int:
-    from visphy_core.bench.cannon3d import total_steps_3d
+    from visphy_plugins.physics.cannon import total_steps_3d
 
     return min(total_steps_3d(spec), len(rollout.step_poses) - 1)
 
@@ -846,7 +846,7 @@ def validity_problems_3d(spec: dict, rollout) -> list[str]:
     moves more than 5 cm; tunnelling: a dynamic body's centre goes below y = -0.05 m or beyond
     |x| or |z| = 50 m; speed_cap: a body moves faster than 50 m/s between two steps.
     """
-    from visphy_core.bench.detection3d import project_points
+    from visphy_plugins.datasets.visphybench.detection3d import project_points
 
     problems = []
     if any(depth > OVERLAP_M for depth in rollout.initial_penetration_m.values()):
@@ -878,7 +878,7 @@ def validity_problems_3d(spec: dict, rollout) -> list[str]:
 def _projected_circles(spec: dict, frame_poses: np.ndarray, radii: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray]:
     """Projected centres (F×B×2) and bounding-circle radii (F×B, px) of the bodies."""
-    from visphy_core.bench.detection3d import camera_basis, project_points
+    from visphy_plugins.datasets.visphybench.detection3d import camera_basis, project_points
 
     f, b = frame_poses.shape[:2]
     pix, depth = project_points(spec, frame_poses[:, :, :3].reshape(-1, 3), return_depth=True)
@@ -890,8 +890,8 @@ def _projected_circles(spec: dict, frame_poses: np.ndarray, radii: np.ndarray
 def sensitivity_px_3d(spec: dict, rollout) -> float:
     """Max final-frame displacement (px) of any body's projected centre when the action ball
     starts 1 mm further along +x (one extra simulation)."""
-    from visphy_core.bench.cannon3d import simulate_3d
-    from visphy_core.bench.detection3d import project_points
+    from visphy_plugins.physics.cannon import simulate_3d
+    from visphy_plugins.datasets.visphybench.detection3d import project_points
 
     idx = action_index_3d(spec)
     if idx is None:
@@ -957,7 +957,7 @@ def generate_scene_3d(template_id: int, variant: int = 0, max_draws: int = 4,
     (label left None: labels are relative to a whole benchmark). Raises RuntimeError with the
     rejection reasons when no draw is valid.
     """
-    from visphy_core.bench.cannon3d import simulate_3d, trajectory_digest_3d
+    from visphy_plugins.physics.cannon import simulate_3d, trajectory_digest_3d
 
     template = next(t for t in TEMPLATES_3D if t.template_id == template_id)
     reasons: list[str] = []

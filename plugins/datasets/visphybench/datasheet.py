@@ -9,10 +9,11 @@ one is given.
 from __future__ import annotations
 
 import json
-import os
 from collections import Counter
 from pathlib import Path
 from typing import Any
+
+from visphy_core.files import atomic_write
 
 #: VisPhyBench as published: scene and template counts.
 PAPER_SCENES, PAPER_TEMPLATES = 209, 108
@@ -32,13 +33,6 @@ LINE_RULE = "a box is a line when length/thickness ≥ 4, else a rectangle"
 REQUIRED_KEYS = ("scene_id", "template_id", "dim", "family", "splits", "difficulty",
                  "categories", "n_objects_by_category")
 DATASHEET_MD, DATASHEET_JSON = "DATASHEET.md", "datasheet.json"
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
 
 
 def _check(entries: list[dict]) -> None:
@@ -189,7 +183,7 @@ def write_datasheet(root: Path, entries: list[dict], rejected: dict[str, int],
     """
     root = Path(root)
     stats = datasheet_stats(entries, rejected, build_seconds)
-    _atomic_write(root / DATASHEET_JSON, json.dumps(stats, indent=1, ensure_ascii=False) + "\n")
+    atomic_write(root / DATASHEET_JSON, json.dumps(stats, indent=1, ensure_ascii=False) + "\n")
     md = root / DATASHEET_MD
-    _atomic_write(md, render_markdown(stats))
+    atomic_write(md, render_markdown(stats))
     return md

@@ -22,7 +22,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Iterable
 
-from visphy_core.bench.identifiable import identifiable_params
+from visphy_plugins.datasets.visphybench.identifiable import identifiable_params
 
 PAPER_DIFFICULTY = {"sub": {"easy": 114, "medium": 67, "hard": 28},
                     "test": {"easy": 29, "medium": 17, "hard": 3}}
@@ -71,10 +71,10 @@ class Catalogue:
 
 def _templates(dim: str) -> list:
     if dim == "2d":
-        from visphy_core.bench.templates_2d import TEMPLATES_2D
+        from visphy_plugins.datasets.visphybench.templates_2d import TEMPLATES_2D
 
         return TEMPLATES_2D
-    from visphy_core.bench.templates_3d import TEMPLATES_3D
+    from visphy_plugins.datasets.visphybench.templates_3d import TEMPLATES_3D
 
     return TEMPLATES_3D
 
@@ -90,11 +90,11 @@ def units() -> list[Unit]:
 
 def _simulate(dim: str, spec: dict):
     if dim == "2d":
-        from visphy_core.bench.box2d_sim import simulate_2d, trajectory_digest
+        from visphy_plugins.physics.box2d import simulate_2d, trajectory_digest
 
         rollout = simulate_2d(spec)
         return rollout, trajectory_digest(rollout)
-    from visphy_core.bench.cannon3d import simulate_3d, trajectory_digest_3d
+    from visphy_plugins.physics.cannon import simulate_3d, trajectory_digest_3d
 
     rollout = simulate_3d(spec)
     return rollout, trajectory_digest_3d(rollout)
@@ -102,34 +102,34 @@ def _simulate(dim: str, spec: dict):
 
 def _validate(dim: str, spec: dict) -> None:
     if dim == "2d":
-        from visphy_core.bench.spec import validate_spec
+        from visphy_core.spec2d import validate_spec
 
         validate_spec(spec)
     else:
-        from visphy_core.bench.spec3d import validate_spec_3d
+        from visphy_core.spec3d import validate_spec_3d
 
         validate_spec_3d(spec)
 
 
 def _problems(dim: str, spec: dict, rollout) -> list[str]:
     if dim == "2d":
-        from visphy_core.bench.filters import validity_problems
+        from visphy_plugins.datasets.visphybench.filters import validity_problems
 
         return validity_problems(spec, rollout)
-    from visphy_core.bench.templates_3d import validity_problems_3d
+    from visphy_plugins.datasets.visphybench.templates_3d import validity_problems_3d
 
     return validity_problems_3d(spec, rollout)
 
 
 def _features(dim: str, spec: dict, rollout) -> tuple[dict, float]:
-    from visphy_core.bench.features import difficulty_score
+    from visphy_plugins.datasets.visphybench.features import difficulty_score
 
     if dim == "2d":
-        from visphy_core.bench.features import difficulty_features
+        from visphy_plugins.datasets.visphybench.features import difficulty_features
 
         features = difficulty_features(spec, rollout)
     else:
-        from visphy_core.bench.templates_3d import difficulty_features_3d
+        from visphy_plugins.datasets.visphybench.templates_3d import difficulty_features_3d
 
         features = difficulty_features_3d(spec, rollout)
     return features, float(difficulty_score(features))
