@@ -11,12 +11,12 @@ import pytest
 from visphy_plugins.physics.cannon import simulate_3d, trajectory_digest_3d
 from visphy_plugins.datasets.visphybench.detection3d import detection_from_spec_3d, project_points
 from visphy_core.spec3d import RED_RGB, validate_spec_3d
-from visphy_plugins.datasets.visphybench.templates_3d import (
+from visphy_plugins.datasets.visphybench.screening3d import (
     REASONS,
-    TEMPLATES_3D,
     difficulty_features_3d,
     validity_problems_3d,
 )
+from visphy_plugins.datasets.visphybench.templates_3d import TEMPLATES_3D
 
 pytestmark = pytest.mark.skipif(shutil.which("node") is None,
                                 reason="Node.js not installed (needed by the cannon-es rollouts)")

@@ -392,7 +392,8 @@ def test_3d_rendered_clip_segments_every_dynamic_body(tmp_path):
     from visphy_plugins.physics.cannon import simulate_3d
     from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
     from visphy_core.spec3d import validate_spec_3d
-    from visphy_plugins.datasets.visphybench.templates_3d import TEMPLATES_3D, validity_problems_3d
+    from visphy_plugins.datasets.visphybench.screening3d import validity_problems_3d
+    from visphy_plugins.datasets.visphybench.templates_3d import TEMPLATES_3D
     from visphy_core.sandbox.browser import BrowserPool
 
     template = next(t for t in TEMPLATES_3D if t.template_id == 10)  # ball, box, ball

@@ -116,7 +116,7 @@ def _problems(dim: str, spec: dict, rollout) -> list[str]:
         from visphy_plugins.datasets.visphybench.filters import validity_problems
 
         return validity_problems(spec, rollout)
-    from visphy_plugins.datasets.visphybench.templates_3d import validity_problems_3d
+    from visphy_plugins.datasets.visphybench.screening3d import validity_problems_3d
 
     return validity_problems_3d(spec, rollout)
 
@@ -129,7 +129,7 @@ def _features(dim: str, spec: dict, rollout) -> tuple[dict, float]:
 
         features = difficulty_features(spec, rollout)
     else:
-        from visphy_plugins.datasets.visphybench.templates_3d import difficulty_features_3d
+        from visphy_plugins.datasets.visphybench.screening3d import difficulty_features_3d
 
         features = difficulty_features_3d(spec, rollout)
     return features, float(difficulty_score(features))
