@@ -293,7 +293,8 @@ def test_render_engine_is_an_enum_in_the_schema():
     with pytest.raises(ValidationError):
         cfg.render_engine = "cyclez"
     assert "disk_mb" in cfg
-    assert BlenderEngine(cfg).cache_identity().startswith("blender@1:cycles:")
+    identity = BlenderEngine(cfg).cache_identity()
+    assert identity.startswith(f"blender@{BlenderEngine.version}:cycles:")
 
 
 # ------------------------------------------------------------------------ reference program
