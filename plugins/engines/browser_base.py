@@ -499,7 +499,9 @@ class BrowserEngine(Engine):
             lines.append("[visphy] two three.js instances were loaded in this page (three.js "
                          f"warned: {THREE_TWICE}); the page references "
                          + (", ".join(builds.values()) or "no vendored build"))
-        result.logs[:0] = lines
+        from visphy_core.secrets import redact
+
+        result.logs += [redact(line) for line in lines]  # last: the cached log keeps its tail
 
     def close(self) -> None:
         close_shared_pool()
