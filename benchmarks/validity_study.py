@@ -7,7 +7,8 @@
    ``ground_truth.identifiable``); the parameter is pushed from the truth in 5 growing steps,
    re-simulated (Box2D) and rendered like the ground truth; every pixel, motion
    and object-track metric scores the result (visphy's unaligned pairing). Per metric: the cases,
-   how many have Spearman ρ(step, worsening) ≥ 0.9, and the mean ρ
+   how many have Spearman ρ(step, worsening) ≥ 0.9, the mean ρ, and the pooled ρ (the step
+   against the mean worsening over the cases) over all cases and per parameter
    (`visphy_plugins.datasets.visphybench.validity`).
 2. Ranking: ten 2D scenes of the ``test`` split run through the real CLI with the default
    (offline) suite for the oracle and the two pixel-space baselines (`static`: the first key
@@ -31,8 +32,10 @@ RANK_COLUMNS = ("psnr", "ssim", "st_lpips", "flow_epe_dis", "flow_epe_moving_dis
                 "track_pos_err", "track_vel_err", "event_contact_err")
 
 
-def _fmt(v) -> str:
-    return "—" if v is None else f"{v:.3g}"
+def _fmt(v, decimals: int | None = None) -> str:
+    if v is None:
+        return "—"
+    return f"{v:.3g}" if decimals is None else f"{v:.{decimals}f}".replace("-", "−")
 
 
 def perturbation(specs: list[dict], per_param: int, progress: bool) -> tuple[dict, list]:
@@ -91,12 +94,12 @@ def main() -> None:
     print(f"### Perturbation monotonicity ({n_scenes} 2D scenes; cases per parameter: "
           + ", ".join(f"{p} {n}" for p, n in counts.items())
           + f"; 5 steps each; {study_s:.0f} s)\n")
-    print("| metric | cases | ρ ≥ 0.9 | mean ρ | min ρ | mean ρ per parameter (e, μ, v0, g) |")
-    print("|---|---|---|---|---|---|")
+    print("| metric | cases | ρ ≥ 0.9 | mean ρ | pooled ρ: all / e / μ / v0 / g |")
+    print("|---|---|---|---|---|")
     for name, r in table["all"].items():
-        per = " / ".join(_fmt(table[p][name]["mean_rho"]) for p in counts)
-        print(f"| `{name}` | {r['cases']} | {r['passed']} | {_fmt(r['mean_rho'])} | "
-              f"{_fmt(r['min_rho'])} | {per} |")
+        pooled = " / ".join(_fmt(table[p][name]["pooled_rho"], 2) for p in ("all", *counts))
+        print(f"| `{name}` | {r['cases']} | {r['passed']} | {_fmt(r['mean_rho'], 2)} | "
+              f"{pooled} |")
     test_ids = set(catalogue["splits"]["test"])
     ranked = [s["scene_id"] for s in specs if s["scene_id"] in test_ids][:10]
     result = {"scenes": sorted({c.scene_id for c in cases}), "perturbation": table,

@@ -213,6 +213,21 @@ def test_failure_classes(engine, body, failure, text):
 
 
 @needs_blender
+def test_a_runtime_error_while_rendering_keeps_the_frames_before_it(engine):
+    # the handler breaks at Blender frame 3 (clip frame 2): clip frames 0 and 1 were rendered
+    body = (SQUARE.replace("FPS_SCALE", "5") + "def boom(scene, *_):\n"
+            "    if scene.frame_current >= 3:\n        raise RuntimeError('late break')\n"
+            "bpy.app.handlers.frame_change_pre.append(boom)\n")
+    result = engine.render(bpy_program(body), CONTRACT)
+    assert result.failure is FailureClass.RUNTIME_ERROR and "late break" in result.error
+    assert result.flags == ["partial_clip"] and result.frames is None
+    assert result.partial_frames.shape == (2, 64, 96, 3)
+    assert [red_left_edge(f) for f in result.partial_frames] == [10, 22]
+    whole = engine.render(square_program(), CONTRACT)
+    assert whole.flags == [] and np.array_equal(result.partial_frames, whole.frames[:2])
+
+
+@needs_blender
 def test_an_endless_script_times_out(engine):
     contract = RenderContract(fps=5, n_frames=3, width=32, height=32, timeout_s=8)
     result = engine.render(bpy_program("while True:\n    pass\n"), contract)
@@ -278,7 +293,8 @@ def test_render_engine_is_an_enum_in_the_schema():
     with pytest.raises(ValidationError):
         cfg.render_engine = "cyclez"
     assert "disk_mb" in cfg
-    assert BlenderEngine(cfg).cache_identity().startswith("blender@1:cycles:")
+    identity = BlenderEngine(cfg).cache_identity()
+    assert identity.startswith(f"blender@{BlenderEngine.version}:cycles:")
 
 
 # ------------------------------------------------------------------------ reference program
@@ -316,6 +332,7 @@ def test_reference_program_tracks_ground_truth(engine, jar_scene):
     result = engine.render(program, RenderContract.for_scene(scene))
     assert result.ok, (result.error, result.logs[-5:])
     assert result.frames.shape == truth.shape
+    assert result.flags == []
     # same fill rule as the exact rasteriser: at most a few edge pixels differ per frame
     differing = np.any(result.frames != truth, axis=-1).sum(axis=(1, 2))
     assert differing.max() <= 20, differing

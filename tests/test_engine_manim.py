@@ -4,6 +4,7 @@ reference program against ground truth."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,6 +22,10 @@ except Exception as exc:  # noqa: BLE001
 from visphy_plugins.engines.manim import INSTRUCTIONS, ManimEngine  # noqa: E402
 
 HEADER = "from manim import *\n\nclass GeneratedScene(Scene):\n    def construct(self):\n"
+#: The frame set to the video's aspect ratio, 8 units tall (the instructions' recipe).
+FITTED = ("from manim import *\n\nconfig.frame_height = 8.0\n"
+          "config.frame_width = 8.0 * config.pixel_width / config.pixel_height\n\n"
+          "class GeneratedScene(Scene):\n    def construct(self):\n")
 #: A red dot moving right at 1 unit per second for 1 s, then holding for `hold` seconds.
 MOVING = HEADER + """\
         dot = Dot(point=LEFT * 2, radius=0.4, color="#f34f46")
@@ -91,23 +96,132 @@ def test_instructions_ask_for_text_not_mathtex(engine):
     assert text == INSTRUCTIONS
     assert "GeneratedScene(Scene)" in text and "Text(" in text and "MathTex" in text
     assert "white background" in text and "no physics engine" in text.lower()
+    # the frame rule: Manim's default frame unless the program sets one, letterboxed
+    assert "14.22 x 8 units" in text and "config.frame_width" in text and "bars" in text
 
 
 # ------------------------------------------------------------------------- render
 def test_renders_exact_frame_count_size_and_timing(engine):
     c = contract()
-    res = engine.render(program(MOVING.format(hold=0.3)), c)  # 1.3 s of scene for a 1.2 s clip
+    source = MOVING.format(hold=0.3).replace(HEADER, FITTED)
+    res = engine.render(program(source), c)  # 1.3 s of scene for a 1.2 s clip
     assert res.ok, (res.failure, res.error, res.logs[-10:])
     assert res.frames.shape == (12, 120, 160, 3) and res.frames.dtype == np.uint8
     assert tuple(res.frames[0, 0, 0]) == (255, 255, 255)  # white background
     assert res.logs[0].startswith(f"sandbox: {res.isolation};")
     from visphy_core.sandbox.process import isolation_level
     assert res.isolation == isolation_level()
-    px_per_unit = 120 / 8.0  # frame 8 units tall
+    assert res.flags == []  # the frame has the clip's shape: nothing was resized
+    px_per_unit = 120 / 8.0  # frame 8 units tall, filling the clip
     xs = [red_centre_x(f) for f in res.frames]
     for k in range(11):  # frame k shows scene time k / fps
         expect = 80 + (-2 + min(k / 10, 1.0)) * px_per_unit
         assert abs(xs[k] - expect) < 0.6, (k, xs[k], expect)
+
+
+#: Unit squares at the left and right edges (x = ±6.5) and the top and bottom (y = ±3.4) of
+#: Manim's default 14.22 x 8 frame, in four distinct colours.
+EDGES = """\
+        for colour, x, y in (("#ff0000", -6.5, 0), ("#0000ff", 6.5, 0),
+                             ("#00aa00", 0, 3.4), ("#aa00aa", 0, -3.4)):
+            self.add(Square(side_length=1, fill_color=colour, fill_opacity=1,
+                            stroke_width=0).move_to([x, y, 0]))
+        self.wait(0.5)
+"""
+EDGE_COLOURS = {(255, 0, 0): (-6.5, 0), (0, 0, 255): (6.5, 0), (0, 170, 0): (0, 3.4),
+                (170, 0, 170): (0, -3.4)}
+
+
+def assert_frame_shows_edges(frame: np.ndarray, px_per_unit: float, x0: float, y0: float,
+                             fit_w: int, fit_h: int):
+    """Each edge square is whole, where the letterboxed 14.22 x 8 frame puts it."""
+    h, w = frame.shape[:2]
+    for colour, (x, y) in EDGE_COLOURS.items():
+        ys, xs = np.nonzero(np.all(frame == colour, axis=2))
+        assert len(xs) >= (px_per_unit - 2) ** 2, (colour, len(xs))  # whole (edges blend)
+        cx = x0 + fit_w / 2 + x * px_per_unit
+        cy = y0 + fit_h / 2 - y * px_per_unit
+        assert abs(xs.mean() + 0.5 - cx) < 1 and abs(ys.mean() + 0.5 - cy) < 1, colour
+
+
+@pytest.mark.parametrize("configure", [
+    "", "config.frame_width = 128 / 9\nconfig.frame_height = 8\n",
+    "config.pixel_width = 1920\nconfig.pixel_height = 1080\n"],
+    ids=["default", "frame_16x9", "pixels_16x9"])
+def test_16_9_frame_is_letterboxed_not_cropped(engine, configure):
+    """A program written for Manim's 16:9 frame (its default, or set explicitly) on a square
+    clip: everything in the frame is shown, scaled uniformly, with white bars above/below."""
+    source = HEADER.replace("from manim import *\n", "from manim import *\n" + configure)
+    res = engine.render(program(source + EDGES), contract(width=160, height=160, n_frames=4))
+    assert res.ok, (res.failure, res.error, res.logs[-5:])
+    assert res.flags == ["canvas_resized"]
+    assert any("letterboxed into the 160x160 clip: 160x90 px at (0, 35)" in line
+               for line in res.logs), res.logs
+    frame = res.frames[0]
+    assert np.all(frame[:35] == 255) and np.all(frame[125:] == 255)  # background-coloured bars
+    assert_frame_shows_edges(frame, 160 / (128 / 9), 0, 35, 160, 90)
+
+
+def test_tall_frame_is_pillarboxed_in_the_programs_background(engine):
+    """A frame narrower than the clip gets bars left and right, in the program's own background
+    colour; the program's frame_rate is its own too (clip frame k = t = k / fps)."""
+    source = ("from manim import *\nconfig.frame_width = 4\nconfig.frame_height = 8\n"
+              "config.background_color = '#202020'\nconfig.frame_rate = 30\n\n"
+              "class GeneratedScene(Scene):\n    def construct(self):\n"
+              "        dot = Dot([-1.5, 0, 0], radius=0.3, color='#f34f46')\n"
+              "        self.add(dot)\n"
+              "        for _ in range(40):\n"
+              "            dot.shift(RIGHT * (1 / 30))\n"
+              "            self.wait(1 / 30)\n")
+    res = engine.render(program(source), contract())  # 160 x 120 at 10 fps
+    assert res.ok, (res.failure, res.error, res.logs[-5:])
+    assert res.flags == ["canvas_resized"]
+    # 4 x 8 units into 160 x 120: 60 x 120 px at x = 50, 15 px per unit
+    frame = res.frames[0]
+    assert np.all(frame[:, :50] == 0x20) and np.all(frame[:, 110:] == 0x20)
+    assert tuple(frame[5, 55]) == (0x20, 0x20, 0x20)
+    xs = [red_centre_x(f) for f in res.frames]
+    for k in range(12):  # the dot moves 1 unit/s in scene time: 15 px/s in the clip
+        expect = 80 + (-1.5 + min(k / 10 + 1 / 30, 40 / 30)) * 15
+        assert abs(xs[k] - expect) < 0.6, (k, xs[k], expect)
+
+
+def test_runtime_error_keeps_the_frames_before_it(engine):
+    source = FITTED + """\
+        dot = Dot(point=LEFT * 2, radius=0.4, color="#f34f46")
+        self.add(dot)
+        self.play(dot.animate.shift(RIGHT * 1), run_time=0.5, rate_func=linear)
+        raise ValueError("after half a second")
+"""
+    res = engine.render(program(source), contract())
+    assert res.failure is FailureClass.RUNTIME_ERROR and "ValueError" in res.error
+    assert res.flags == ["partial_clip"] and res.frames is None
+    assert res.partial_frames.shape == (5, 120, 160, 3)  # t = 0, 0.1, ..., 0.4
+    xs = [red_centre_x(f) for f in res.partial_frames]
+    for k, x in enumerate(xs):
+        assert abs(x - (80 + (-2 + 2 * k / 10) * 15)) < 0.6, (k, x)  # 2 units/s
+    # an error before any frame: no partial clip
+    res = engine.render(program(FITTED + "        raise ValueError('at once')\n"), contract())
+    assert res.failure is FailureClass.RUNTIME_ERROR
+    assert res.flags == [] and res.partial_frames is None
+
+
+def test_runner_is_a_module_copied_into_the_sandbox(tmp_path):
+    """The trusted runner is the shipped module file, copied as it is into the work dir."""
+    from visphy_plugins.engines import manim as manim_engine
+
+    runner = manim_engine.RUNNER
+    assert runner.is_file() and runner.parent == Path(manim_engine.__file__).resolve().parent
+    compile(runner.read_text(), str(runner), "exec")
+    eng = ManimEngine({"keep_workdir": True})
+    res = eng.render(program(MOVING.format(hold=0)), contract(n_frames=3))
+    assert res.ok, (res.failure, res.error)
+    kept = Path(res.logs[-1].removeprefix("work dir kept: "))
+    try:
+        assert (kept / runner.name).read_bytes() == runner.read_bytes()
+    finally:
+        import shutil
+        shutil.rmtree(kept, ignore_errors=True)
 
 
 def test_short_scene_holds_last_frame_long_scene_is_truncated(engine):
@@ -246,6 +360,7 @@ def reference_error(engine, scene, gt: np.ndarray) -> tuple[float, float]:
     res = engine.render(prog, RenderContract.for_scene(scene, timeout_s=120))
     assert res.ok, (res.failure, res.error, res.logs[-10:])
     assert res.frames.shape == gt.shape
+    assert res.flags == []  # the reference frame fills the clip
     colours = {tuple(b["color_rgb"]) for b in scene.spec["bodies"]}
     errors = []
     for got, want in zip(res.frames, gt):
@@ -286,8 +401,6 @@ def test_reference_program_tracks_ground_truth_mini_split(engine, mini_scenes):
 
 
 def test_reference_program_3d_not_implemented(engine):
-    from pathlib import Path
-
     from visphy_core.scene import Scene
     from visphy_core.video import ClipInfo
 

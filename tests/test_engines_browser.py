@@ -234,6 +234,7 @@ def test_reference_programs_track_the_ground_truth(engines, mini_scenes, engine_
         assert scene.dim == "2d"
         result = engine.render(engine.program_from_spec(scene), RenderContract.for_scene(scene))
         assert result.ok, (scene.scene_id, result.error, result.logs[:5])
+        assert result.flags == [], (scene.scene_id, result.flags)  # nothing done to the page
         truth = scene.reference_frames()
         assert result.frames.shape == truth.shape
         error = centre_error(result.frames, truth, scene.spec)

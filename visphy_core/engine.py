@@ -45,6 +45,25 @@ class FailureClass(str, Enum):
                             FailureClass.DATA_ERROR, FailureClass.REFUSAL)
 
 
+class RenderFlag(str, Enum):
+    """Observations about a render that are not failures: recorded in the row's ``flags`` (and
+    the scene's render log) so that what the engine did to the program stays visible."""
+
+    #: A library URL the program asked for was served from a vendored copy of another version
+    #: (the render log names each requested URL/version and the file/version served instead).
+    LIBRARY_SUBSTITUTED = "library_substituted"
+    #: The program never made the recording call its engine's instructions ask for (browser
+    #: engines that expect ``setupRecording(canvas, durationMs)``: threejs, p5). Frames are
+    #: still captured: the clock is virtual, so the call only names the canvas and the length.
+    NO_RECORDING_CALL = "no_recording_call"
+    #: The program's canvas or camera frame does not have the clip's size, so it was scaled to
+    #: fit (uniformly, centred, background-coloured bars where the aspect ratios differ).
+    CANVAS_RESIZED = "canvas_resized"
+    #: A runtime error came after some frames were captured: those frames are kept as an
+    #: artifact (``partial.mp4``); the failure class stays ``runtime_error``.
+    PARTIAL_CLIP = "partial_clip"
+
+
 class ProgramRejected(Exception):
     """Extraction or validation refused a reply; carries the failure class."""
 
@@ -108,6 +127,15 @@ class RenderResult:
     #: How the program was isolated, e.g. "bwrap:uid65534,netns,pidns" or "browser:netns";
     #: "none" when it ran unisolated (explicit opt-out). Recorded in every result row.
     isolation: str | None = None
+    #: `RenderFlag` values (strings) observed during the render, successful or not.
+    flags: list[str] = field(default_factory=list)
+    #: With ``partial_clip``: the clip-sized frames captured before a runtime error (N×H×W×3).
+    partial_frames: np.ndarray | None = None
+
+    def flag(self, flag: "RenderFlag") -> None:
+        """Record ``flag`` once."""
+        if flag.value not in self.flags:
+            self.flags.append(flag.value)
 
     @property
     def ok(self) -> bool:

@@ -14,7 +14,7 @@ import numpy as np
 
 from visphy_core.cache import Cache, CorruptEntry, content_key, read_json
 from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
-                                RenderResult, classify_frames)
+                                RenderFlag, RenderResult, classify_frames)
 from visphy_core.errors import UserError
 from visphy_core.extract import extract_analysis, extract_spec
 from visphy_core.generation import ModelCaller
@@ -127,6 +127,12 @@ class RenderOutcome:
     cached: bool
     wall_s: float
     isolation: str | None = None
+    flags: list[str] = field(default_factory=list)  # RenderFlag values (RenderResult.flags)
+    partial_path: Path | None = None  # partial_clip: the frames before a runtime error (mp4)
+
+
+#: Row flags that come from a render (`RenderFlag`): the row shows those of its last render.
+RENDER_FLAGS = tuple(f.value for f in RenderFlag)
 
 
 def _one_line(text: str) -> str:
@@ -150,7 +156,8 @@ def render_cached(engine: Engine, program: Program, contract: RenderContract,
     Deterministic program failures (syntax or runtime errors, blank output...) are cached: the
     same program fails the same way. Timeouts, resource limits and infrastructure errors are not:
     they depend on the time limit and the machine, so they are rendered again next time. Error
-    text and logs are redacted before they are cached.
+    text and logs are redacted before they are cached. The render's flags and its partial clip
+    (``partial.mp4``: the frames before a runtime error) are cached with it and replayed.
     """
     key = content_key("render", engine.cache_identity(), program.digest, contract.key())
 
@@ -168,10 +175,15 @@ def render_cached(engine: Engine, program: Program, contract: RenderContract,
             if len(frames) != len(meta["frame_digests"]) or len(frames) != contract.n_frames:
                 raise CorruptEntry(f"{video} has {len(frames)} frames, expected "
                                    f"{contract.n_frames}")
+        partial = entry / "partial.mp4"
+        if meta.get("partial_frames") and not partial.is_file():
+            raise CorruptEntry(f"missing {partial}")
         return RenderOutcome(frames=frames, failure=failure, error=meta["error"],
                              logs=list(meta["logs"]), frame_digests=list(meta["frame_digests"]),
                              video_path=video if frames is not None else None, cached=True,
-                             wall_s=float(meta["wall_s"]), isolation=meta.get("isolation"))
+                             wall_s=float(meta["wall_s"]), isolation=meta.get("isolation"),
+                             flags=[str(f) for f in meta.get("flags") or []],
+                             partial_path=partial if meta.get("partial_frames") else None)
 
     outcome = cache.load("render", key, parse)
     if outcome is not None:
@@ -179,23 +191,35 @@ def render_cached(engine: Engine, program: Program, contract: RenderContract,
     result = _safe_render(engine, program, contract)
     ok = result.failure is None and result.frames is not None
     failure = result.failure or (None if ok else FailureClass.INFRA_ERROR)
+    partial = result.partial_frames if failure is not None else None
+    if partial is not None and (len(partial) == 0 or partial.shape[1:] != (
+            contract.height, contract.width, 3)):
+        partial = None
     meta = {"failure": failure.value if failure else None,
             "error": redact(result.error), "logs": redact_obj(list(result.logs[-200:])),
             "wall_s": result.wall_s, "isolation": result.isolation,
-            "frame_digests": [frame_digest(f) for f in result.frames] if ok else []}
+            "frame_digests": [frame_digest(f) for f in result.frames] if ok else [],
+            "flags": [str(f) for f in result.flags],
+            "partial_frames": len(partial) if partial is not None else 0}
     if failure in UNCACHED_FAILURES:
         return RenderOutcome(frames=None, failure=failure, error=meta["error"], logs=meta["logs"],
                              frame_digests=[], video_path=None, cached=False,
-                             wall_s=result.wall_s, isolation=result.isolation)
+                             wall_s=result.wall_s, isolation=result.isolation,
+                             flags=meta["flags"])
     files: dict = {"meta.json": json.dumps(meta, indent=1)}
     tmp_video = cache.root / "tmp" / f"{key}.{os.getpid()}.mp4"
+    tmp_partial = cache.root / "tmp" / f"{key}.{os.getpid()}.partial.mp4"
     if ok:
         encode_video(result.frames, tmp_video, contract.fps)
         files["video.mp4"] = tmp_video
+    if partial is not None:
+        encode_video(partial, tmp_partial, contract.fps)
+        files["partial.mp4"] = tmp_partial
     try:
         entry = cache.put("render", key, files)
     finally:
         tmp_video.unlink(missing_ok=True)
+        tmp_partial.unlink(missing_ok=True)
     # Read back what was stored: a fresh render and a cached one give the same decoded frames.
     outcome = parse(entry)
     outcome.cached = False
@@ -422,6 +446,7 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
             except ProgramRejected as exc:
                 failure, detail = _reply_failure(response, exc)
                 failed_source, logs = response.text, []
+                _set_render_flags(result, [])  # this attempt rendered nothing
             else:
                 _write(scene_dir / f"program{suffix}."
                                    f"{'html' if program.language == 'html' else 'py'}",
@@ -504,11 +529,22 @@ def _render_with_infra_retry(engine: Engine, program: Program, contract: RenderC
     _write(scene_dir / f"render{suffix}.log", "\n".join(
         [*log_lines, f"failure: {outcome.failure.value if outcome.failure else 'none'}",
          f"isolation: {outcome.isolation or 'unknown'}",
+         f"flags: {', '.join(outcome.flags) or 'none'}",
+         *([f"partial clip: partial{suffix}.mp4"] if outcome.partial_path else []),
          f"error: {outcome.error or ''}", *outcome.logs]))
+    if outcome.partial_path is not None:
+        _write(scene_dir / f"partial{suffix}.mp4", outcome.partial_path.read_bytes())
     result.render_cached = outcome.cached
     result.render_wall_s = outcome.wall_s
     result.isolation = outcome.isolation
+    _set_render_flags(result, outcome.flags)
     return outcome
+
+
+def _set_render_flags(result: SceneResult, flags: list[str]) -> None:
+    """The row's render flags are those of its last render (the program the row reports)."""
+    result.flags = [f for f in result.flags if f not in RENDER_FLAGS]
+    result.flags += [f for f in flags if f in RENDER_FLAGS and f not in result.flags]
 
 
 def _video_reply(response: ModelResponse, scene: Scene

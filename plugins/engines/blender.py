@@ -49,7 +49,7 @@ import numpy as np
 
 from visphy_core.config_schema import EngineConfig
 from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
-                                RenderResult, classify_frames)
+                                RenderFlag, RenderResult, classify_frames)
 from visphy_core.extract import extract_code, extract_spec, fenced_blocks
 from visphy_core.hookspecs import hookimpl
 from visphy_core.scene import Scene
@@ -186,7 +186,7 @@ containers, planks) whose full 3D motion, including rotation, comes from the rig
 class BlenderEngine(Engine):
     name = "blender"
     language = "python"
-    version = "1"
+    version = "2"  # 2: partial_clip (the frames rendered before a runtime error)
     supports_3d = True
 
     # ------------------------------------------------------------------ prompt & programs
@@ -333,6 +333,7 @@ class BlenderEngine(Engine):
             result.failure, result.error = fail.SYNTAX_ERROR, info.get("error")
         elif status in ("runtime_error", "render_error"):
             result.failure, result.error = fail.RUNTIME_ERROR, info.get("error")
+            _keep_partial(result, info.get("frames_rendered"), frame_files, contract)
         elif status == "sandbox_violation":
             result.failure, result.error = fail.SANDBOX_VIOLATION, info.get("error")
         elif status == "infra_error":
@@ -352,7 +353,7 @@ class BlenderEngine(Engine):
             result.error = f"{len(frame_files)} frames rendered, {contract.n_frames} expected"
             return result
         try:
-            frames = _read_frames(frame_files, contract)
+            frames = _read_frames(frame_files, contract, result)
         except Exception as exc:  # noqa: BLE001 (the script may have replaced the PNGs)
             result.failure = fail.RUNTIME_ERROR
             result.error = f"unreadable frame output: {type(exc).__name__}: {str(exc)[:300]}"
@@ -404,7 +405,10 @@ def _noise(line: str) -> bool:
     return _NOISE.search(line) is not None
 
 
-def _read_frames(paths: list[Path], contract: RenderContract) -> np.ndarray:
+def _read_frames(paths: list[Path], contract: RenderContract,
+                 result: RenderResult | None = None) -> np.ndarray:
+    """The PNG frames at the clip size; one of another size is fitted (uniformly, centred,
+    white bars) and ``result`` flagged ``canvas_resized``."""
     from PIL import Image
 
     frames = []
@@ -414,9 +418,30 @@ def _read_frames(paths: list[Path], contract: RenderContract) -> np.ndarray:
         if arr.shape[:2] != (contract.height, contract.width):
             from visphy_core.video import resize_with_padding
 
+            if result is not None and RenderFlag.CANVAS_RESIZED.value not in result.flags:
+                result.flag(RenderFlag.CANVAS_RESIZED)
+                result.logs.append(f"rendered frames are {arr.shape[1]}x{arr.shape[0]} px, not "
+                                   f"the clip's {contract.width}x{contract.height}: scaled to fit")
             arr = resize_with_padding(arr, contract.width, contract.height)
         frames.append(arr)
     return np.stack(frames).astype(np.uint8, copy=False)
+
+
+def _keep_partial(result: RenderResult, rendered: Any, frame_files: list[Path],
+                  contract: RenderContract) -> None:
+    """After a runtime error at frame k: frames 0..k-1 (rendered before it) as the partial clip."""
+    if not isinstance(rendered, int) or not 0 < rendered < contract.n_frames:
+        return
+    names = [f"frame_{k:05d}.png" for k in range(rendered)]
+    if [p.name for p in frame_files[:rendered]] != names:
+        return
+    try:
+        result.partial_frames = _read_frames(frame_files[:rendered], contract)
+    except Exception:  # noqa: BLE001 (the script may have replaced the PNGs)
+        return
+    result.flag(RenderFlag.PARTIAL_CLIP)
+    result.logs.append(f"partial clip: {rendered} of {contract.n_frames} frames were rendered "
+                       "before the error")
 
 
 # ------------------------------------------------------------------ reference program payload

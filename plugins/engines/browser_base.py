@@ -6,6 +6,26 @@ module URLs) at the vendored copies: a preloaded library's tag is removed, any o
 library's URL is rewritten to ``/vendor/...`` (the page could not load a CDN anyway). For 2D scenes
 it also injects the 2D constraint helper (``templates/constraint2d.js``) that keeps cannon bodies
 in the x-y plane. The sandbox's virtual clock drives every frame.
+
+What the engine did to a page is recorded, not hidden (`RenderResult.flags` and the render log):
+
+* ``library_substituted``: a library URL asking for an explicit version was served from a
+  vendored copy of another version (major.minor differs; a patch release counts as the same
+  version). The log has one line per rewritten URL: requested URL and version → served file and
+  version; URLs without a version are logged as served, not flagged. When three.js reports two
+  instances in one page (its "Multiple instances of Three.js" warning: e.g. the preloaded r160
+  global next to the r187 ES module) the log says which builds the page references.
+* ``no_recording_call`` (engines whose instructions ask for ``setupRecording(canvas,
+  durationMs)``: threejs, p5): the page never called it. Capture does not depend on it (the
+  clock is virtual and the largest canvas is read when nothing was named), so the clip is still
+  scored; a trusted probe before the program notes the call in the page log.
+* ``canvas_resized``: the captured canvas is not the clip size, so every frame was scaled to
+  fit (uniformly, centred, white bars).
+* ``partial_clip``: a runtime error at virtual time t after frames were captured: the frames
+  captured before t are `RenderResult.partial_frames`; the class stays ``runtime_error``.
+
+A page blocked from a library (a URL that is not vendored) names the blocked request(s) in its
+failure detail.
 """
 
 from __future__ import annotations
@@ -14,14 +34,15 @@ import json
 import math
 import re
 from collections import ChainMap
-from functools import cached_property
+from dataclasses import dataclass
+from functools import cache, cached_property
 from pathlib import Path
 from urllib.parse import urlparse
 
 import numpy as np
 
 from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
-                                RenderResult, classify_frames)
+                                RenderFlag, RenderResult, classify_frames)
 from visphy_core.extract import extract_code, extract_spec
 from visphy_core.sandbox.browser import BrowserPool, PageCapture
 
@@ -55,6 +76,46 @@ CONSTRAINT_2D_URL = "/vendor/visphy/constraint2d.js"
 #: these, or any attempt on a ``file:`` URL, is a sandbox violation.
 ACTIVE_REQUESTS = ("fetch", "xhr", "websocket", "eventsource", "ping", "webrtc", "navigation",
                    "popup", "file")
+
+#: What three.js logs when a second copy of it initialises in the same page.
+THREE_TWICE = "Multiple instances of Three.js being imported"
+_IMPORTS_THREE = re.compile(r"""(?:\bfrom\s*|\bimport\s*\(?\s*)["']three["']""")
+
+#: Trusted probe for engines that expect ``setupRecording(canvas, durationMs)``: it runs before
+#: the program and notes the program's first call in the page log (``[visphy] setupRecording(``),
+#: keeping the log's last slots (the page log holds 500 lines) free for that note.
+RECORDING_PROBE = """<script>
+(function () {
+  var info = console.info, lines = 0, noted = false;
+  ['log', 'info', 'warn', 'error'].forEach(function (level) {
+    var real = console[level];
+    console[level] = function () { if (lines++ < 490) return real.apply(console, arguments); };
+  });
+  function describe(x) {
+    for (var i = 0; i < 3 && x && !(x instanceof Element); i++) {
+      x = x.elt || x.domElement || x.canvas || null;
+    }
+    if (x instanceof HTMLCanvasElement) return '<canvas ' + x.width + 'x' + x.height + '>';
+    return x instanceof Element ? '<' + x.tagName.toLowerCase() + '>' : String(typeof x);
+  }
+  function note(target, ms) {
+    if (noted) return;
+    noted = true;
+    info('[visphy] setupRecording(' + target + ', ' + ms + ' ms) called at t=' +
+         performance.now().toFixed(1) + ' ms');
+  }
+  var real = window.setupRecording;
+  if (typeof real !== 'function') return;
+  window.setupRecording = function (canvas, durationMs) {
+    note(describe(canvas), Number(durationMs));
+    return real.apply(this, arguments);
+  };
+  var earlier = window.__visphy && window.__visphy.recording && window.__visphy.recording();
+  if (earlier) note('(before the template)', earlier.durationMs);
+})();
+</script>"""
+#: The note the probe leaves in the page log.
+RECORDING_NOTE = "[visphy] setupRecording("
 
 _SHARED_POOL: BrowserPool | None = None
 
@@ -186,7 +247,106 @@ def vendored_url(url: str, allow_local: bool = False) -> str | None:
     return None
 
 
-def _merge_import_maps(body: str) -> tuple[str, dict]:
+# ------------------------------------------------------------------ versions and substitutions
+
+#: Served path prefix -> (package, lock entry) of the vendored copy behind it.
+_SERVED = (("/vendor/npm/three-esm/", "three", "three-esm"),
+           ("/vendor/three.module.js", "three", "three-esm"),
+           ("/vendor/three.core.js", "three", "three-esm"),
+           ("/vendor/npm/three/", "three", "three"),
+           ("/vendor/three.min.js", "three", "three"),
+           ("/vendor/npm/cannon-es/", "cannon-es", "cannon-es"),
+           ("/vendor/cannon-es.js", "cannon-es", "cannon-es"),
+           ("/vendor/npm/cannon/", "cannon", "cannon"),
+           ("/vendor/cannon.min.js", "cannon", "cannon"),
+           ("/vendor/npm/p5/", "p5", "p5"),
+           ("/vendor/p5.min.js", "p5", "p5"),
+           ("/vendor/npm/matter-js/", "matter-js", "matter-js"),
+           ("/vendor/matter.min.js", "matter-js", "matter-js"))
+
+
+@cache
+def _locked_versions() -> dict[str, str]:
+    """Lock entry name (``three``, ``three-esm``...) -> the exact version vendored."""
+    from visphy_core.js_assets import ASSETS_SRC
+
+    lock = json.loads((ASSETS_SRC / "package-lock.json").read_text())
+    return {name.removeprefix("node_modules/"): str(info.get("version", "?"))
+            for name, info in lock.get("packages", {}).items()
+            if name.startswith("node_modules/")}
+
+
+def served_version(path: str) -> tuple[str, str] | None:
+    """(package, version) of the vendored file a page is served at ``path``, or None."""
+    for prefix, package, entry in _SERVED:
+        if path == prefix or (prefix.endswith("/") and path.startswith(prefix)):
+            return package, _locked_versions().get(entry, "?")
+    return None
+
+
+_VERSION = r"v?\d+(?:\.\d+){0,2}(?:[-+][\w.]+)?"
+
+
+def requested_version(url: str) -> str | None:
+    """The library version a URL asks for (``three@0.160.0``, ``^1.9``, cdnjs ``/r128/``), or
+    None when it names none (a bare package, ``latest``, a local file)."""
+    parsed = urlparse(url if "//" in url[:8] or url.startswith("http") else "https:" + url)
+    parts = [p for p in parsed.path.split("/") if p]
+    if (parsed.hostname or "").lower() == "cdnjs.cloudflare.com" and parts[:2] == ["ajax", "libs"]:
+        version = parts[3] if len(parts) > 3 else ""
+    else:
+        version = ""
+        for part in parts:
+            if "@" in part[1:]:
+                version = part.rsplit("@", 1)[1]
+                break
+    version = version.lstrip("^~=")
+    if re.fullmatch(r"r\d+", version):  # three.js release names: r128 = 0.128
+        version = f"0.{version[1:]}"
+    return version.lstrip("v") if re.fullmatch(_VERSION, version) else None
+
+
+def same_version(requested: str, served: str) -> bool:
+    """Whether a vendored ``served`` version satisfies ``requested``: equal major.minor (patch
+    releases keep the API); a requested major alone matches any minor of it."""
+    want = re.split(r"[-+]", requested, 1)[0].split(".")[:2]
+    have = re.split(r"[-+]", served, 1)[0].split(".")[:2]
+    return have[:len(want)] == want
+
+
+@dataclass(frozen=True)
+class Substitution:
+    """A library URL of the program and what the page is served instead."""
+
+    requested: str              # the URL (or import-map entry) as the program wrote it
+    version: str | None         # the version it asks for, None when it names none
+    served: str                 # the vendored path served instead
+    package: str
+    served_version: str
+    how: str = "rewritten"      # rewritten | preloaded (the template already loaded it)
+
+    @property
+    def substituted(self) -> bool:
+        """A different version than the one asked for (an unversioned URL is not)."""
+        return self.version is not None and not same_version(self.version, self.served_version)
+
+    def describe(self) -> str:
+        asked = f"{self.package} {self.version}" if self.version else "no version"
+        served = f"{self.served} ({self.package} {self.served_version})"
+        if self.how == "preloaded":
+            served = f"the page's preloaded {served}"
+        kind = "library substituted" if self.substituted else "library served from vendor"
+        return f"[visphy] {kind}: {self.requested} ({asked}) -> {served}"
+
+
+def _substitution(url: str, target: str, how: str = "rewritten") -> Substitution | None:
+    hit = served_version(target)
+    if hit is None:
+        return None
+    return Substitution(url, requested_version(url), target, hit[0], hit[1], how)
+
+
+def _merge_import_maps(body: str, notes: list | None = None) -> tuple[str, dict]:
     """Remove the program's import maps and merge them under ours (ours win on conflicts)."""
     merged = {"imports": dict(IMPORT_MAP["imports"])}
     theirs: dict = {"imports": {}, "scopes": {}}
@@ -205,6 +365,8 @@ def _merge_import_maps(body: str) -> tuple[str, dict]:
     for key, value in theirs["imports"].items():
         if isinstance(value, str):
             merged["imports"].setdefault(key, vendored_url(value) or value)
+            if notes is not None and merged["imports"][key] != value:
+                notes.append(_substitution(value, merged["imports"][key]))
     if theirs["scopes"]:
         merged["scopes"] = theirs["scopes"]
     return body, merged
@@ -218,6 +380,9 @@ class BrowserEngine(Engine):
     capture: str = "canvas"
     #: Whether 2D scenes get the cannon 2D constraint helper.
     constrain_2d: bool = True
+    #: Whether the engine's instructions ask for ``setupRecording(canvas, durationMs)``: a page
+    #: that never calls it is flagged ``no_recording_call``.
+    expects_recording_call: bool = True
 
     def extract(self, text: str) -> Program:
         source = extract_code(text, ("html", "htm", "xml"), html_fallback=True)
@@ -252,7 +417,13 @@ class BrowserEngine(Engine):
 
     def canonicalise(self, source: str, dim: str = "2d") -> str:
         """The program inside the trusted template: pinned libraries first, then the program."""
+        return self.canonicalise_noted(source, dim)[0]
+
+    def canonicalise_noted(self, source: str, dim: str = "2d"
+                           ) -> tuple[str, list[Substitution]]:
+        """`canonicalise`, and every library URL of the program it pointed at a vendored copy."""
         preloaded = {f"/vendor/{name}" for name in self.preload}
+        notes: list[Substitution | None] = []
 
         def script_tag(m: re.Match) -> str:
             attrs = (m.group(1) + " " + m.group(4)).lower()
@@ -261,34 +432,76 @@ class BrowserEngine(Engine):
             if target is None:
                 return m.group(0)
             if target in preloaded and not is_module:
+                notes.append(_substitution(m.group(3), target, "preloaded"))
                 return ""  # the template already loaded it
+            notes.append(_substitution(m.group(3), target))
             return m.group(0).replace(m.group(3), target, 1)
 
+        def url_literal(m: re.Match) -> str:
+            target = vendored_url(m.group(2))
+            if target is None:
+                return m.group(0)
+            notes.append(_substitution(m.group(2), target))
+            return m.group(1) + target + m.group(1)
+
         body = _SCRIPT_SRC_TAG.sub(script_tag, source)
-        body, import_map = _merge_import_maps(body)
-        body = _URL_LITERAL.sub(
-            lambda m: (m.group(1) + (vendored_url(m.group(2)) or m.group(2)) + m.group(1)), body)
+        body, import_map = _merge_import_maps(body, notes)
+        body = _URL_LITERAL.sub(url_literal, body)
         head = ['<script type="importmap">' + json.dumps(import_map) + "</script>"]
         head += [f'<script src="/vendor/{name}"></script>' for name in self.preload]
         if dim != "3d" and self.constrain_2d:
             head.append(f'<script src="{CONSTRAINT_2D_URL}"></script>')
         head += self.head_extras(dim)
+        if self.expects_recording_call:
+            head.append(RECORDING_PROBE)
         injected = "\n".join(head)
+        unique = list(dict.fromkeys(n for n in notes if n is not None))
         m = re.search(r"<head\b[^>]*>", body, re.I)
         if m:
-            return body[: m.end()] + "\n" + injected + body[m.end():]
+            return body[: m.end()] + "\n" + injected + body[m.end():], unique
         m = re.search(r"<html\b[^>]*>", body, re.I)
         if m:
-            return body[: m.end()] + "<head>" + injected + "</head>" + body[m.end():]
-        return "<!DOCTYPE html><html><head>" + injected + "</head><body>" + body + "</body></html>"
+            return body[: m.end()] + "<head>" + injected + "</head>" + body[m.end():], unique
+        return ("<!DOCTYPE html><html><head>" + injected + "</head><body>" + body
+                + "</body></html>"), unique
 
     def render(self, program: Program, contract: RenderContract) -> RenderResult:
+        html, notes = self.canonicalise_noted(program.source, contract.dim)
         capture = shared_pool().render_page(
-            self.canonicalise(program.source, contract.dim), self.assets,
-            contract.frame_times_ms(), width=contract.width, height=contract.height,
-            timeout_s=contract.timeout_s, seed=contract.seed, tick_ms=tick_ms_for(contract.fps),
-            capture=self.capture)
-        return classify_capture(capture, contract)
+            html, self.assets, contract.frame_times_ms(), width=contract.width,
+            height=contract.height, timeout_s=contract.timeout_s, seed=contract.seed,
+            tick_ms=tick_ms_for(contract.fps), capture=self.capture)
+        result = classify_capture(capture, contract,
+                                  expects_recording_call=self.expects_recording_call)
+        self.note_libraries(result, notes, capture, html)
+        return result
+
+    def note_libraries(self, result: RenderResult, notes: list[Substitution],
+                       cap: PageCapture, html: str) -> None:
+        """Log every library URL served from a vendored copy, flag other versions, and name
+        the three.js builds of a page in which three.js saw two instances."""
+        lines = [n.describe() for n in notes]
+        if any(n.substituted for n in notes):
+            result.flag(RenderFlag.LIBRARY_SUBSTITUTED)
+        if any(THREE_TWICE in line for line in cap.console):
+            builds: dict[str, str] = {}  # served path -> description
+            for name in self.preload:
+                hit = served_version(f"/vendor/{name}")
+                if hit and hit[0] == "three":
+                    builds[f"/vendor/{name}"] = f"three {hit[1]} (/vendor/{name}, preloaded)"
+            for n in notes:
+                if n.package == "three" and "/examples/jsm/" not in n.served:
+                    builds.setdefault(n.served, f"three {n.served_version} ({n.served})")
+            if _IMPORTS_THREE.search(html):
+                hit = served_version(THREE_ESM)
+                builds.setdefault(THREE_ESM, f"three {hit[1] if hit else '?'} ({THREE_ESM}, "
+                                             "the ES module 'three')")
+            lines.append("[visphy] two three.js instances were loaded in this page (three.js "
+                         f"warned: {THREE_TWICE}); the page references "
+                         + (", ".join(builds.values()) or "no vendored build"))
+        from visphy_core.secrets import redact
+
+        result.logs += [redact(line) for line in lines]  # last: the cached log keeps its tail
 
     def close(self) -> None:
         close_shared_pool()
@@ -341,8 +554,45 @@ def _resize(frames: list[np.ndarray], contract: RenderContract) -> np.ndarray:
     return np.stack([resize_with_padding(f, contract.width, contract.height) for f in frames])
 
 
-def classify_capture(cap: PageCapture, contract: RenderContract) -> RenderResult:
-    """Turn what the page did into frames or a failure class, with the evidence in the logs."""
+#: Blocked resource types that a library would have been: named "not vendored" in details.
+_LIBRARY_REQUESTS = ("script", "stylesheet", "font", "other", "fetch", "xhr")
+_ERROR_TIME = re.compile(r"\bat t=(\d+(?:\.\d+)?)ms")
+
+
+def blocked_detail(blocked: list[str], limit: int = 3) -> str:
+    """``"; blocked request(s): URL (not vendored), ..."`` for the passive requests the page
+    was refused (its libraries, images...), or ``""``."""
+    named = []
+    for entry in blocked:
+        kind, _, url = entry.partition(" ")
+        if not url or kind in ACTIVE_REQUESTS:
+            continue
+        why = "not vendored" if kind in _LIBRARY_REQUESTS else f"{kind}: no network"
+        named.append(f"{url} ({why})")
+    named = list(dict.fromkeys(named))
+    if not named:
+        return ""
+    more = f" and {len(named) - limit} more" if len(named) > limit else ""
+    return "; blocked request(s): " + ", ".join(named[:limit]) + more
+
+
+def _partial(cap: PageCapture, contract: RenderContract, first_error: str) -> np.ndarray | None:
+    """Clip-sized frames captured at virtual times before the first error, or None."""
+    m = _ERROR_TIME.search(first_error)
+    if m is None:
+        return None
+    t = float(m.group(1))
+    k = min(len(cap.frames), sum(1 for time_ms in contract.frame_times_ms() if time_ms < t))
+    if not 0 < k < contract.n_frames:
+        return None
+    return _resize(cap.frames[:k], contract)
+
+
+def classify_capture(cap: PageCapture, contract: RenderContract,
+                     expects_recording_call: bool = False) -> RenderResult:
+    """Turn what the page did into frames or a failure class, with the evidence in the logs,
+    and the flags of what was done to it (`RenderFlag`; ``expects_recording_call``: flag a page
+    that never called ``setupRecording``)."""
     from visphy_core.secrets import redact, redact_obj
 
     logs = list(cap.errors) + list(cap.console)
@@ -352,6 +602,7 @@ def classify_capture(cap: PageCapture, contract: RenderContract) -> RenderResult
                           wall_s=cap.wall_s, isolation=cap.isolation)
     active = [u for u in result.blocked_requests
               if u.split(" ", 1)[0] in ACTIVE_REQUESTS or u.split(" ", 1)[-1].startswith("file:")]
+    blocked = redact(blocked_detail(result.blocked_requests))
     if cap.infra_error:
         result.failure, result.error = FailureClass.INFRA_ERROR, redact(cap.infra_error)
     elif cap.resource_limit:
@@ -372,15 +623,36 @@ def classify_capture(cap: PageCapture, contract: RenderContract) -> RenderResult
         first = cap.errors[0]
         syntax = "SyntaxError" in first
         result.failure = FailureClass.SYNTAX_ERROR if syntax else FailureClass.RUNTIME_ERROR
-        result.error = redact(first)
+        result.error = redact(first) + blocked
+        if not syntax:
+            partial = _partial(cap, contract, first)
+            if partial is not None:
+                result.partial_frames = partial
+                result.flag(RenderFlag.PARTIAL_CLIP)
+                result.logs.append(f"[visphy] partial clip: {len(partial)} of "
+                                   f"{contract.n_frames} frames were captured before the error")
     elif cap.no_canvas or len(cap.frames) < contract.n_frames:
         result.failure = FailureClass.BLANK_OUTPUT
-        result.error = "the page has no canvas (or <svg>) to record"
+        result.error = "the page has no canvas (or <svg>) to record" + blocked
     else:
         frames = _resize(cap.frames, contract)
         if classify_frames(frames) is FailureClass.BLANK_OUTPUT:
             result.failure = FailureClass.BLANK_OUTPUT
-            result.error = "every frame is one flat colour"
+            result.error = "every frame is one flat colour" + blocked
         else:
             result.frames = frames
+    if result.failure in (FailureClass.INFRA_ERROR, FailureClass.RESOURCE_LIMIT,
+                          FailureClass.TIMEOUT):
+        return result  # the page did not run to the end: nothing more to say about it
+    sizes = list(dict.fromkeys(f.shape[:2] for f in cap.frames))
+    odd = [hw for hw in sizes if hw != (contract.height, contract.width)]
+    if odd:
+        result.flag(RenderFlag.CANVAS_RESIZED)
+        result.logs.append(f"[visphy] the recorded canvas is {odd[0][1]}x{odd[0][0]} px, not the "
+                           f"clip's {contract.width}x{contract.height}: every frame was scaled "
+                           "to fit (uniformly, centred, white bars)")
+    if expects_recording_call and not any(RECORDING_NOTE in line for line in cap.console):
+        result.flag(RenderFlag.NO_RECORDING_CALL)
+        result.logs.append("[visphy] the page never called setupRecording(canvas, durationMs)"
+                           + ("; its largest canvas was recorded" if cap.frames else ""))
     return result

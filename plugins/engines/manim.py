@@ -6,34 +6,43 @@ How a program becomes frames:
 * **Extraction / validation** (host): the reply's ```python block; it must compile (else
   ``syntax_error`` with the line) and define a class ``GeneratedScene`` deriving from a Manim
   scene (else ``no_code``).
-* **Render** (sandbox): the program and a trusted runner (`RUNNER_SOURCE`) are written into a
-  private work dir, and the runner is started with the host's own interpreter
+* **Render** (sandbox): the program and the trusted runner (`manim_runner.py`, copied next to
+  it) go into a private work dir, and the runner is started with the host's own interpreter
   (``sys.executable``, so the same Manim) under `run_sandboxed` (bubblewrap): uid 65534, fresh
   network/PID/IPC/UTS/mount namespaces, a read-only view of only ``/usr``, fonts and this
   interpreter's venv and base installation, the work dir as the only writable place, scrubbed
   environment, rlimits, a disk quota, wall-clock limit = ``contract.timeout_s``.
-  The runner fixes Manim's configuration (``pixel_width/height`` = contract size,
-  ``frame_rate`` = contract fps, frame 8 units tall and 8·W/H wide centred on the origin,
-  white background, Cairo renderer, caching off, no media files: ``dry_run``), seeds
-  ``random``/``numpy`` with ``contract.seed``, imports the program, re-applies that
-  configuration (a program cannot change the contract at import time) and renders
-  ``GeneratedScene``, capturing every frame the renderer emits in memory.
-* **Timing**: Manim emits frame *i* of a scene at scene time *i / fps* (every ``play``/``wait``
-  of duration *d* emits about d·fps frames - ⌈d·fps⌉ for an animation, ⌊d·fps⌋ for a static
-  ``wait`` - starting at its own start state). Frame *k* of the clip
-  is emitted frame *k*: a scene longer than ``n_frames / fps`` is **truncated** (rendering stops
-  as soon as ``n_frames`` frames exist), a shorter one **holds its last frame** to the end. A
-  scene that plays no animation at all emits no frame: ``blank_output``.
+  The runner presets Manim's configuration (``pixel_width/height`` = contract size,
+  ``frame_rate`` = contract fps, white background, Manim's default camera frame of 14.22 × 8
+  units, Cairo renderer, caching off, no media files: ``dry_run``), seeds ``random``/``numpy``
+  with ``contract.seed``, imports the program and renders ``GeneratedScene``, capturing in
+  memory the frames the clip needs.
+* **Frame rule**: the program's own settings are honoured. Its camera frame is the
+  ``config.frame_width × config.frame_height`` it leaves after import (Manim's default 14.22 × 8
+  when it sets none; changing only ``pixel_width/height`` makes the height follow that pixel
+  aspect ratio, as in Manim), its ``frame_rate`` and background colour are its own. The frame is
+  never cropped: it is rendered whole at the largest pixel size of its aspect ratio that fits
+  the clip and centred on a clip-sized canvas of the background colour (letterboxing; the row
+  gets the flag ``canvas_resized`` and the log says how). A frame with the clip's aspect ratio
+  fills the clip exactly, as before.
+* **Timing**: Manim emits frame *i* of a scene at scene time *i / frame_rate* (every
+  ``play``/``wait`` of duration *d* emits about d·rate frames - ⌈d·rate⌉ for an animation,
+  ⌊d·rate⌋ for a static ``wait`` - starting at its own start state). Clip frame *k* shows the
+  last frame emitted at or before t = k / fps (frame *k* itself when the program keeps the
+  clip's frame rate): a scene longer than ``n_frames / fps`` is **truncated** (rendering stops
+  as soon as the clip is complete), a shorter one **holds its last frame** to the end. A scene
+  that plays no animation at all emits no frame: ``blank_output``.
 * **Determinism**: Cairo rasterises deterministically, the seeds are fixed, ``PYTHONHASHSEED=0``
   and BLAS runs single-threaded, so the same program gives byte-identical frames.
 
 Failure classes: syntax error → ``syntax_error``; any exception while importing or rendering →
-``runtime_error`` (exception type, message and program line in ``error``); wall-clock or CPU
-limit → ``timeout``; address-space, file-size, work-dir disk quota or process-count limit →
-``resource_limit``; no frame or only one flat colour → ``blank_output``; a sandbox that cannot
-start (bubblewrap missing, namespaces refused and no explicit opt-out) → ``infra_error`` with
-the reason. The isolation the program ran under is ``RenderResult.isolation`` and the first line
-of ``RenderResult.logs`` (``sandbox: ...``).
+``runtime_error`` (exception type, message and program line in ``error``; the frames captured
+before a runtime error are kept as ``RenderResult.partial_frames`` with the flag
+``partial_clip``); wall-clock or CPU limit → ``timeout``; address-space, file-size, work-dir
+disk quota or process-count limit → ``resource_limit``; no frame or only one flat colour →
+``blank_output``; a sandbox that cannot start (bubblewrap missing, namespaces refused and no
+explicit opt-out) → ``infra_error`` with the reason. The isolation the program ran under is
+``RenderResult.isolation`` and the first line of ``RenderResult.logs`` (``sandbox: ...``).
 
 Configuration (``conf/engine/manim.yaml``, schema `ManimConfig`): ``timeout_s``, ``memory_mb``,
 ``file_size_mb``, ``disk_mb``, ``keep_workdir``.
@@ -55,7 +64,7 @@ import numpy as np
 
 from visphy_core.config_schema import EngineConfig
 from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
-                                RenderResult, classify_frames)
+                                RenderFlag, RenderResult, classify_frames)
 from visphy_core.extract import extract_code, extract_spec
 from visphy_core.hookspecs import hookimpl
 from visphy_core.sandbox.process import (Limits, ProcessResult, describe_limit, python_ro_paths,
@@ -66,9 +75,6 @@ from visphy_core.scene import Scene
 log = logging.getLogger(__name__)
 
 TEMPLATES = Path(__file__).with_name("templates")
-#: Height of the Manim camera frame in scene units (Manim's default); the width follows the
-#: video's aspect ratio, so one unit is ``height_px / FRAME_HEIGHT_UNITS`` pixels.
-FRAME_HEIGHT_UNITS = 8.0
 
 INSTRUCTIONS = """
 Write one Python program for Manim Community Edition (manim 0.18-0.22, `from manim import *`)
@@ -78,13 +84,18 @@ the motion yourself, e.g. by integrating positions and velocities with a fixed t
 Python and moving mobjects with updaters, ValueTrackers or one `self.wait(1 / config.frame_rate)`
 per video frame. Use only numpy, math and manim; there is no network and no LaTeX, so write
 text with `Text(...)`, never `MathTex` or `Tex`.
-The camera is fixed and matches the video exactly: white background, the frame is
-config.frame_height = 8 units tall and config.frame_width units wide with the origin at its
-centre, and config.pixel_width x config.pixel_height is the video size; an image pixel (px, py)
-measured from the bottom-left corner with y up is the point ((px - W/2) * 8 / H,
-(py - H/2) * 8 / H, 0). Draw flat shapes (Circle, Rectangle, Polygon, ...) with
-fill_opacity=1 and stroke_width=0 in the colours of the images. Scene time t is video time: the
-frame shown at t = k / fps is video frame k; the scene should last the whole clip.
+The camera is fixed, with a white background; config.pixel_width x config.pixel_height is the
+video size (W x H) and config.frame_rate its frame rate. The camera frame is config.frame_width x
+config.frame_height units with the origin at its centre: Manim's default 14.22 x 8 units (16:9)
+unless your program sets them. visphy shows that whole frame, scaled uniformly to fit the video
+and centred, with background-coloured bars where its aspect ratio differs from the video's. To
+make the frame match the video exactly, set right after the import
+`config.frame_height = 8.0` and `config.frame_width = 8.0 * config.pixel_width /
+config.pixel_height`; an image pixel (px, py) measured from the bottom-left corner with y up is
+then the point ((px - W/2) * 8 / H, (py - H/2) * 8 / H, 0). Draw flat shapes (Circle, Rectangle,
+Polygon, ...) with fill_opacity=1 and stroke_width=0 in the colours of the images. Scene time t
+is video time: the frame shown at t = k / fps is video frame k; the scene should last the whole
+clip.
 """.strip()
 
 INSTRUCTIONS_3D = INSTRUCTIONS + """
@@ -94,150 +105,11 @@ self.set_camera_orientation(...) that matches the view in the images.
 
 
 # ------------------------------------------------------------------------------ trusted runner
-#: The trusted part of every render: run inside the sandbox next to ``program.py``. It reads
-#: ``job.json``, writes ``frames.rgb`` (raw uint8 RGB, frame after frame) + ``result.json``, or
-#: ``error.json`` and exits 3. Everything it writes is treated as untrusted by the host (the
-#: program runs in the same process).
-RUNNER_SOURCE = r'''
-"""visphy trusted Manim runner (written by visphy; runs the program in program.py)."""
-import json
-import os
-import random
-import sys
-import traceback
-
-JOB = json.load(open("job.json"))
-W, H, FPS, N, SEED = JOB["width"], JOB["height"], JOB["fps"], JOB["n_frames"], JOB["seed"]
-PROGRAM = os.path.abspath("program.py")
-FRAMES = []
-STATE = {"plays": 0}
-
-
-def fail(kind, exc=None, message=None):
-    info = {"kind": kind, "type": type(exc).__name__ if exc is not None else kind,
-            "message": message if message is not None else str(exc), "line": None}
-    if exc is not None:
-        if isinstance(exc, SyntaxError) and exc.filename == PROGRAM:
-            info["line"] = exc.lineno
-        for frame in traceback.extract_tb(exc.__traceback__):
-            if frame.filename == PROGRAM:
-                info["line"] = frame.lineno
-        traceback.print_exception(type(exc), exc, exc.__traceback__)
-    with open("error.json", "w") as fh:
-        json.dump(info, fh)
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(3)
-
-
-class Enough(BaseException):
-    """Raised once the clip has all its frames (a BaseException: `except Exception` in the
-    program does not swallow it)."""
-
-
-random.seed(SEED)
-try:
-    import numpy as np
-    np.random.seed(SEED)
-    import manim
-    from manim import config, tempconfig
-    from manim.renderer.cairo_renderer import CairoRenderer
-    from PIL import Image
-except BaseException as exc:  # noqa: BLE001
-    fail("import_manim", exc)
-
-SETTINGS = {
-    "pixel_width": W, "pixel_height": H, "frame_rate": FPS,
-    "frame_height": JOB["frame_height"], "frame_width": JOB["frame_height"] * W / H,
-    "background_color": "#FFFFFF", "background_opacity": 1.0, "transparent": False,
-    "renderer": "cairo", "disable_caching": True, "dry_run": True, "write_to_movie": False,
-    "save_last_frame": False, "preview": False, "show_in_file_browser": False,
-    "progress_bar": "none", "verbosity": "WARNING", "media_dir": os.path.abspath("media"),
-    "seed": SEED, "from_animation_number": 0, "upto_animation_number": -1,
-}
-if "ffmpeg_executable" in config:
-    # Manim < 0.19 refuses to start without an ffmpeg binary even when, as here, nothing is
-    # encoded (dry run, frames are taken in memory); it only checks that the path is executable.
-    import shutil
-    SETTINGS["ffmpeg_executable"] = shutil.which("ffmpeg") or shutil.which("true") or "/bin/true"
-
-
-def to_rgb(frame):
-    frame = np.asarray(frame)
-    if frame.ndim == 3 and frame.shape[2] == 4:
-        alpha = frame[..., 3:4].astype(np.float32) / 255.0
-        if not np.all(frame[..., 3] == 255):  # composite over the white background
-            rgb = frame[..., :3].astype(np.float32) * alpha + 255.0 * (1.0 - alpha)
-            frame = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
-        else:
-            frame = frame[..., :3]
-    frame = np.ascontiguousarray(frame, dtype=np.uint8)
-    if frame.shape != (H, W, 3):  # the program changed the resolution: fit, pad with white
-        img = Image.fromarray(frame)
-        scale = min(W / img.width, H / img.height)
-        new = (max(1, round(img.width * scale)), max(1, round(img.height * scale)))
-        img = img.resize(new, Image.Resampling.BILINEAR)
-        canvas = Image.new("RGB", (W, H), (255, 255, 255))
-        canvas.paste(img, ((W - new[0]) // 2, (H - new[1]) // 2))
-        frame = np.asarray(canvas)
-    return frame
-
-
-def add_frame(self, frame, num_frames=1):
-    """Replaces CairoRenderer.add_frame: keep frames in memory instead of encoding them."""
-    if self.skip_animations:
-        return
-    self.time += num_frames / self.camera.frame_rate
-    rgb = None
-    for _ in range(int(num_frames)):
-        if len(FRAMES) >= N:
-            raise Enough()
-        if rgb is None:
-            rgb = to_rgb(frame)
-        FRAMES.append(rgb)
-    if len(FRAMES) >= N:
-        raise Enough()
-
-
-CairoRenderer.add_frame = add_frame
-
-with tempconfig(SETTINGS):
-    try:
-        import importlib.util
-        spec = importlib.util.spec_from_file_location("generated_program", PROGRAM)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules["generated_program"] = module
-        spec.loader.exec_module(module)
-    except SyntaxError as exc:
-        fail("syntax", exc)
-    except BaseException as exc:  # noqa: BLE001
-        fail("runtime", exc)
-    config.update({k: v for k, v in SETTINGS.items() if k in config})
-    cls = getattr(module, "GeneratedScene", None)
-    if not (isinstance(cls, type) and issubclass(cls, manim.Scene)):
-        fail("no_scene", message="the program defines no class GeneratedScene(Scene)")
-    random.seed(SEED)
-    np.random.seed(SEED)
-    try:
-        scene = cls()
-        scene.render()
-    except Enough:
-        pass
-    except SyntaxError as exc:
-        fail("syntax", exc)
-    except BaseException as exc:  # noqa: BLE001
-        fail("runtime", exc)
-
-with open("frames.rgb", "wb") as fh:
-    for f in FRAMES:
-        fh.write(f.tobytes())
-with open("result.json", "w") as fh:
-    json.dump({"frames": len(FRAMES), "width": W, "height": H,
-               "manim": getattr(manim, "__version__", "?")}, fh)
-sys.stdout.flush()
-sys.stderr.flush()
-os._exit(0)
-'''
+#: The trusted part of every render (`manim_runner.py`), copied into the work dir next to
+#: ``program.py`` and run there. It reads ``job.json``, writes ``frames.rgb`` (raw uint8 RGB,
+#: frame after frame) + ``result.json``, or ``error.json`` and exits 3. Everything it writes is
+#: treated as untrusted by the host (the program runs in the same process).
+RUNNER = Path(__file__).resolve().with_name("manim_runner.py")
 
 
 def _cfg_get(cfg, key: str, default):
@@ -276,7 +148,7 @@ class ManimConfig(EngineConfig):
 class ManimEngine(Engine):
     name = "manim"
     language = "python"
-    version = "1"
+    version = "2"  # 2: the program's own frame, letterboxed; flags; partial clips
     supports_3d = False  # programs may use ThreeDScene; the reference program is 2D only
 
     #: Sandbox limits besides the wall clock; the engine config (`ManimConfig`: ``memory_mb``,
@@ -323,11 +195,10 @@ class ManimEngine(Engine):
         work = Path(tempfile.mkdtemp(prefix="visphy-manim-"))
         try:
             (work / "program.py").write_text(program.source)
-            (work / "visphy_runner.py").write_text(RUNNER_SOURCE)
+            shutil.copy(RUNNER, work / RUNNER.name)
             (work / "job.json").write_text(json.dumps({
                 "width": contract.width, "height": contract.height, "fps": contract.fps,
-                "n_frames": contract.n_frames, "seed": contract.seed,
-                "frame_height": FRAME_HEIGHT_UNITS}))
+                "n_frames": contract.n_frames, "seed": contract.seed}))
             frames_mb = (contract.n_frames * contract.width * contract.height * 3 >> 20) + 64
             limits = Limits(wall_s=contract.timeout_s, cpu_s=contract.timeout_s + 5,
                             memory_mb=int(_cfg_get(self.cfg, "memory_mb", self.memory_mb)),
@@ -338,7 +209,7 @@ class ManimEngine(Engine):
             env = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
                    "PYTHONDONTWRITEBYTECODE": "1", "PYTHONUNBUFFERED": "1",
                    "XDG_CACHE_HOME": str(work / ".cache")}
-            res = run_sandboxed([sys.executable, "-s", "-B", "visphy_runner.py"], work, limits,
+            res = run_sandboxed([sys.executable, "-s", "-B", RUNNER.name], work, limits,
                                 env_extra=env, ro_paths=python_ro_paths(sys.executable))
             result = self._classify(res, work, contract, limits)
             result.isolation = res.isolation
@@ -379,6 +250,17 @@ class ManimEngine(Engine):
                               else FailureClass.INFRA_ERROR if error.get("kind") == "import_manim"
                               else FailureClass.RUNTIME_ERROR)
             result.error = _describe(error)
+            count = error.get("frames")
+            if (result.failure is FailureClass.RUNTIME_ERROR and isinstance(count, int)
+                    and 0 < count < contract.n_frames):
+                partial = _read_partial(work, contract, count)
+                if partial is not None:
+                    result.partial_frames = partial
+                    result.flag(RenderFlag.PARTIAL_CLIP)
+                    result.logs.append(f"partial clip: {count} of {contract.n_frames} frames "
+                                       "were captured before the error")
+            if result.failure is FailureClass.RUNTIME_ERROR:
+                _note_frame(result, error, contract)
         elif res.returncode != 0:
             result.failure = FailureClass.RUNTIME_ERROR
             if res.returncode < 0:
@@ -398,6 +280,7 @@ class ManimEngine(Engine):
                 result.error = "every frame is one flat colour"
             else:
                 result.frames = frames
+            _note_frame(result, _read_json(work / "result.json"), contract)
         return result
 
     # ------------------------------------------------------------------ reference program
@@ -454,6 +337,40 @@ def _describe(error: dict) -> str:
     if "latex" in low or "mathtex" in low or "dvisvgm" in low:
         text += " - LaTeX is not installed: use Text(...) instead of MathTex/Tex"
     return text
+
+
+def _note_frame(result: RenderResult, meta, contract: RenderContract) -> None:
+    """Log the program's camera frame and how it was fitted; flag a letterboxed one."""
+    info = meta.get("frame") if isinstance(meta, dict) else None
+    if not isinstance(info, dict):
+        return
+    try:
+        fw, fh = float(info["width"]), float(info["height"])
+        pw, ph = (int(v) for v in info["pixels"])
+        x0, y0 = (int(v) for v in info["offset"])
+        rate = float(info["frame_rate"])
+    except (KeyError, TypeError, ValueError):
+        return
+    line = f"frame: {fw:.6g} x {fh:.6g} units at {rate:g} fps"
+    if (pw, ph) != (contract.width, contract.height):
+        result.flag(RenderFlag.CANVAS_RESIZED)
+        line += (f"; letterboxed into the {contract.width}x{contract.height} clip: {pw}x{ph} px "
+                 f"at ({x0}, {y0}), background-coloured bars")
+    else:
+        line += f", filling the {contract.width}x{contract.height} clip"
+    if rate != contract.fps:
+        line += f"; clip frame k shows the last frame emitted by t = k / {contract.fps:g}"
+    result.logs.append(line)
+
+
+def _read_partial(work: Path, contract: RenderContract, count: int) -> np.ndarray | None:
+    """The ``count`` clip frames the runner wrote before a runtime error, or None."""
+    frame_bytes = contract.width * contract.height * 3
+    raw = _read_untrusted(work / "frames.rgb", count * frame_bytes)
+    if raw is None or len(raw) != count * frame_bytes:
+        return None
+    data = np.frombuffer(raw, dtype=np.uint8).reshape(count, contract.height, contract.width, 3)
+    return np.array(data, copy=True)
 
 
 def _read_frames(work: Path, contract: RenderContract) -> tuple[np.ndarray | None, str | None]:

@@ -71,7 +71,7 @@ P5_READY = """<script>
 
 class P5Engine(BrowserEngine):
     name = "p5"
-    version = "1"
+    version = "2"  # 2: flags (library_substituted, no_recording_call, canvas_resized, partial_clip)
     supports_3d = False
     preload = ("p5.min.js", "matter.min.js", "cannon.min.js")
 

@@ -42,10 +42,13 @@ RESET_CSS = ("<style>html, body { margin: 0; padding: 0; overflow: hidden; }"
 
 class SvgEngine(BrowserEngine):
     name = "svg"
-    version = "1"
+    version = "2"  # 2: flags (library_substituted, partial_clip), blocked requests named
     supports_3d = False
     preload = ()
     capture = "screenshot"
+    #: The instructions make setupRecording optional: capture is the viewport in virtual time,
+    #: so a page that never calls it is not flagged ``no_recording_call``.
+    expects_recording_call = False
 
     def instructions(self, dim: str) -> str:
         return INSTRUCTIONS_3D if dim == "3d" else INSTRUCTIONS_2D

@@ -33,7 +33,7 @@ durationMs)` once to record a finite clip.
 
 class ThreeJsEngine(BrowserEngine):
     name = "threejs"
-    version = "2"
+    version = "3"  # 3: flags (library_substituted, no_recording_call, canvas_resized, partial_clip)
     supports_3d = True
     preload = ("three.min.js", "cannon.min.js")
 
