@@ -13,8 +13,8 @@ Five scene metrics (family ``physics``, lower is better, ``needs`` spec and prog
 ``param_speed_err``        mean over the revealed moving bodies of |‖v0‖_model − ‖v0‖_gt| in m/s
 =========================  ==================================================================
 
-What is scored: the ground truth's ``ground_truth.identifiable`` (`visphy_core.bench.
-identifiable`): ``gravity`` (bool), ``initial_velocity`` (body ids), ``restitution``,
+What is scored: the ground truth's ``ground_truth.identifiable`` (written by the generator,
+`visphy_plugins.datasets.visphybench.identifiable`): ``gravity`` (bool), ``initial_velocity`` (body ids), ``restitution``,
 ``friction`` and ``mass_ratio`` (id pairs). A parameter the clip does not reveal is NaN (recorded
 as None, status ``not_revealed``); a revealed one for which the model's reply gives no usable
 value is NaN too (status ``not_determinable``); a pair parameter is the mean over the items the
