@@ -195,7 +195,7 @@ def _red_centroid(frame: np.ndarray) -> tuple[np.ndarray, int]:
 
 @pytest.mark.browser
 def test_replay_is_deterministic_and_matches_the_projection(valid_scenes, pool):
-    from visphy_core.replay3d import replay_html_3d
+    from visphy_core.replay import replay_html_3d
     from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
     from visphy_core.video import frame_digest
 
@@ -226,7 +226,7 @@ def test_replay_is_deterministic_and_matches_the_projection(valid_scenes, pool):
 def test_threejs_engine_runs_the_replay_page_unchanged(valid_scenes, pool):
     """The engine's reference program for 3D scenes (same page, engine's trusted template)
     reproduces the ground-truth frames exactly."""
-    from visphy_core.replay3d import replay_html_3d
+    from visphy_core.replay import replay_html_3d
     from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
     from visphy_core.engine import Program, RenderContract
     from visphy_plugins.engines.threejs import ThreeJsEngine

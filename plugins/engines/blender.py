@@ -52,6 +52,7 @@ from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, 
                                 RenderFlag, RenderResult, classify_frames)
 from visphy_core.extract import extract_code, extract_spec, fenced_blocks
 from visphy_core.hookspecs import hookimpl
+from visphy_core.replay import replay_payload
 from visphy_core.scene import Scene
 from visphy_core.secrets import redact
 
@@ -224,12 +225,8 @@ class BlenderEngine(Engine):
                                   "must `import bpy`)")
 
     def program_from_spec(self, scene: Scene) -> Program:
-        spec, traj = scene.spec, scene.trajectory
-        if spec is None or traj is None:
-            raise ValueError(f"{scene.scene_id}: the reference program needs the scene's spec and "
-                             "trajectory (generated benchmarks have both)")
-        payload = replay_payload(spec, traj, scene.dim, scene.clip.fps, scene.clip.n_frames,
-                                 scene.clip.width, scene.clip.height)
+        spec = scene.spec
+        payload = replay_payload(scene)
         source = TEMPLATE.read_text().replace(
             "__SCENE_JSON__", repr(json.dumps(payload, separators=(",", ":"))))
         return Program(language=self.language, source=source, spec=spec)
@@ -447,44 +444,6 @@ def _keep_partial(result: RenderResult, rendered: Any, frame_files: list[Path],
 # ------------------------------------------------------------------ reference program payload
 
 
-def _r(v: float, nd: int) -> float:
-    return round(float(v), nd) + 0.0
-
-
-def replay_payload(spec: dict, traj: dict, dim: str, fps: float, n_frames: int, width: int,
-                   height: int) -> dict:
-    """What ``templates/blender_replay.py.tmpl`` reads: shapes, colours, camera, per-frame poses
-    in the order of ``spec["bodies"]`` (2D: x_px, y_px, angle_rad; 3D: x, y, z, qx, qy, qz, qw)."""
-    order = {str(b): i for i, b in enumerate(traj["body_ids"])}
-    poses = np.asarray(traj["frame_poses"], dtype=np.float64)[:n_frames]
-    idx = [order[b["id"]] for b in spec["bodies"]]
-    poses = poses[:, idx]
-    bodies = [{"id": b["id"], "color_rgb": list(b["color_rgb"]), "shape": b["shape"]}
-              for b in spec["bodies"]]
-    payload: dict[str, Any] = {"dim": dim, "width": int(width), "height": int(height),
-                               "fps": float(fps), "n_frames": int(n_frames), "bodies": bodies}
-    if dim == "3d":
-        cam, render, floor = spec["camera"], spec["render"], spec["world"]["floor"]
-        payload.update({
-            "camera": {"fov_deg": float(cam["fov_deg"]), "near": float(cam.get("near", 0.1)),
-                       "far": float(cam.get("far", 100.0)), "position": list(cam["position"]),
-                       "look_at": list(cam["look_at"]),
-                       "up": list(cam.get("up", [0.0, 1.0, 0.0]))},
-            "background_rgb": list(render.get("background_rgb", [255, 255, 255])),
-            "lighting": render.get("lighting"),
-            "shadows": bool(render.get("shadows", False)),
-            "floor": {"y": float(floor["y"]), "color_rgb": list(floor["color_rgb"]),
-                      "size_m": float(floor.get("size_m", 60.0))},
-            "frame_poses": [[[_r(v, 6) for v in p[:3]] + [_r(v, 7) for v in p[3:]]
-                             for p in frame] for frame in poses],
-        })
-    else:
-        payload.update({
-            "background_rgb": list(spec.get("render", {}).get("background_rgb",
-                                                                [255, 255, 255])),
-            "frame_poses": [[[_r(v, 6) for v in p] for p in frame] for frame in poses],
-        })
-    return payload
 
 
 @hookimpl

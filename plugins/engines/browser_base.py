@@ -44,6 +44,7 @@ import numpy as np
 from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
                                 RenderFlag, RenderResult, classify_frames)
 from visphy_core.extract import extract_code, extract_spec
+from visphy_core.replay import fill, replay_payload
 from visphy_core.sandbox.browser import BrowserPool, PageCapture
 
 TEMPLATES = Path(__file__).with_name("templates")
@@ -508,44 +509,16 @@ class BrowserEngine(Engine):
 
 
 def replay_payload_2d(scene, engine_name: str) -> dict:
-    """What a 2D reference program replays: size, fps, background, each body's colour and local
-    geometry (a circle radius, or convex polygons in px around the body origin, y up) and the
-    ground-truth poses [frame][body] = [x_px, y_px, angle_rad] (origin bottom-left, y up, CCW)."""
-    from visphy_core.spec2d import local_polygons
-
-    spec, traj = scene.spec, scene.trajectory
+    """The scene's replay payload (`visphy_core.replay`) for a 2D-only engine."""
     if scene.dim == "3d":
         raise NotImplementedError(
             f"{scene.scene_id}: the {engine_name} engine is 2D only; a 3D scene has no "
             f"{engine_name} reference program (use engine=threejs for 3D scenes)")
-    if spec is None or traj is None:
-        raise ValueError(f"{scene.scene_id}: the reference program needs the scene's spec and "
-                         "trajectory (generated benchmarks have both)")
-    order = {str(body_id): i for i, body_id in enumerate(traj["body_ids"])}
-    bodies = []
-    for b in spec["bodies"]:
-        shape = b["shape"]
-        entry = {"id": b["id"], "color_rgb": [int(c) for c in b["color_rgb"]]}
-        if shape["type"] == "circle":
-            entry["radius"] = float(shape["radius_px"])
-        else:
-            entry["polygons"] = [[[round(float(v), 6) for v in pt] for pt in poly]
-                                 for poly in local_polygons(shape)]
-        bodies.append(entry)
-    return {
-        "width": scene.clip.width, "height": scene.clip.height, "fps": scene.clip.fps,
-        "n_frames": scene.clip.n_frames,
-        "background_rgb": [int(c) for c in spec.get("render", {}).get("background_rgb",
-                                                                        [255, 255, 255])],
-        "bodies": bodies,
-        "frame_poses": [[[round(float(v), 6) for v in frame[order[b["id"]]]]
-                         for b in spec["bodies"]] for frame in traj["frame_poses"]],
-    }
+    return replay_payload(scene)
 
 
 def fill_template(name: str, payload: dict) -> str:
-    html = (TEMPLATES / name).read_text()
-    return html.replace("__SCENE_JSON__", json.dumps(payload, separators=(",", ":")))
+    return fill((TEMPLATES / name).read_text(), payload)
 
 
 def _resize(frames: list[np.ndarray], contract: RenderContract) -> np.ndarray:

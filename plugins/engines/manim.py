@@ -67,6 +67,7 @@ from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, 
                                 RenderFlag, RenderResult, classify_frames)
 from visphy_core.extract import extract_code, extract_spec
 from visphy_core.hookspecs import hookimpl
+from visphy_core.replay import replay_payload
 from visphy_core.sandbox.process import (Limits, ProcessResult, describe_limit, python_ro_paths,
                                          read_untrusted, run_sandboxed)
 from visphy_core.secrets import redact
@@ -285,25 +286,13 @@ class ManimEngine(Engine):
 
     # ------------------------------------------------------------------ reference program
     def program_from_spec(self, scene: Scene) -> Program:
-        spec, traj = scene.spec, scene.trajectory
+        spec = scene.spec
         if scene.dim == "3d":
             raise NotImplementedError(
                 f"{scene.scene_id}: the manim engine has no reference program for 3D scenes "
                 "(Manim's Cairo renderer draws 3D only approximately); use the threejs engine "
                 "for 3D oracles")
-        if spec is None or traj is None:
-            raise ValueError(f"{scene.scene_id}: the reference program needs the scene's spec and "
-                             "trajectory (generated benchmarks have both)")
-        order = {str(body_id): i for i, body_id in enumerate(traj["body_ids"])}
-        payload = {
-            "scene_id": scene.scene_id,
-            "width": scene.clip.width, "height": scene.clip.height, "fps": scene.clip.fps,
-            "n_frames": scene.clip.n_frames,
-            "bodies": [{"id": b["id"], "color_rgb": b["color_rgb"], "shape": b["shape"]}
-                       for b in spec["bodies"]],
-            "frame_poses": [[[round(float(v), 6) for v in frame[order[b["id"]]]]
-                             for b in spec["bodies"]] for frame in traj["frame_poses"]],
-        }
+        payload = replay_payload(scene)
         source = (TEMPLATES / "manim_replay_2d.py.tmpl").read_text()
         source = source.replace("__SCENE_JSON__",
                                 repr(json.dumps(payload, separators=(",", ":"))))

@@ -3,11 +3,11 @@ with ``CANNON`` (cannon.js 0.6.2) or ``cannon-es``, run in headless Chromium in 
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from visphy_core.engine import Program
 from visphy_core.hookspecs import hookimpl
+from visphy_core.replay import fill, replay_payload
 from visphy_core.scene import Scene
 from visphy_plugins.engines.browser_base import BrowserEngine
 
@@ -46,21 +46,11 @@ class ThreeJsEngine(BrowserEngine):
             raise ValueError(f"{scene.scene_id}: the reference program needs the scene's spec and "
                              "trajectory (generated benchmarks have both)")
         if scene.dim == "3d":
-            from visphy_core.replay3d import replay_html_3d
+            from visphy_core.replay import replay_html_3d
 
             html = replay_html_3d(spec, traj["frame_poses"], scene.clip.fps, scene.clip.n_frames)
             return Program(language=self.language, source=html, spec=spec)
-        order = {str(body_id): i for i, body_id in enumerate(traj["body_ids"])}
-        payload = {
-            "width": scene.clip.width, "height": scene.clip.height, "fps": scene.clip.fps,
-            "n_frames": scene.clip.n_frames,
-            "bodies": [{"id": b["id"], "color_rgb": b["color_rgb"], "shape": b["shape"]}
-                       for b in spec["bodies"]],
-            "frame_poses": [[[round(float(v), 6) for v in frame[order[b["id"]]]]
-                             for b in spec["bodies"]] for frame in traj["frame_poses"]],
-        }
-        html = (TEMPLATES / "threejs_replay_2d.html").read_text()
-        html = html.replace("__SCENE_JSON__", json.dumps(payload, separators=(",", ":")))
+        html = fill((TEMPLATES / "threejs_replay_2d.html").read_text(), replay_payload(scene))
         return Program(language=self.language, source=html, spec=spec)
 
 

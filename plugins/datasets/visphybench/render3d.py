@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from visphy_core.replay3d import replay_html_3d
+from visphy_core.replay import replay_html_3d
 
 
 def render_clip_3d(spec: dict, frame_poses, pool, timeout_s: float = 180.0) -> np.ndarray:
