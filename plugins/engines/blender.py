@@ -55,6 +55,7 @@ from visphy_core.hookspecs import hookimpl
 from visphy_core.replay import replay_payload
 from visphy_core.scene import Scene
 from visphy_core.secrets import redact
+from visphy_core.settings import cfg_get
 
 HERE = Path(__file__).resolve().parent
 RUNNER = HERE / "blender_runner.py"
@@ -94,19 +95,9 @@ class BlenderConfig(EngineConfig):
     keep_workdir: bool = False         # keep the per-scene work directory (debugging)
 
 
-def _get(cfg: Any, key: str, default: Any) -> Any:
-    if cfg is None:
-        return default
-    if isinstance(cfg, dict):
-        value = cfg.get(key, default)
-    else:
-        value = getattr(cfg, key, default)
-    return default if value is None else value
-
-
 def _engine_name(cfg: Any) -> str:
     """``render_engine`` as a lower-case string (the config holds a `RenderEngine`)."""
-    value = _get(cfg, "render_engine", "workbench")
+    value = cfg_get(cfg, "render_engine", "workbench")
     if isinstance(value, Enum):
         value = value.value
     return str(value).lower()
@@ -119,7 +110,7 @@ def default_venv() -> Path:
 
 def find_blender_python(cfg: Any = None) -> Path | None:
     """The Blender venv's interpreter, or None when it is not installed."""
-    candidates = [_get(cfg, "python", None), os.environ.get("VISPHY_BLENDER_PYTHON"),
+    candidates = [cfg_get(cfg, "python", None), os.environ.get("VISPHY_BLENDER_PYTHON"),
                   str(default_venv() / "bin" / "python")]
     for cand in candidates:
         if cand and Path(cand).is_file() and os.access(cand, os.X_OK):
@@ -234,8 +225,9 @@ class BlenderEngine(Engine):
     def cache_identity(self) -> str:
         parts = [f"{self.name}@{self.version}", _engine_name(self.cfg)]
         if _engine_name(self.cfg) != "workbench":
-            parts += [f"s{_get(self.cfg, 'samples', 16)}", f"dn{int(_get(self.cfg, 'denoise', 0))}"]
-        parts += [str(_get(self.cfg, "view_transform", "Standard")),
+            parts += [f"s{cfg_get(self.cfg, 'samples', 16)}",
+                      f"dn{int(cfg_get(self.cfg, 'denoise', 0))}"]
+        parts += [str(cfg_get(self.cfg, "view_transform", "Standard")),
                   f"bpy{bpy_version(find_blender_python(self.cfg)) or '?'}"]
         return ":".join(parts)
 
@@ -259,20 +251,20 @@ class BlenderEngine(Engine):
             job = {"script": SCRIPT_NAME, "out_dir": "frames", "result": "result.json",
                    "fps": contract.fps, "n_frames": contract.n_frames,
                    "width": contract.width, "height": contract.height,
-                   "render_engine": render_engine, "samples": int(_get(self.cfg, "samples", 16)),
-                   "denoise": bool(_get(self.cfg, "denoise", False)),
-                   "threads": int(_get(self.cfg, "threads", 0)),
-                   "view_transform": _get(self.cfg, "view_transform", "Standard"),
+                   "render_engine": render_engine, "samples": int(cfg_get(self.cfg, "samples", 16)),
+                   "denoise": bool(cfg_get(self.cfg, "denoise", False)),
+                   "threads": int(cfg_get(self.cfg, "threads", 0)),
+                   "view_transform": cfg_get(self.cfg, "view_transform", "Standard"),
                    "seed": int(contract.seed), "dim": contract.dim}
             (workdir / "job.json").write_text(json.dumps(job, indent=1))
-            cores = int(_get(self.cfg, "threads", 0)) or (os.cpu_count() or 1)
+            cores = int(cfg_get(self.cfg, "threads", 0)) or (os.cpu_count() or 1)
             # PNG frames are at most ~4 bytes per pixel (+ headers); keep room for them
             frames_mb = (contract.n_frames * contract.width * contract.height * 4 >> 20) + 64
             limits = Limits(
                 wall_s=float(contract.timeout_s),
                 cpu_s=float(contract.timeout_s) * max(1, cores),
-                memory_mb=int(_get(self.cfg, "memory_mb", 4096)),
-                disk_mb=max(int(_get(self.cfg, "disk_mb", 2048)), frames_mb + 64),
+                memory_mb=int(cfg_get(self.cfg, "memory_mb", 4096)),
+                disk_mb=max(int(cfg_get(self.cfg, "disk_mb", 2048)), frames_mb + 64),
                 max_files=max(20000, contract.n_frames + 1000))
             # HOME and TMPDIR are the work dir (run_sandboxed); PYTHONHASHSEED is fixed there
             env = {"PYTHONNOUSERSITE": "1", "PYTHONDONTWRITEBYTECODE": "1"}
@@ -283,7 +275,7 @@ class BlenderEngine(Engine):
             result.logs.insert(0, f"sandbox: {proc.isolation}; exit {proc.returncode}; "
                                   f"{proc.wall_s:.2f} s")
         finally:
-            if not _get(self.cfg, "keep_workdir", False):
+            if not cfg_get(self.cfg, "keep_workdir", False):
                 shutil.rmtree(workdir, ignore_errors=True)
         # defence in depth: no configured secret value leaves the engine
         result.error = redact(result.error)

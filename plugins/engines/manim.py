@@ -71,6 +71,7 @@ from visphy_core.replay import replay_payload
 from visphy_core.sandbox.process import (Limits, ProcessResult, describe_limit, python_ro_paths,
                                          read_untrusted, run_sandboxed)
 from visphy_core.secrets import redact
+from visphy_core.settings import cfg_get
 from visphy_core.scene import Scene
 
 log = logging.getLogger(__name__)
@@ -111,16 +112,6 @@ self.set_camera_orientation(...) that matches the view in the images.
 #: frame after frame) + ``result.json``, or ``error.json`` and exits 3. Everything it writes is
 #: treated as untrusted by the host (the program runs in the same process).
 RUNNER = Path(__file__).resolve().with_name("manim_runner.py")
-
-
-def _cfg_get(cfg, key: str, default):
-    if cfg is None:
-        return default
-    try:
-        value = cfg.get(key, default) if hasattr(cfg, "get") else getattr(cfg, key, default)
-    except Exception:  # noqa: BLE001 (struct configs raise on unknown keys)
-        return default
-    return default if value is None else value
 
 
 def manim_available() -> tuple[bool, str]:
@@ -192,7 +183,7 @@ class ManimEngine(Engine):
     # ------------------------------------------------------------------ render
     def render(self, program: Program, contract: RenderContract) -> RenderResult:
         start = time.monotonic()
-        keep = bool(_cfg_get(self.cfg, "keep_workdir", False))
+        keep = bool(cfg_get(self.cfg, "keep_workdir", False))
         work = Path(tempfile.mkdtemp(prefix="visphy-manim-"))
         try:
             (work / "program.py").write_text(program.source)
@@ -202,10 +193,10 @@ class ManimEngine(Engine):
                 "n_frames": contract.n_frames, "seed": contract.seed}))
             frames_mb = (contract.n_frames * contract.width * contract.height * 3 >> 20) + 64
             limits = Limits(wall_s=contract.timeout_s, cpu_s=contract.timeout_s + 5,
-                            memory_mb=int(_cfg_get(self.cfg, "memory_mb", self.memory_mb)),
-                            file_size_mb=max(int(_cfg_get(self.cfg, "file_size_mb",
+                            memory_mb=int(cfg_get(self.cfg, "memory_mb", self.memory_mb)),
+                            file_size_mb=max(int(cfg_get(self.cfg, "file_size_mb",
                                                           self.file_size_mb)), frames_mb),
-                            disk_mb=max(int(_cfg_get(self.cfg, "disk_mb", self.disk_mb)),
+                            disk_mb=max(int(cfg_get(self.cfg, "disk_mb", self.disk_mb)),
                                         frames_mb + 64))
             env = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
                    "PYTHONDONTWRITEBYTECODE": "1", "PYTHONUNBUFFERED": "1",

@@ -42,6 +42,7 @@ from visphy_core.calls import CallErrorKind
 from visphy_core.config_schema import JudgeConfig
 from visphy_core.hookspecs import hookimpl
 from visphy_core.judge import Judge, JudgeInput, Verdict
+from visphy_core.settings import cfg_get
 from visphy_core.video import decode_video
 
 DIMENSIONS = ("visual_quality", "text_alignment", "physical_consistency")
@@ -136,8 +137,7 @@ class VideoScore2Judge(Judge):
         self._lock = threading.Lock()
 
     def _get(self, key: str, default: Any) -> Any:
-        value = self.cfg.get(key) if self.cfg is not None else None
-        return default if value is None else value
+        return cfg_get(self.cfg, key, default)
 
     def weights_path(self) -> Path | None:
         configured = self._get("weights_dir", None)
