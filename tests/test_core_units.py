@@ -114,3 +114,48 @@ def test_normalise_command_matches_a_foreign_video_to_the_reference(tmp_path):
     expected = [min(6 * k, 59) * 4 for k in range(17)]
     assert all(abs(r - e) <= 6 for r, e in zip(reds, expected)), (reds, expected)
     assert frames[0][2, 32].min() > 240  # white padding above the 4:3 picture
+
+
+# --------------------------------------------------------------------------- files, png, settings
+def test_atomic_write_replaces_whole_files_and_leaves_no_temporaries(tmp_path):
+    from visphy_core.files import atomic_write
+
+    path = tmp_path / "a" / "b.txt"
+    atomic_write(path, "first ✓")
+    atomic_write(path, b"second")
+    assert path.read_bytes() == b"second"
+    assert sorted(p.name for p in path.parent.iterdir()) == ["b.txt"]
+    with pytest.raises(TypeError):
+        atomic_write(path, 3)  # type: ignore[arg-type]
+    assert path.read_bytes() == b"second" and len(list(path.parent.iterdir())) == 1
+
+
+def test_png_round_trip_and_transparency_over_a_background():
+    from visphy_core.png import decode_png, png_bytes
+
+    rgb = np.random.default_rng(0).integers(0, 256, (5, 7, 3), dtype=np.uint8)
+    assert np.array_equal(decode_png(png_bytes(rgb)), rgb)
+    assert png_bytes(rgb) == png_bytes(rgb.copy())
+    rgba = np.zeros((2, 2, 4), dtype=np.uint8)
+    rgba[0, 0] = (10, 20, 30, 255)                     # opaque; the rest fully transparent
+    over_white = decode_png(png_bytes(rgba), background=(255, 255, 255))
+    assert over_white[0, 0].tolist() == [10, 20, 30] and over_white[1, 1].tolist() == [255] * 3
+    assert decode_png(png_bytes(rgba))[1, 1].tolist() == [0, 0, 0]  # alpha dropped
+
+
+def test_cfg_get_reads_any_node_and_falls_back_on_absent_or_none():
+    from omegaconf import OmegaConf
+
+    from visphy_core.settings import cfg_get
+
+    strict = OmegaConf.structured({"a": 1, "b": None})
+    OmegaConf.set_struct(strict, True)
+    assert cfg_get(strict, "a", 5) == 1 and cfg_get(strict, "b", 5) == 5
+    assert cfg_get(strict, "unknown", 7) == 7          # struct configs raise on unknown keys
+    assert cfg_get({"a": 0}, "a", 9) == 0              # a falsy value is a value
+    assert cfg_get(None, "a", 3) == 3
+
+    class Obj:
+        a = 2
+
+    assert cfg_get(Obj(), "a") == 2 and cfg_get(Obj(), "z", "d") == "d"
