@@ -26,7 +26,7 @@ from visphy_core.scoring import ScoringProtocol, alignments
 from visphy_core.video import ClipInfo, decode_video, encode_video
 from visphy_plugins.metrics import tracks as T
 
-SCENE_3D = "03_tmpl_02"  # a 3D scene of the generated benchmark: seven bodies
+SCENE_3D = "vpb3-s0-3d-t003-v02"  # a 3D scene of the generated benchmark (template 3)
 NAMES = T.NAMES
 CLIP_2D = ClipInfo(fps=5.0, n_frames=17, width=512, height=512)
 DIAG = math.hypot(512, 512)

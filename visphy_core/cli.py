@@ -150,10 +150,14 @@ def cmd_build_dataset(argv: list[str]) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--data-dir", default=f"{home}/data")
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
+    parser.add_argument("--lossless", action="store_true",
+                        help="exact-RGB clips (engine conformance) instead of the published "
+                             "encoding (H.264 yuv420p crf 23)")
     args = parser.parse_args(argv)
     start = time.perf_counter()
+    options = {"lossless": True} if args.lossless else {}
     root = build_dataset(args.source, Path(args.data_dir), seed=args.seed, split=args.split,
-                         workers=args.workers)
+                         workers=args.workers, **options)
     print(f"{args.source} (seed {args.seed}, split {args.split or 'all'}) ready in {root} "
           f"({time.perf_counter() - start:.1f} s)")
     return 0

@@ -83,6 +83,10 @@ class DatasetConfig:
     # from its templates), original (the published layout on disk), tiny (a fixture)
     source: str = "generated"
     seed: int = field(default=0, metadata={"min": 0})  # generated: the benchmark's seed
+    # generated: the generator version to load (None: this visphy's, built on first use; an
+    # older one is loaded from its existing build, never regenerated)
+    version: Optional[int] = field(default=None, metadata={"min": 2})
+    lossless: bool = False             # generated: exact-RGB clips instead of the published crf 23
     root: Optional[str] = None         # original layout: folder holding <split>/
     split: Optional[str] = None
     scenes: Optional[list[str]] = None  # explicit scene ids

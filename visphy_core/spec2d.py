@@ -113,7 +113,9 @@ SPEC_JSON_SCHEMA: dict[str, Any] = {
     **_obj(
         {
             "schema": {"const": SPEC_SCHEMA},
-            "scene_id": {"type": "string", "pattern": r"^task\d{5}_\d{3}$"},
+            # generated ids (`vpb3-s0-2d-t001-v00`); builds before version 3 used task-style ids
+            "scene_id": {"type": "string",
+                         "pattern": r"^(vpb\d+-s\d+-2d-t\d{3}-v\d{2}|task\d{5}_\d{3})$"},
             "template_id": {"type": "string", "pattern": r"^\d{5}$"},
             "variant": {"type": "integer", "minimum": 0},
             "seed": {"type": "integer", "minimum": 0},

@@ -118,7 +118,8 @@ SCHEMA_3D: dict[str, Any] = {
     **_obj(
         {
             "schema": {"const": SPEC_SCHEMA},
-            "scene_id": {"type": "string", "pattern": r"^\d{2}_tmpl_\d{2}$"},
+            "scene_id": {"type": "string",  # vpb3-s0-3d-t001-v00; before version 3: NN_tmpl_NN
+                         "pattern": r"^(vpb\d+-s\d+-3d-t\d{3}-v\d{2}|\d{2}_tmpl_\d{2})$"},
             "template_id": {"type": "string", "pattern": r"^\d{2}$"},
             "variant": {"type": "integer", "minimum": 0},
             "seed": {"type": "integer", "minimum": 0},

@@ -40,8 +40,15 @@ def frame_digest(frame: np.ndarray) -> str:
     return h.hexdigest()
 
 
-def encode_video(frames: np.ndarray | list[np.ndarray], path: str | Path, fps: float) -> Path:
-    """Write RGB uint8 frames (N×H×W×3) to an H.264 MP4 atomically (temp file, then rename)."""
+#: The published VisPhyBench clips' encoding: H.264 yuv420p at crf 23.
+PUBLISHED_CRF = 23
+
+
+def encode_video(frames: np.ndarray | list[np.ndarray], path: str | Path, fps: float,
+                 crf: int | None = None, lossless: bool = False) -> Path:
+    """Write RGB uint8 frames (N×H×W×3) to an H.264 MP4 atomically (temp file, then rename).
+    ``crf`` overrides `H264_OPTIONS`' (visphy's own clips: 12); ``lossless``: H.264 in RGB
+    (libx264rgb, crf 0), whose frames decode back bit for bit."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     frames = [np.ascontiguousarray(f, dtype=np.uint8) for f in frames]
@@ -53,8 +60,13 @@ def encode_video(frames: np.ndarray | list[np.ndarray], path: str | Path, fps: f
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     rate = Fraction(fps).limit_denominator(1001)
     with av.open(str(tmp), mode="w", format="mp4") as container:
-        stream = container.add_stream("libx264", rate=rate, options=dict(H264_OPTIONS))
-        stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
+        options = dict(H264_OPTIONS) | ({"crf": str(crf)} if crf is not None else {})
+        if lossless:
+            options["crf"] = "0"
+        stream = container.add_stream("libx264rgb" if lossless else "libx264", rate=rate,
+                                      options=options)
+        stream.width, stream.height = width, height
+        stream.pix_fmt = "rgb24" if lossless else "yuv420p"
         # Fixed container metadata: no creation time, so equal frames give equal bytes.
         container.metadata["encoder"] = "visphy"
         for frame in frames:

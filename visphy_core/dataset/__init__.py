@@ -39,7 +39,7 @@ def load_dataset(cfg, data_dir: Path, progress: bool = True) -> list[Scene]:
 
 
 def build_dataset(source: str, data_dir: Path, *, seed: int = 0, split: str | None = None,
-                  workers: int = 1, progress: bool = True) -> Path:
+                  workers: int = 1, progress: bool = True, **options) -> Path:
     """Generate dataset ``source`` under ``data_dir`` (``build-dataset``); its root."""
     return get_dataset(source).build(Path(data_dir), seed=seed, split=split, workers=workers,
-                                     progress=progress)
+                                     progress=progress, **options)

@@ -34,7 +34,7 @@ class Dataset:
         `visphy_core.errors.ConfigError` with one line. The whole run config is ``cfg``."""
 
     def build(self, data_dir: Path, *, seed: int = 0, split: str | None = None,
-              workers: int = 1, progress: bool = True) -> Path:
+              workers: int = 1, progress: bool = True, **options: Any) -> Path:
         """Generate the data under ``data_dir`` (``build-dataset``); returns its root. Only
-        generated datasets implement it."""
+        generated datasets implement it; ``options`` are their own (``lossless=True``)."""
         raise NotImplementedError(f"dataset {self.name!r} is not generated: nothing to build")

@@ -22,17 +22,29 @@ import numpy as np
 
 from visphy_core.files import atomic_write
 from visphy_core.png import png_bytes
+from visphy_core.video import PUBLISHED_CRF
 
-from visphy_plugins.datasets.visphybench.catalogue import Catalogue, Entry, build_catalogue
+from visphy_plugins.datasets.visphybench.catalogue import (GENERATOR_VERSION, Catalogue, Entry,
+                                                            build_catalogue)
 
-#: Bump when anything that changes the written files changes: older builds are redone.
-BUILDER_VERSION = "visphy-bench/2"
+#: The written files' version (= the generator's): a build of another version is never mixed
+#: with this one (each version has its own folder, `dataset_root`).
+BUILDER_VERSION = f"visphy-bench/{GENERATOR_VERSION}"
 KEY_FRAMES = (1, 10)
 DATASET_NAME = "visphybench"
+#: What the published clips are (H.264 yuv420p, crf 23); ``lossless`` builds are exact RGB
+#: (for engine conformance: a reference program can then be compared pixel for pixel).
+GT_CRF = PUBLISHED_CRF
 
 
-def dataset_root(data_dir: Path, seed: int = 0) -> Path:
-    return Path(data_dir) / f"{DATASET_NAME}-seed{seed}"
+def dataset_root(data_dir: Path, seed: int = 0, version: int = GENERATOR_VERSION,
+                 lossless: bool = False) -> Path:
+    """``<data_dir>/visphybench-v<version>-seed<seed>[-lossless]``; version 2 builds (before
+    scene ids had their own namespace) live in ``visphybench-seed<seed>``."""
+    if version <= 2:
+        return Path(data_dir) / f"{DATASET_NAME}-seed{seed}"
+    return Path(data_dir) / (f"{DATASET_NAME}-v{version}-seed{seed}"
+                             + ("-lossless" if lossless else ""))
 
 
 def json_bytes(obj) -> bytes:
@@ -129,8 +141,9 @@ def clip_of(spec: dict) -> tuple[float, int, int, int]:
     return float(w["video_fps"]), int(w["n_frames"]), int(width), int(height)
 
 
-def write_scene(entry: Entry, root: Path, pool=None) -> dict:
-    """Simulate (checking the catalogue digest), render and write one scene; returns its meta."""
+def write_scene(entry: Entry, root: Path, pool=None, lossless: bool = False) -> dict:
+    """Simulate (checking the catalogue digest), render and write one scene; returns its meta.
+    The clip is encoded like the published ones (crf 23) or, ``lossless``, exactly."""
     from visphy_core.video import encode_video
 
     spec = json.loads(json.dumps(entry.spec))
@@ -142,20 +155,41 @@ def write_scene(entry: Entry, root: Path, pool=None) -> dict:
     if frames.shape != (n_frames, height, width, 3):
         raise RuntimeError(
             f"{sid}: rendered {frames.shape}, expected {(n_frames, height, width, 3)}")
-    encode_video(frames, root / "videos" / f"{sid}.mp4", fps)
+    encode_video(frames, root / "videos" / f"{sid}.mp4", fps, crf=GT_CRF, lossless=lossless)
     for k in KEY_FRAMES:
         atomic_write(root / "keyframes" / f"{sid}_frame_{k:02d}.png", png_bytes(frames[k - 1]))
     atomic_write(root / "detection_json" / f"{sid}_frame_01.json", json_bytes(detection))
     atomic_write(root / "specs" / f"{sid}.json", json_bytes(spec))
     atomic_write(root / "trajectories" / f"{sid}.npz", _npz_bytes(rollout, spec["dim"]))
-    meta = {"scene_id": sid, "template_id": spec.get("template_id"), "dim": spec["dim"],
+    meta = {"scene_id": sid, "template_id": spec.get("template_id"),
+            # the published template this scene imitates: none does (visphy's templates are its
+            # own, in the published families' style), so the column is always null
+            "imitates": None,
+            "generator_version": GENERATOR_VERSION, "encoding": (
+                "h264rgb-lossless" if lossless else f"h264-yuv420p-crf{GT_CRF}"),
+            "dim": spec["dim"],
             "family": spec.get("family"), "splits": spec.get("splits", []),
             "difficulty": spec["difficulty"]["label"], "fps": fps, "n_frames": n_frames,
             "width": width, "height": height, "digest_sha256": entry.digest,
             "categories": sorted({o["category"] for o in detection["objects"]}),
+            "look": look_stats(frames, detection),
             "n_objects_by_category": _count(o["category"] for o in detection["objects"])}
     atomic_write(root / "meta" / f"{sid}.json", json_bytes(meta))
     return meta
+
+
+def look_stats(frames: np.ndarray, detection: dict) -> dict:
+    """What the clip looks like, for the datasheet's comparison with the published clips: the
+    red ball's radius in frame 1 (px; from the detection) and the share of non-white pixels
+    (any channel below 250) per frame: median, min and max over the clip."""
+    nonwhite = (frames.min(axis=3) < 250).mean(axis=(1, 2))
+    red = next((o for o in detection["objects"] if o.get("id") == "red_ball"), None)
+    radius = (red or {}).get("size", {}).get("radius_pixels")
+    return {"red_ball_radius_px": None if radius is None else round(float(radius), 2),
+            "nonwhite_frac": {"median": round(float(np.median(nonwhite)), 5),
+                              "min": round(float(nonwhite.min()), 5),
+                              "max": round(float(nonwhite.max()), 5)},
+            "n_objects": len(detection["objects"])}
 
 
 def _count(items) -> dict[str, int]:
@@ -165,15 +199,16 @@ def _count(items) -> dict[str, int]:
     return dict(sorted(out.items()))
 
 
-def _write_2d(args: tuple[Entry, str]) -> dict:
-    entry, root = args
-    return write_scene(entry, Path(root))
+def _write_2d(args: tuple[Entry, str, bool]) -> dict:
+    entry, root, lossless = args
+    return write_scene(entry, Path(root), lossless=lossless)
 
 
 # ------------------------------------------------------------------------------ whole builds
 
 
-def _render(entries: list[Entry], root: Path, progress: bool, workers: int) -> None:
+def _render(entries: list[Entry], root: Path, progress: bool, workers: int,
+            lossless: bool = False) -> None:
     from visphy_plugins.datasets.visphybench.catalogue import _track
 
     two_d = [e for e in entries if e.spec["dim"] == "2d"]
@@ -181,18 +216,18 @@ def _render(entries: list[Entry], root: Path, progress: bool, workers: int) -> N
     if two_d:
         if workers > 1 and len(two_d) > 1:
             with ProcessPoolExecutor(max_workers=workers) as ex:
-                done = ex.map(_write_2d, [(e, str(root)) for e in two_d])
+                done = ex.map(_write_2d, [(e, str(root), lossless) for e in two_d])
                 for _ in _track(done, len(two_d), "rendering 2D scenes", progress):
                     pass
         else:
             for e in _track(two_d, len(two_d), "rendering 2D scenes", progress):
-                write_scene(e, root)
+                write_scene(e, root, lossless=lossless)
     if three_d:
         from visphy_core.sandbox.browser import BrowserPool
 
         with BrowserPool(untrusted=False) as pool:  # visphy's own reference pages
             for e in _track(three_d, len(three_d), "rendering 3D scenes", progress):
-                write_scene(e, root, pool)
+                write_scene(e, root, pool, lossless=lossless)
 
 
 def _built_metas(root: Path, catalogue: Catalogue) -> list[dict]:
@@ -235,9 +270,10 @@ def _write_previews(root: Path, metas: list[dict]) -> None:
 
 
 def build_dataset(data_dir: Path, seed: int = 0, split: str | None = None,
-                  progress: bool = True, workers: int = 2) -> Path:
-    """Make sure every scene of ``split`` (default: all) is rendered; returns the dataset root."""
-    root = dataset_root(data_dir, seed)
+                  progress: bool = True, workers: int = 2, lossless: bool = False) -> Path:
+    """Make sure every scene of ``split`` (default: all) is rendered; returns the dataset root
+    (this generator version's; ``lossless``: its exact-RGB twin build)."""
+    root = dataset_root(data_dir, seed, lossless=lossless)
     catalogue = load_or_build_catalogue(root, seed, progress=progress, workers=workers)
     start = time.perf_counter()
     if split is not None and split not in catalogue.splits:
@@ -248,7 +284,7 @@ def build_dataset(data_dir: Path, seed: int = 0, split: str | None = None,
             if (wanted is None or e.spec["scene_id"] in wanted)
             and not (root / "meta" / f"{e.spec['scene_id']}.json").is_file()]
     if todo:
-        _render(todo, root, progress, workers)
+        _render(todo, root, progress, workers, lossless=lossless)
         _note_time(root, f"render_{split or 'all'}_s", time.perf_counter() - start)
     metas = _built_metas(root, catalogue)
     times = json.loads((root / "build_times.json").read_text()) if (

@@ -24,6 +24,9 @@ from typing import Any, Iterable
 
 from visphy_plugins.datasets.visphybench.identifiable import identifiable_params
 
+#: The generator's version: part of every scene id and of the builder version; bump when a
+#: change alters any scene (older builds stay loadable by version, `dataset.version`).
+GENERATOR_VERSION = 3
 PAPER_DIFFICULTY = {"sub": {"easy": 114, "medium": 67, "hard": 28},
                     "test": {"easy": 29, "medium": 17, "hard": 3}}
 LABELS = ("easy", "medium", "hard")
@@ -31,6 +34,15 @@ MAX_ATTEMPTS = 60
 #: (template_id, variant) of the scenes in the ``mini`` split: three 2D combinatorial scenes
 #: and one 2D law-probing scene (set in `mini_keys` once the templates are known).
 MINI_SIZE = 4
+
+
+def scene_id(dim: str, template_id: int, variant: int, seed: int,
+             version: int = GENERATOR_VERSION) -> str:
+    """visphy's own scene id: ``vpb<version>-s<seed>-<dim>-t<template>-v<variant>`` (2D templates
+    10001.. are numbered from 1), e.g. ``vpb3-s0-2d-t001-v00``. Never a published VisPhyBench
+    id (``taskNNNNN_NNN``, ``NN_tmpl_NN``): those name other scenes."""
+    number = template_id - 10000 if dim == "2d" else template_id
+    return f"vpb{version}-s{seed}-{dim}-t{number:03d}-v{variant:02d}"
 
 
 def scene_seed(seed: int, template_id: int, variant: int, attempt: int) -> int:
@@ -144,6 +156,7 @@ def draw_scene(unit: Unit, seed: int) -> Entry:
     for attempt in range(MAX_ATTEMPTS):
         s = scene_seed(seed, unit.template_id, unit.variant, attempt)
         spec = template.make(np.random.default_rng(s), unit.variant)
+        spec["scene_id"] = scene_id(unit.dim, unit.template_id, unit.variant, seed)
         spec["seed"] = s
         spec.setdefault("family", template.family)
         _validate(unit.dim, spec)

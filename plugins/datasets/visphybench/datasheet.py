@@ -28,6 +28,11 @@ PAPER_DIFFICULTY: dict[str, dict[str, int]] = {
     "test": {"easy": 29, "medium": 17, "hard": 3},
 }
 LABELS = ("easy", "medium", "hard")
+#: The published clips as measured (nine scenes the authors published with their code, decoded
+#: frame by frame; MISSION §5): min, median, max.
+PUBLISHED_RED_RADIUS_PX = (17.0, 39.0, 56.0)      # 2D red ball
+PUBLISHED_NONWHITE_PCT = (3.3, 4.4, 6.6)          # 2D non-white area per frame
+PUBLISHED_OBJECTS_PER_SCENE = 1523 / 209          # the paper's category counts over 209 scenes
 #: How a detected box is classified as a line or a rectangle.
 LINE_RULE = "a box is a line when length/thickness ≥ 4, else a rectangle"
 REQUIRED_KEYS = ("scene_id", "template_id", "dim", "family", "splits", "difficulty",
@@ -101,18 +106,63 @@ def datasheet_stats(entries: list[dict], rejected: dict[str, int],
             "dims": sorted({e["dim"] for e in members}),
         }
 
+    look = _look(entries)
     rejected_sorted = {reason: int(rejected[reason]) for reason in sorted(rejected)}
     return {
         "scenes": {"total": n, "2d": by_dim["2d"], "3d": by_dim["3d"], "paper": PAPER_SCENES},
         "templates": {"total": len(templates), "2d": tmpl_by_dim["2d"], "3d": tmpl_by_dim["3d"],
                       "paper": PAPER_TEMPLATES},
         "categories": categories,
+        "look": look,
         "difficulty": difficulty,
         "families": families,
         "rejected": {"by_reason": rejected_sorted, "total": sum(rejected_sorted.values())},
         "line_rectangle_rule": LINE_RULE,
         "build_seconds": None if build_seconds is None else round(float(build_seconds), 1),
     }
+
+
+def _spread(values: list[float]) -> dict[str, float] | None:
+    if not values:
+        return None
+    v = sorted(values)
+    mid = v[len(v) // 2] if len(v) % 2 else (v[len(v) // 2 - 1] + v[len(v) // 2]) / 2
+    return {"min": round(v[0], 2), "median": round(mid, 2), "max": round(v[-1], 2)}
+
+
+def _look(entries: list[dict]) -> dict[str, Any]:
+    """Sizes, covered area and object counts against the published clips (scenes written
+    before ``look`` was recorded are left out of these rows)."""
+    two_d = [e["look"] for e in entries if e["dim"] == "2d" and e.get("look")]
+    radii = [lk["red_ball_radius_px"] for lk in two_d if lk.get("red_ball_radius_px")]
+    nonwhite = [100.0 * lk["nonwhite_frac"]["median"] for lk in two_d]
+    counts = {dim: [sum(int(k) for k in e["n_objects_by_category"].values())
+                    for e in entries if e["dim"] == dim] for dim in ("2d", "3d")}
+    every = counts["2d"] + counts["3d"]
+    return {
+        "red_ball_radius_px_2d": {"generated": _spread(radii),
+                                  "published": dict(zip(("min", "median", "max"),
+                                                        PUBLISHED_RED_RADIUS_PX))},
+        "nonwhite_pct_2d": {"generated": _spread(nonwhite),
+                            "published": dict(zip(("min", "median", "max"),
+                                                  PUBLISHED_NONWHITE_PCT))},
+        "objects_per_scene": {
+            "generated": round(sum(every) / len(every), 2) if every else None,
+            "generated_2d": round(sum(counts["2d"]) / len(counts["2d"]), 2) if counts["2d"]
+            else None,
+            "generated_3d": round(sum(counts["3d"]) / len(counts["3d"]), 2) if counts["3d"]
+            else None,
+            "published": round(PUBLISHED_OBJECTS_PER_SCENE, 2)},
+    }
+
+
+def _within(generated: dict | None, published: dict) -> str:
+    if generated is None:
+        return "–"
+    ok = (published["min"] <= generated["median"] <= published["max"]
+          and generated["min"] >= published["min"] * 0.8
+          and generated["max"] <= published["max"] * 1.2)
+    return "yes" if ok else "no"
 
 
 def _paper(value: Any) -> str:
@@ -146,6 +196,24 @@ def render_markdown(stats: dict[str, Any]) -> str:
         paper_share = "–" if row["paper_share_pct"] is None else f"{row['paper_share_pct']:.1f}%"
         out.append(f"| {cat} | {row['scenes']} | {row['share_pct']:.1f}% | {row['objects']} | "
                    f"{paper_share} | {_paper(row['paper_objects'])} |")
+    look = stats.get("look") or {}
+    if look:
+        out += ["", "## What the clips look like, against the published clips", "",
+                "Published: the nine clips the authors released with their code, measured frame "
+                "by frame (min–median–max); objects per scene from the paper's category "
+                "counts (1,523 over 209 scenes).", "",
+                "| measure | generated | published | in range (median; ends ±20 %) |",
+                "|---|---|---|---|"]
+        for key, name in (("red_ball_radius_px_2d", "2D red-ball radius (px, frame 1)"),
+                          ("nonwhite_pct_2d", "2D non-white area per frame (%, clip median)")):
+            g, p = look[key]["generated"], look[key]["published"]
+            cell = "–" if g is None else f"{g['min']}–{g['median']}–{g['max']}"
+            out.append(f"| {name} | {cell} | {p['min']}–{p['median']}–{p['max']} | "
+                       f"{_within(g, p)} |")
+        o = look["objects_per_scene"]
+        out.append(f"| objects per scene (all / 2D / 3D) | {_paper(o['generated'])} / "
+                   f"{_paper(o['generated_2d'])} / {_paper(o['generated_3d'])} | "
+                   f"{o['published']} | – |")
     out += ["", f"Line/rectangle rule: {stats['line_rectangle_rule']}.", "",
             "## Difficulty per split", "",
             "| split | easy | medium | hard | unlabelled | total | paper (easy/medium/hard) |",

@@ -12,6 +12,8 @@ from visphy_core.dataset.base import Dataset
 from visphy_core.errors import ConfigError
 from visphy_core.hookspecs import hookimpl
 from visphy_core.scene import Scene
+from visphy_core.settings import cfg_get
+from visphy_plugins.datasets.visphybench.catalogue import GENERATOR_VERSION
 
 
 def _listing(names: list[str], most: int = 12) -> str:
@@ -19,6 +21,31 @@ def _listing(names: list[str], most: int = 12) -> str:
         return "none"
     more = f", … ({len(names) - most} more)" if len(names) > most else ""
     return ", ".join(names[:most]) + more
+
+
+def _version(node: Any) -> int:
+    value = cfg_get(node, "version", None)
+    return GENERATOR_VERSION if value is None else int(value)
+
+
+def _existing_build(data_dir: Path, seed: int, version: int, lossless: bool) -> Path:
+    """The root of an older generator version's build (loaded as it is: that generator is
+    gone, so it cannot be rebuilt)."""
+    from visphy_plugins.datasets.visphybench.build import dataset_root
+
+    root = dataset_root(data_dir, seed, version, lossless)
+    catalogue = root / "catalogue.json"
+    builder = None
+    if catalogue.is_file():
+        try:
+            builder = json.loads(catalogue.read_text()).get("builder")
+        except (OSError, ValueError):
+            builder = None
+    if builder != f"visphy-bench/{version}" or not (root / "metadata.jsonl").is_file():
+        raise ValueError(f"dataset.version={version}: no version-{version} build at {root} "
+                         f"(this visphy generates version {GENERATOR_VERSION}; an older "
+                         f"version can be loaded, not regenerated)")
+    return root
 
 
 class VisPhyBench(Dataset):
@@ -30,29 +57,45 @@ class VisPhyBench(Dataset):
         from visphy_plugins.datasets.visphybench.build import build_dataset
         from visphy_plugins.datasets.visphybench.loader import load_generated
 
-        root = build_dataset(data_dir, seed=cfg.seed, split=cfg.split, progress=progress)
+        version = _version(cfg)
+        lossless = bool(cfg_get(cfg, "lossless", False))
+        if version == GENERATOR_VERSION:
+            root = build_dataset(data_dir, seed=cfg.seed, split=cfg.split, progress=progress,
+                                 lossless=lossless)
+        else:
+            root = _existing_build(Path(data_dir), int(cfg.seed), version, lossless)
         return load_generated(root, split=cfg.split, scene_ids=cfg.scenes, strict=False)
 
     def build(self, data_dir: Path, *, seed: int = 0, split: str | None = None,
-              workers: int = 1, progress: bool = True) -> Path:
+              workers: int = 1, progress: bool = True, lossless: bool = False) -> Path:
         from visphy_plugins.datasets.visphybench.build import build_dataset
 
         return build_dataset(data_dir, seed=seed, split=split, workers=workers,
-                             progress=progress)
+                             progress=progress, lossless=lossless)
 
     def check(self, cfg: Any) -> None:
         """Where the catalogue is already on disk, ``dataset.split`` and ``dataset.scenes`` are
         checked against it (else the run checks them once it is built)."""
-        from visphy_plugins.datasets.visphybench.build import BUILDER_VERSION, dataset_root
+        from visphy_plugins.datasets.visphybench.build import dataset_root
 
+        version = _version(OmegaConf.select(cfg, "dataset"))
+        lossless = bool(OmegaConf.select(cfg, "dataset.lossless", default=False))
+        data_dir = Path(str(OmegaConf.select(cfg, "paths.data_dir")))
+        seed = int(OmegaConf.select(cfg, "dataset.seed", default=0) or 0)
+        if version > GENERATOR_VERSION:
+            raise ConfigError(f"dataset.version={version}: this visphy generates version "
+                              f"{GENERATOR_VERSION} (and loads older builds)")
+        if version < GENERATOR_VERSION:
+            try:
+                _existing_build(data_dir, seed, version, lossless)
+            except ValueError as exc:
+                raise ConfigError(str(exc)) from None
         try:
-            data_dir = OmegaConf.select(cfg, "paths.data_dir")
-            seed = int(OmegaConf.select(cfg, "dataset.seed", default=0) or 0)
-            path = dataset_root(Path(str(data_dir)), seed) / "catalogue.json"
+            path = dataset_root(data_dir, seed, version, lossless) / "catalogue.json"
             if not path.is_file():
                 return
             data = json.loads(path.read_text())
-            if data.get("builder") != BUILDER_VERSION or data.get("seed") != seed:
+            if data.get("builder") != f"visphy-bench/{version}" or data.get("seed") != seed:
                 return
             splits = {str(k): [str(i) for i in v] for k, v in data["splits"].items()}
             all_ids = sorted({str(s["spec"]["scene_id"]) for s in data["scenes"]})
