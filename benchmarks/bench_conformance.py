@@ -43,6 +43,9 @@ def main() -> None:
     parser.add_argument("--split", default="test")
     parser.add_argument("--n", type=int, default=10)
     parser.add_argument("--engines", default="threejs,p5,svg,manim,blender")
+    parser.add_argument("--published-encoding", action="store_true",
+                        help="compare with the published-style build (crf 23) instead of the "
+                             "lossless one")
     args = parser.parse_args()
 
     from visphy_plugins.datasets.visphybench.build import build_dataset
@@ -51,7 +54,9 @@ def main() -> None:
     from visphy_core.plugins import get_registry
     from visphy_plugins.metrics.pixel import psnr_frame, ssim_frame
 
-    root = build_dataset(Path(args.data_dir), split=args.split)
+    # conformance is about the engines, not the codec: the exact (lossless) ground truth
+    root = build_dataset(Path(args.data_dir), split=args.split,
+                         lossless=not args.published_encoding)
     scenes = load_generated(root, split=args.split)
     two_d = [s for s in scenes if s.dim == "2d"]
     three_d = [s for s in scenes if s.dim == "3d"]
