@@ -28,7 +28,7 @@ def _parser() -> argparse.ArgumentParser:
         description="Extract, render and score one reply file against one scene.")
     p.add_argument("reply", help="a reply file (analysis + fenced program) or a bare program")
     p.add_argument("--engine", required=True, help="threejs, p5, svg, manim, blender, ...")
-    p.add_argument("--scene", required=True, help="scene id, e.g. task10001_000")
+    p.add_argument("--scene", required=True, help="scene id, e.g. vpb3-s0-2d-t001-v00")
     p.add_argument("--dataset", default="visphybench",
                    help="dataset config holding the scene (default: visphybench)")
     p.add_argument("--metrics", default=None, help="comma-separated metric names")
