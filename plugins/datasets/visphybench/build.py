@@ -1,6 +1,6 @@
 """Write the generated VisPhyBench to disk: the VisPhyBench layout plus visphy's exact ground truth.
 
-``<data_dir>/visphybench-seed<seed>/`` holds ``catalogue.json`` (every scene's annotated spec,
+``<data_dir>/visphybench-v<version>-seed<seed>[-lossless]/`` holds ``catalogue.json`` (every scene's annotated spec,
 labels, splits, rejection counts: simulated, not rendered), and per rendered scene
 ``videos/<id>.mp4``, ``detection_json/<id>_frame_01.json``, ``keyframes/<id>_frame_01.png`` and
 ``_frame_10.png``, ``specs/<id>.json``, ``trajectories/<id>.npz`` and ``meta/<id>.json`` (written
