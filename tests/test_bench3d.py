@@ -38,6 +38,51 @@ def valid_scenes():
     return {t.template_id: _first_valid(t) for t in TEMPLATES_3D}
 
 
+PUBLISHED_CAMERA = {"type": "perspective", "fov_deg": 45.0, "position": [7.0, 6.2, 8.2],
+                    "look_at": [0.0, 1.2, 0.0], "up": [0.0, 1.0, 0.0], "width": 512,
+                    "height": 512}
+
+
+def test_every_scene_has_the_published_fixed_camera_floor_and_look():
+    cams = []
+    for t in TEMPLATES_3D:
+        for v in range(t.n_variants):
+            for k in range(2):
+                spec = t.make(np.random.default_rng(t.template_id * 100 + v * 10 + k), v)
+                cams.append(spec["camera"])
+                assert {key: spec["camera"][key] for key in PUBLISHED_CAMERA} == PUBLISHED_CAMERA
+                floor, render = spec["world"]["floor"], spec["render"]
+                assert (floor["y"], floor["size_m"]) == (0.0, 18.0)
+                assert render["antialias"] is True and render["shadows"] is False
+                for b in spec["bodies"]:
+                    assert b.get("opacity", 1.0) == (0.5 if "container" in b["id"] else 1.0)
+                    assert tuple(b["color_rgb"]) != (0, 0, 0)  # coloured, never solid black
+    assert all(c == cams[0] for c in cams)  # one camera, identical in every clip
+
+
+def test_the_floor_is_seen_corner_on_its_far_edge_a_caret():
+    spec = TEMPLATES_3D[0].make(np.random.default_rng(100), 0)
+    far, left, right = project_points(spec, [[-9.0, 0.0, -9.0], [-9.0, 0.0, 9.0],
+                                             [9.0, 0.0, -9.0]])
+    assert left[0] < far[0] < right[0]                     # the far corner between the sides...
+    assert far[1] < left[1] and far[1] < right[1]          # ...and above them: a "^"
+    assert 0 < far[0] < 512 and 0 < far[1] < 256           # in view, in the upper half
+
+
+def test_layouts_are_framed_by_the_fixed_camera(valid_scenes):
+    """Every body of every template's first valid scene starts inside the image, the red ball
+    with a readable projected radius."""
+    for t in TEMPLATES_3D:
+        spec, rollout, _ = valid_scenes[t.template_id]
+        det = detection_from_spec_3d(spec, rollout.frame_poses[0])
+        for obj in det["objects"]:
+            box = obj["bbox"]
+            assert box["x_min"] > 0 and box["x_max"] < 512, (spec["scene_id"], obj["id"])
+            assert box["y_min"] > 0 and box["y_max"] < 512, (spec["scene_id"], obj["id"])
+        red = next(o for o in det["objects"] if o["id"] == "red_ball")
+        assert 9.0 <= red["size"]["radius_pixels"] <= 30.0, (spec["scene_id"], red["size"])
+
+
 def test_twelve_templates_thirty_scenes_with_paper_style_ids():
     assert [t.template_id for t in TEMPLATES_3D] == list(range(1, 13))
     assert sum(t.n_variants for t in TEMPLATES_3D) == 30
@@ -187,8 +232,11 @@ def pool():
 
 
 def _red_centroid(frame: np.ndarray) -> tuple[np.ndarray, int]:
+    """Centroid and area of the red pixels: red by chromaticity (r above 1.8 times g and b), so
+    the ball's shaded side counts as much as its lit side and an anti-aliased edge pixel counts
+    when about half covered (the centroid is unbiased to a few hundredths of a pixel)."""
     r, g, b = (frame[..., i].astype(int) for i in range(3))
-    mask = (r > 90) & (r - g > 50) & (r - b > 50)
+    mask = (r > 60) & (r > 1.8 * np.maximum(g, b))
     ys, xs = np.nonzero(mask)
     return np.array([xs.mean() + 0.5, ys.mean() + 0.5]), int(mask.sum())
 
@@ -286,3 +334,73 @@ def test_rendered_ground_truth_shows_the_simulated_red_ball_where_the_camera_put
         assert max(errors) <= 2.0, (template_id, errors)
         checked += len(errors)
     assert checked >= 120
+
+
+def _neutral(frame: np.ndarray) -> np.ndarray:
+    f = frame.astype(int)
+    return np.ptp(f, axis=2) <= 3
+
+
+@pytest.mark.browser
+def test_rendered_look_floor_grey_antialiased_no_shadows(valid_scenes, pool):
+    """The published clips' look on a rendered scene: floor grey 151 +- 4, anti-aliased edges
+    (the floor's far edge against the white sky has intermediate greys), and no cast shadows
+    (the floor around a ball on it is floor grey)."""
+    from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
+
+    spec, rollout, _ = valid_scenes[4]  # sphere collision: balls end at rest on the floor
+    frames = render_clip_3d(spec, rollout.frame_poses[[0, 74]], pool)
+    for frame in frames:
+        grey = frame[..., 0][_neutral(frame) & (frame[..., 0] < 200)]
+        mode = np.bincount(grey).argmax()
+        assert abs(int(mode) - 151) <= 4, mode
+        assert np.mean(np.abs(grey.astype(int) - 151) <= 4) > 0.95
+    # anti-aliasing: along the far edge of the floor, pixels between floor grey and white
+    upper = frames[0][:256]
+    edge = _neutral(upper) & (upper[..., 0] > 160) & (upper[..., 0] < 245)
+    assert edge.sum() >= 50, edge.sum()
+    # no shadow: floor points around every sphere on the floor show floor grey
+    last = frames[1]
+    checked = 0
+    for i, b in enumerate(spec["bodies"]):
+        if b["shape"]["type"] != "sphere":
+            continue
+        x, y, z = rollout.frame_poses[74, i, :3]
+        r = b["shape"]["radius_m"]
+        if abs(y - r) > 0.02:  # not on the floor
+            continue
+        angles = np.linspace(0.0, 2.0 * np.pi, 36, endpoint=False)
+        ring = np.stack([x + 1.25 * r * np.cos(angles), np.zeros_like(angles),
+                         z + 1.25 * r * np.sin(angles)], axis=1)
+        for px, py in project_points(spec, ring).astype(int):
+            pixel = last[py, px].astype(int)
+            if np.ptp(pixel) <= 3:                 # floor, not a body
+                assert abs(pixel[0] - 151) <= 4, (b["id"], pixel)
+                checked += 1
+    assert checked >= 20, checked
+
+
+@pytest.mark.browser
+def test_the_u_container_is_translucent(valid_scenes, pool):
+    """Where the container is drawn over the floor, the floor shows through it: the pixel lies
+    between the opaque container's colour and the floor grey (same scene rendered with the
+    container opaque)."""
+    from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
+
+    spec, rollout, _ = valid_scenes[1]
+    idx = next(i for i, b in enumerate(spec["bodies"]) if "container" in b["id"])
+    assert spec["bodies"][idx]["opacity"] == 0.5
+    opaque = copy.deepcopy(spec)
+    del opaque["bodies"][idx]["opacity"]
+    poses = rollout.frame_poses[:1]
+    glass = render_clip_3d(spec, poses, pool)[0].astype(int)
+    solid = render_clip_3d(opaque, poses, pool)[0].astype(int)
+    det = detection_from_spec_3d(spec, poses[0])["objects"][idx]["bbox"]
+    x0, x1 = int(det["x_min"]), int(det["x_max"]) + 1
+    y0, y1 = int(det["y_min"]), int(det["y_max"]) + 1
+    g, s_ = glass[y0:y1, x0:x1], solid[y0:y1, x0:x1]
+    changed = np.abs(g - s_).max(axis=2) > 6
+    assert changed.sum() >= 50, changed.sum()
+    # through the glass: about half way from the opaque colour to the grey floor behind
+    between = (np.minimum(s_, 151) - 3 <= g) & (g <= np.maximum(s_, 151) + 3)
+    assert between.all(axis=2)[changed].mean() > 0.8

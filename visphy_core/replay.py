@@ -14,7 +14,8 @@ so they cannot disagree on what is drawn:
   bottom-left, y up, CCW), rounded to 1e-6; 3D ``[x, y, z, qx, qy, qz, qw]`` (metres, rounded to
   1 µm; quaternion to 1e-7);
 * 3D only: ``camera`` (fov, near, far, position, look_at, up), ``lighting``, ``shadows``,
-  ``floor`` (y, colour, size).
+  ``antialias``, ``floor`` (y, colour, size) and, per body, ``opacity`` when the spec gives one
+  (a translucent body).
 
 `replay_html_3d` fills ``visphy_core/replay3d.html`` with the payload: the threejs engine's
 reference program for 3D scenes and the 3D ground-truth renderer are that same page.
@@ -71,6 +72,8 @@ def payload_from(spec: dict, body_ids, frame_poses, *, fps: float, n_frames: int
     for b in spec["bodies"]:
         entry: dict[str, Any] = {"id": b["id"], "color_rgb": [int(c) for c in b["color_rgb"]],
                                  "shape": b["shape"]}
+        if dim == "3d" and "opacity" in b:
+            entry["opacity"] = float(b["opacity"])
         if dim == "2d":
             if b["shape"]["type"] == "circle":
                 entry["radius"] = float(b["shape"]["radius_px"])
@@ -93,6 +96,7 @@ def payload_from(spec: dict, body_ids, frame_poses, *, fps: float, n_frames: int
                        "look_at": list(cam["look_at"]),
                        "up": list(cam.get("up", [0.0, 1.0, 0.0]))},
             "shadows": bool(render.get("shadows", False)),
+            "antialias": bool(render.get("antialias", False)),
             "lighting": {"hemisphere": render["lighting"]["hemisphere"],
                          "directional": render["lighting"]["directional"]},
             "floor": {"y": float(floor["y"]), "color_rgb": list(floor["color_rgb"]),

@@ -20,6 +20,9 @@ three.js replay, detection context). Conventions, fixed here once:
   contact material (``contacts.pairs``, falling back to ``contacts.default``), so the ground
   truth never depends on a mixing rule. Per-body ``material.friction/restitution`` are the
   template's per-body values the pair values were derived from (documentation only).
+* drawing only (no effect on the physics): a body's optional ``opacity`` (0-1, default 1: a
+  translucent body, e.g. a U container), ``render.antialias`` (multisampled edges) and
+  ``render.shadows`` (shadow-mapped shadows of the directional light).
 
 `validate_spec_3d` adds the checks JSON Schema cannot express (unique ids, unit quaternions,
 profile constants, category consistency, one of mass/density) and reports the first problem on
@@ -103,6 +106,7 @@ _BODY = {
             "pose": _obj({"position_m": _VEC3, "quat": _QUAT}),
             "velocity": _obj({"linear_m_s": _VEC3, "angular_rad_s": _VEC3}),
             "material": _MATERIAL,
+            "opacity": {"type": "number", "exclusiveMinimum": 0, "maximum": 1},
         },
         required=["id", "category", "dynamic", "color_rgb", "shape", "pose"],
     ),
@@ -171,7 +175,7 @@ SCHEMA_3D: dict[str, Any] = {
                  "height": {"type": "integer", "minimum": 2}},
                 required=["type", "fov_deg", "position", "look_at", "width", "height"]),
             "render": _obj(
-                {"background_rgb": _RGB, "antialias": {"const": False},
+                {"background_rgb": _RGB, "antialias": {"type": "boolean"},
                  "material": {"enum": ["lambert"]},
                  "shadows": {"type": "boolean"},
                  "lighting": _obj(

@@ -41,9 +41,18 @@ except Exception:  # noqa: BLE001 - missing or mid-edit: an identical local data
 
 PALETTE_3D: dict[str, tuple[int, int, int]] = {
     "red": RED_RGB, "gray": (185, 202, 210), "green": (107, 206, 187), "blue": (24, 119, 242),
-    "black": (0, 0, 0), "purple": (75, 74, 164), "white": (255, 255, 255),
+    "black": (0, 0, 0), "purple": (75, 74, 164), "brown": (164, 128, 96),
+    "white": (255, 255, 255),
 }
-FLOOR_RGB = (150, 150, 150)
+HEMISPHERE = {"sky_rgb": [255, 255, 255], "ground_rgb": [110, 110, 110], "intensity": 1.6}
+DIRECTIONAL = {"color_rgb": [255, 255, 255], "intensity": 2.0, "position": [-3.0, 10.0, 6.0]}
+#: rendered (three.js r160 Lambert, physical light units) as about grey 151, the published
+#: clips' floor: linear = albedo * (I_h / pi + I_d / pi * l_y) on an upward face
+FLOOR_RGB = (148, 148, 148)
+FLOOR_SIZE_M = 18.0          # the published clips' square floor, centred on the origin
+LAYOUT_SCALE = 1.7           # templates lay out in metres at 1/1.7 of the drawn size...
+MAX_LAYOUT_WIDTH_PX = 400.0  # ...or less, so the initial layout spans at most 400 of 512 px
+CONTAINER_OPACITY = 0.5
 FLOOR_MATERIAL = {"friction": 0.4, "restitution": 0.1}
 G = 9.82
 GAP = 0.002          # bodies resting on something start this far above it
@@ -164,23 +173,108 @@ class Wedge:
         return math.sqrt(2 * G * (1 - u) * self.H / (1 + K_SPHERE))
 
 
-def camera(rng: np.random.Generator, bodies: list[dict], fov: float = 45.0) -> dict:
-    """A fixed perspective camera in front of the layout (looking along -z, slightly down),
-    as close as the initial layout's x extent (plus a margin) allows."""
-    lo, hi, top = math.inf, -math.inf, 0.0
-    for b in bodies:
-        pts = transform_points_3d(local_hull_points(b["shape"]),
-                                  b["pose"]["position_m"] + b["pose"]["quat"])
-        lo, hi = min(lo, pts[:, 0].min()), max(hi, pts[:, 0].max())
-        top = max(top, pts[:, 1].max())
-    half = max(abs(lo), abs(hi)) + 0.6
-    dist = min(max(half / math.tan(math.radians(fov) / 2.0), 4.5), 9.5)
-    look_y = min(max(0.35 * top, 0.5), 1.2)
-    elev = math.radians(uni(rng, 12.0, 20.0))
-    pos = [uni(rng, -0.3, 0.3), look_y + dist * math.sin(elev), dist * math.cos(elev)]
-    return {"type": "perspective", "fov_deg": float(fov), "near": 0.1, "far": 100.0,
-            "position": _vec(np.round(pos, 4)), "look_at": [0.0, round(look_y, 4), 0.0],
+#: The published clips' camera: one fixed perspective camera, identical in every 3D scene, high
+#: over the +x/+z corner of the floor looking down at the middle of the scene (the floor, axis
+#: aligned, is seen corner-on: its far edges make a "^").
+CAMERA_POSITION = (7.0, 6.2, 8.2)
+CAMERA_LOOK_AT = (0.0, 1.2, 0.0)
+CAMERA_FOV_DEG = 45.0
+#: Templates lay their action out along +x; turned by this yaw about y, +x runs along the
+#: image's horizontal (the camera's right axis), so the action is seen side-on.
+LAYOUT_YAW = math.atan2(CAMERA_POSITION[0] - CAMERA_LOOK_AT[0],
+                        CAMERA_POSITION[2] - CAMERA_LOOK_AT[2])
+
+
+def camera(rng: np.random.Generator | None = None, bodies: list[dict] | None = None) -> dict:
+    """The fixed camera of every 3D scene (the arguments are ignored; kept for callers)."""
+    return {"type": "perspective", "fov_deg": CAMERA_FOV_DEG, "near": 0.1, "far": 100.0,
+            "position": list(CAMERA_POSITION), "look_at": list(CAMERA_LOOK_AT),
             "up": [0.0, 1.0, 0.0], "width": PROFILE_3D["width"], "height": PROFILE_3D["height"]}
+
+
+def _scale_shape(shape: dict, s: float) -> dict:
+    kind = shape["type"]
+    if kind == "sphere":
+        return {"type": "sphere", "radius_m": float(shape["radius_m"]) * s}
+    if kind == "box":
+        return {"type": "box", "size_m": [float(v) * s for v in shape["size_m"]]}
+    if kind == "wedge":
+        return {"type": "wedge", "length_m": float(shape["length_m"]) * s,
+                "height_m": float(shape["height_m"]) * s, "width_m": float(shape["width_m"]) * s}
+    return {"type": "compound", "parts": [
+        {"shape": _scale_shape(p["shape"], s), "offset_m": [float(v) * s for v in p["offset_m"]],
+         "quat": list(p["quat"])} for p in shape["parts"]]}
+
+
+def froude_scale(bodies: list[dict], s: float) -> None:
+    """Scale a layout about the origin by s, keeping its story (in place): lengths x s, linear
+    velocities x sqrt(s), angular velocities / sqrt(s), so every trajectory is the same curve,
+    s times larger, run sqrt(s) times slower under the same gravity (masses, friction and
+    restitution unchanged: cannon's friction bound mu g m scales with the forces it opposes)."""
+    root = math.sqrt(s)
+    for b in bodies:
+        b["shape"] = _scale_shape(b["shape"], s)
+        b["pose"]["position_m"] = _vec(np.asarray(b["pose"]["position_m"]) * s)
+        if "velocity" in b:
+            b["velocity"] = {"linear_m_s": _vec(np.asarray(b["velocity"]["linear_m_s"]) * root),
+                             "angular_rad_s": _vec(
+                                 np.asarray(b["velocity"]["angular_rad_s"]) / root)}
+
+
+def yaw_layout(bodies: list[dict], angle: float) -> None:
+    """Turn a layout about the vertical axis through the origin by ``angle`` (rad; in place):
+    positions, orientations and both velocities (the story is unchanged)."""
+    from visphy_core.spec3d import quat_to_matrix
+
+    q = rot_y(angle)
+    rot = quat_to_matrix(q)
+    for b in bodies:
+        b["pose"]["position_m"] = _vec(rot @ np.asarray(b["pose"]["position_m"]))
+        b["pose"]["quat"] = _vec(_quat_mul(q, b["pose"]["quat"]))
+        if "velocity" in b:
+            b["velocity"] = {"linear_m_s": _vec(rot @ np.asarray(b["velocity"]["linear_m_s"])),
+                             "angular_rad_s": _vec(
+                                 rot @ np.asarray(b["velocity"]["angular_rad_s"]))}
+
+
+def _quat_mul(a, b) -> list[float]:
+    """Hamilton product a * b of (x, y, z, w) quaternions, normalised."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    q = np.array([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+                  aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz])
+    return list(q / np.linalg.norm(q))
+
+
+def _image_box(bodies: list[dict], cam: dict) -> np.ndarray:
+    """[x_min, y_min, x_max, y_max] (px) of the layout's projected hull points."""
+    from visphy_plugins.datasets.visphybench.detection3d import project_points
+
+    pts = np.concatenate([transform_points_3d(local_hull_points(b["shape"]),
+                                              b["pose"]["position_m"] + b["pose"]["quat"])
+                          for b in bodies])
+    pix = project_points({"camera": cam}, pts)
+    return np.concatenate([pix.min(axis=0), pix.max(axis=0)])
+
+
+def frame_layout(bodies: list[dict], cam: dict, target=(256.0, 272.0)) -> None:
+    """Slide the layout over the floor (x and z, in place) so its projected initial box is
+    centred on ``target`` (px) in the fixed camera's image."""
+    eye = np.asarray(cam["position"], dtype=np.float64)
+    look = np.asarray(cam["look_at"], dtype=np.float64)
+    fwd = look - eye
+    fwd = np.array([fwd[0], 0.0, fwd[2]]) / math.hypot(fwd[0], fwd[2])   # away on the floor
+    right = np.array([-fwd[2], 0.0, fwd[0]])                             # image right
+    for _ in range(4):
+        box = _image_box(bodies, cam)
+        centre = (box[:2] + box[2:]) / 2.0
+        err = np.asarray(target) - centre
+        if np.abs(err).max() < 1.0:
+            break
+        # about 40 px per metre across and 20 px per metre in depth near the look-at point
+        shift = right * (err[0] / 40.0) - fwd * (err[1] / 20.0)
+        for b in bodies:
+            b["pose"]["position_m"] = _vec(np.asarray(b["pose"]["position_m"]) + shift)
 
 
 def _contacts(bodies: list[dict]) -> dict:
@@ -212,24 +306,35 @@ def centre_layout(bodies: list[dict], x_limit: float = 3.3) -> None:
 
 
 def add_backstop(rng: np.random.Generator, bodies: list[dict], d: int,
-                 name: str = "black_backstop", height: float = 0.3,
+                 name: str = "brown_backstop", height: float = 0.3,
                  distance: tuple[float, float] = (0.6, 0.9)) -> None:
-    """A static black plank lying across the floor beyond the layout in direction d, so what
+    """A static brown plank lying across the floor beyond the layout in direction d, so what
     rolls away stops in view (in place)."""
     far = -math.inf
     for b in bodies:
         pts = transform_points_3d(local_hull_points(b["shape"]),
                                   b["pose"]["position_m"] + b["pose"]["quat"])
         far = max(far, float((d * pts[:, 0]).max()))
-    bodies.append(make_body(name, "black", box_shape(0.15, height, 2.4),
+    bodies.append(make_body(name, "brown", box_shape(0.15, height, 2.4),
                             [d * (far + uni(rng, *distance)), height / 2, 0.0], dynamic=False,
                             **mat(rng, "static")))
 
 
 def scene_3d(template_id: int, variant: int, family: str, description: str,
-             bodies: list[dict], cam: dict) -> dict:
-    """Wrap bodies into a `visphy-scene/1` 3D spec (ground truth still empty)."""
+             bodies: list[dict], cam: dict | None = None, scale: float = LAYOUT_SCALE) -> dict:
+    """Wrap bodies into a `visphy-scene/1` 3D spec (ground truth still empty): the layout is
+    scaled by ``scale`` (`froude_scale`) and slid over the floor so the fixed camera frames it
+    (`frame_layout`), smaller where the scaled layout would be wider than
+    `MAX_LAYOUT_WIDTH_PX` on screen; containers (U shapes) are drawn translucent."""
     p = PROFILE_3D
+    cam = camera()
+    yaw_layout(bodies, LAYOUT_YAW)
+    box = _image_box(bodies, cam)             # about linear in the scale near the look-at point
+    froude_scale(bodies, min(scale, MAX_LAYOUT_WIDTH_PX / max(box[2] - box[0], 1.0)))
+    frame_layout(bodies, cam)
+    for b in bodies:
+        if "container" in b["id"]:
+            b["opacity"] = CONTAINER_OPACITY
     return {
         "schema": SPEC_SCHEMA, "scene_id": f"{template_id:02d}_tmpl_{variant:02d}",
         "template_id": f"{template_id:02d}", "variant": int(variant),
@@ -251,20 +356,18 @@ def scene_3d(template_id: int, variant: int, family: str, description: str,
             "damping": {"linear": 0.0, "angular": 0.01},
             "allow_sleep": False,
             "quat_normalize": {"skip": 0, "fast": False},
-            "floor": {"y": 0.0, "color_rgb": list(FLOOR_RGB), "size_m": 60.0},
+            "floor": {"y": 0.0, "color_rgb": list(FLOOR_RGB), "size_m": FLOOR_SIZE_M},
         },
         "camera": cam,
         "render": {
-            "background_rgb": list(PALETTE_3D["white"]), "antialias": False,
-            "material": "lambert", "shadows": True,
+            "background_rgb": list(PALETTE_3D["white"]), "antialias": True,
+            "material": "lambert", "shadows": False,
             "lighting": {
                 "description": "white sky, grey floor; hemisphere light (white sky, grey "
-                               "ground) plus one white directional light from above-front-right "
-                               "casting shadows; flat Lambert colours",
-                "hemisphere": {"sky_rgb": [255, 255, 255], "ground_rgb": [110, 110, 110],
-                               "intensity": 2.0},
-                "directional": {"color_rgb": [255, 255, 255], "intensity": 1.6,
-                                "position": [3.0, 10.0, 6.0]},
+                               "ground) plus one white directional light from above, left of "
+                               "the camera, without shadows: Lambert-shaded colours",
+                "hemisphere": dict(HEMISPHERE),
+                "directional": dict(DIRECTIONAL),
             },
             "codec": "h264", "pix_fmt": "yuv420p",
         },

@@ -47,7 +47,8 @@ def validity_problems_3d(spec: dict, rollout) -> list[str]:
     static bodies are never tested: scenery may touch or intersect); offscreen: a body's centre
     projects outside the image (or lies behind the camera) at t = 0; static: no dynamic body
     moves more than 5 cm; tunnelling: a dynamic body's centre goes below y = -0.05 m or beyond
-    |x| or |z| = 50 m; speed_cap: a body moves faster than 50 m/s between two steps.
+    |x| or |z| = 50 m, or beyond the drawn floor (``world.floor.size_m``, where it would be seen
+    floating past the floor's edge); speed_cap: a body moves faster than 50 m/s between two steps.
     """
     from visphy_plugins.datasets.visphybench.detection3d import project_points
 
@@ -66,9 +67,10 @@ def validity_problems_3d(spec: dict, rollout) -> list[str]:
             <= MIN_MOTION_M:
         problems.append("static")
     if dyn.any():
+        region = min(REGION_M, float(spec["world"]["floor"].get("size_m", 2 * REGION_M)) / 2.0)
         p = poses[:, dyn, :3]
         if np.any(p[..., 1] < spec["world"]["floor"]["y"] + FLOOR_TUNNEL_M) or np.any(
-                np.abs(p[..., 0]) > REGION_M) or np.any(np.abs(p[..., 2]) > REGION_M):
+                np.abs(p[..., 0]) > region) or np.any(np.abs(p[..., 2]) > region):
             problems.append("tunnelling")
     if len(poses) > 1:
         speed = np.linalg.norm(np.diff(poses[:, :, :3], axis=0), axis=2).max() / float(

@@ -3,9 +3,14 @@
 Like the paper's 3D subset (Three.js + Cannon): spheres rolling down ramps (wedges) into U-shaped
 containers, boxes knocked off planks, sphere collisions, stacks toppling, a seesaw, compound
 shapes falling, balls launched with an initial velocity. Every scene has a dynamic red sphere
-``red_ball`` (the action ball, #f34f46) and uses the flat PHYRE palette (dynamic gray / green /
-blue, static black / purple); a fixed perspective camera looks at the scene over a grey floor
-under a white sky; 75 frames at 15 fps (4 cannon steps of 1/60 s per frame).
+``red_ball`` (the action ball, #f34f46); dynamic bodies are gray / green / blue, static scenery
+brown / purple, U containers translucent. As in the published clips, one fixed camera (at
+(7, 6.2, 8.2) looking at (0, 1.2, 0), 45° vertical field of view) looks at every scene over an
+18 m square grey floor seen corner-on, under a white sky, anti-aliased, Lambert-shaded, without
+cast shadows; 75 frames at 15 fps (4 cannon steps of 1/60 s per frame). Templates lay bodies
+out in metres; `blocks3d.scene_3d` scales each layout by `blocks3d.LAYOUT_SCALE` (Froude
+scaling: the same story, larger and slower) and slides it over the floor so the camera frames
+it.
 
 `Template.make(rng, variant)` is deterministic in its arguments: the variant picks the discrete
 arrangement, the generator the continuous parameters (sizes, positions, speeds, materials).
@@ -74,7 +79,7 @@ def _t01_ramp_to_container(rng: np.random.Generator, variant: int) -> dict:
     shape, cy = u_container_shape(inner, wall_h, 0.8, t_wall)
     container = make_body("gray_container", "gray", shape, [cx, cy + GAP, 0.0],
                           mass=uni(rng, 1.5, 3.0), **mat(rng))
-    bodies = [ball, ramp.body("black_ramp", "black"), table, container]
+    bodies = [ball, ramp.body("brown_ramp", "brown"), table, container]
     if variant == 2:
         rb = 0.12
         bodies.append(make_body("blue_ball", "blue", sphere_shape(rb),
@@ -95,7 +100,7 @@ def _t02_ramp_hits_box(rng: np.random.Generator, variant: int) -> dict:
     d = lr_sign(rng)
     ramp = Wedge(uni(rng, 1.4, 1.9), uni(rng, 0.7, 1.0), 1.0, 0.0, 0.0, d)
     r, u = uni(rng, 0.16, 0.22), uni(rng, 0.05, 0.15)
-    bodies = [red_ball(rng, ramp.on_slope(u, r), r), ramp.body("black_ramp", "black")]
+    bodies = [red_ball(rng, ramp.on_slope(u, r), r), ramp.body("brown_ramp", "brown")]
     x = d * uni(rng, 0.9, 1.4)
     s = uni(rng, 0.3, 0.4)
     cube = box_shape(s, s, s)
@@ -112,7 +117,7 @@ def _t02_ramp_hits_box(rng: np.random.Generator, variant: int) -> dict:
                                 [x + d * (s / 2 + rb + 0.3), rb + GAP, uni(rng, -0.15, 0.15)],
                                 mass=uni(rng, 0.4, 1.0), **mat(rng, "sphere")))
         bar = box_shape(0.12, 0.25, 2.4)
-        bodies.append(make_body("black_bar", "black", bar,
+        bodies.append(make_body("brown_bar", "brown", bar,
                                 [x + d * (s / 2 + 2 * rb + 1.0), 0.125, 0.0], dynamic=False,
                                 **mat(rng, "static")))
     if variant != 2:
@@ -131,7 +136,7 @@ def _t03_plank_knockoff(rng: np.random.Generator, variant: int) -> dict:
         bodies.append(make_body(name, "purple", box_shape(0.3, h, 0.6),
                                 [side * (lp / 2 - 0.35), h / 2, 0.0], dynamic=False,
                                 **mat(rng, "static")))
-    bodies.append(make_body("black_plank", "black", box_shape(lp, 0.1, 0.7), [0.0, h + 0.05, 0.0],
+    bodies.append(make_body("brown_plank", "brown", box_shape(lp, 0.1, 0.7), [0.0, h + 0.05, 0.0],
                             dynamic=False, **mat(rng, "static")))
     top = h + 0.1
     s = uni(rng, 0.26, 0.34)
@@ -184,7 +189,7 @@ def _t04_sphere_collision(rng: np.random.Generator, variant: int) -> dict:
     t_hit = abs(spots[0][0] - x0) / abs(vx)
     vz = (spots[0][1] + uni(rng, -0.08, 0.08) - z0) / t_hit
     bodies = [red_ball(rng, [x0, r + GAP, z0], r, velocity=(vx, 0.0, vz))] + targets
-    bodies.append(make_body("black_bumper", "black", box_shape(0.15, 0.3, 3.0),
+    bodies.append(make_body("brown_bumper", "brown", box_shape(0.15, 0.3, 3.0),
                             [d * 2.5, 0.15, 0.0], dynamic=False, **mat(rng, "static")))
     return scene_3d(4, variant, "sphere_collision",
                     "a red ball launched along the floor collides with other balls",
@@ -221,8 +226,9 @@ def _t05_stack_topple(rng: np.random.Generator, variant: int) -> dict:
         ramp = Wedge(uni(rng, 1.2, 1.5), uni(rng, 0.6, 0.8), 0.9,
                      tx - d * uni(rng, 0.9, 1.2), 0.0, d)
         ball = red_ball(rng, ramp.on_slope(uni(rng, 0.05, 0.15), r), r)
-        bodies.append(ramp.body("black_ramp", "black"))
-    add_backstop(rng, bodies, d)
+        bodies.append(ramp.body("brown_ramp", "brown"))
+    # a wall as high as the stack stops the flying boxes (and a thrown ball) in view
+    add_backstop(rng, bodies, d, height=y)
     bodies.insert(0, ball)
     centre_layout(bodies)
     return scene_3d(5, variant, "stack_topple",
@@ -263,7 +269,7 @@ def _t06_seesaw(rng: np.random.Generator, variant: int) -> dict:
     bodies.insert(0, red_ball(rng, [p[0] - vx * 0.3, p[1] + height, 0.0], r,
                               velocity=(vx, 0.0, 0.0), mass=uni(rng, 1.5, 2.5)))
     add_backstop(rng, bodies, d, distance=(0.5, 0.7))
-    add_backstop(rng, bodies, -d, name="black_backstop_far", distance=(0.5, 0.7))
+    add_backstop(rng, bodies, -d, name="brown_backstop_far", distance=(0.5, 0.7))
     centre_layout(bodies)
     return scene_3d(6, variant, "seesaw",
                     "a heavy red ball drops on the raised end of a plank balanced on a wedge "
@@ -292,7 +298,7 @@ def _t07_compound_fall(rng: np.random.Generator, variant: int) -> dict:
     spin = lambda: tuple(uni(rng, -2.5, 2.5) for _ in range(3))  # noqa: E731
     if variant == 0:
         ramp = Wedge(uni(rng, 1.0, 1.3), uni(rng, 0.5, 0.7), 0.9, -d * 0.4, 0.0, d)
-        bodies.append(ramp.body("black_ramp", "black"))
+        bodies.append(ramp.body("brown_ramp", "brown"))
         bodies.append(make_body("green_l_shape", "green", _l_shape(),
                                 [ramp.cx, uni(rng, 1.5, 2.0), uni(rng, -0.2, 0.2)],
                                 random_quat(rng), angular=spin(), mass=uni(rng, 0.5, 1.2),
@@ -311,7 +317,7 @@ def _t07_compound_fall(rng: np.random.Generator, variant: int) -> dict:
             bodies.append(make_body(name, "purple", box_shape(0.25, h, 0.6),
                                     [side * (lp / 2 - 0.3), h / 2, 0.0], dynamic=False,
                                     **mat(rng, "static")))
-        bodies.append(make_body("black_plank", "black", box_shape(lp, 0.1, 0.7),
+        bodies.append(make_body("brown_plank", "brown", box_shape(lp, 0.1, 0.7),
                                 [0.0, h + 0.05, 0.0], dynamic=False, **mat(rng, "static")))
         bodies.append(make_body("gray_t_shape", "gray", _t_shape(),
                                 [d * uni(rng, 0.3, 0.6), h + uni(rng, 1.0, 1.5), 0.0],
@@ -397,7 +403,7 @@ def _t10_incline_slide(rng: np.random.Generator, variant: int) -> dict:
     under = c - (t / 2) * nrm
     x_edge = sup_x + d * 0.2
     sup_top = under[1] + (x_edge - under[0]) * (u[1] / u[0]) - 0.003
-    bodies = [make_body("black_plank", "black", box_shape(lp, t, 0.9), c, q, dynamic=False,
+    bodies = [make_body("brown_plank", "brown", box_shape(lp, t, 0.9), c, q, dynamic=False,
                         **mat(rng, "static")),
               make_body("purple_support", "purple", box_shape(0.4, sup_top, 0.9),
                         [sup_x, sup_top / 2, 0.0], dynamic=False, **mat(rng, "static"))]
@@ -428,7 +434,7 @@ def _t10_incline_slide(rng: np.random.Generator, variant: int) -> dict:
                     "a box slides and a red ball rolls down an inclined plank towards an object "
                     "on the floor", bodies, camera(rng, bodies))
     for pair in spec["contacts"]["pairs"]:  # a slippery box on the plank
-        if {pair["a"], pair["b"]} == {"green_box", "black_plank"}:
+        if {pair["a"], pair["b"]} == {"green_box", "brown_plank"}:
             pair["friction"] = 0.0003
     return spec
 
@@ -489,7 +495,7 @@ def _t12_bowling(rng: np.random.Generator, variant: int) -> dict:
                 bodies.append(make_body(f"{color}_pin_{k}", color, pin, [x, pin_h / 2 + GAP, z],
                                         mass=uni(rng, 0.15, 0.3), **mat(rng, "grippy")))
             k += 1
-    bodies.append(make_body("black_backstop", "black", box_shape(0.12, 0.35, 2.2),
+    bodies.append(make_body("brown_backstop", "brown", box_shape(0.12, 0.35, 2.2),
                             [x_front + d * uni(rng, 1.3, 1.5), 0.175, 0.0], dynamic=False,
                             **mat(rng, "static")))
     r = uni(rng, 0.2, 0.25)
