@@ -97,8 +97,8 @@ def payload_from(spec: dict, body_ids, frame_poses, *, fps: float, n_frames: int
                        "up": list(cam.get("up", [0.0, 1.0, 0.0]))},
             "shadows": bool(render.get("shadows", False)),
             "antialias": bool(render.get("antialias", False)),
-            "lighting": {"hemisphere": render["lighting"]["hemisphere"],
-                         "directional": render["lighting"]["directional"]},
+            "lighting": {k: v for k, v in (render.get("lighting") or {}).items()
+                         if k in ("hemisphere", "directional")},
             "floor": {"y": float(floor["y"]), "color_rgb": list(floor["color_rgb"]),
                       "size_m": float(floor.get("size_m", 60.0))},
             "frame_poses": [[[_r(v, 6) for v in p[:3]] + [_r(v, 7) for v in p[3:]]
