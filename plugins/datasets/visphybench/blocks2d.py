@@ -296,6 +296,24 @@ class Layout:
                 continue
         raise LayoutFull
 
+    def try_place(self, rng: np.random.Generator,
+                  build: Callable[[np.random.Generator], list[dict]],
+                  tries: int = 12) -> list[dict]:
+        """Like `place`, but an optional group that does not fit is left out ([])."""
+        try:
+            return self.place(rng, build, tries)
+        except LayoutFull:
+            return []
+
+    def reserve(self, centres: Iterable[Sequence[float]], r: float) -> None:
+        """Keep discs of radius r around `centres` free (a flight path later groups avoid)."""
+        disc = {"shape": {"type": "circle", "radius_px": float(r) + MARGIN}}
+        for x, y in centres:
+            win = window_mask(disc, (float(x), float(y), 0.0), W, H)
+            if win is not None:
+                row, col, m = win
+                self.occ[row:row + m.shape[0], col:col + m.shape[1]] |= m
+
 
 def uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     """One float drawn uniformly from [lo, hi)."""
@@ -381,8 +399,9 @@ def g_cup(rng, xr: XR = ALL, yr: tuple[float, float] = (120, 300)) -> list[dict]
     return [jar(f"{c}_jar", c, w, h, centre_x(rng, w / 2, *xr), uniform(rng, *yr), dynamic=False)]
 
 
-def g_jar(rng, xr: XR = ALL) -> list[dict]:
-    w, h, c = uniform(rng, 70, 120), uniform(rng, 45, 85), dynamic_color(rng)
+def g_jar(rng, xr: XR = ALL, min_width: float = 0.0) -> list[dict]:
+    lo = max(70.0, min_width)
+    w, h, c = uniform(rng, lo, lo + 50), uniform(rng, 45, 85), dynamic_color(rng)
     return [rest_on_floor(jar(f"{c}_jar", c, w, h, centre_x(rng, w / 2, *xr), 0.0))]
 
 
@@ -483,12 +502,64 @@ def g_pblock_floor(rng, xr: XR = ALL) -> list[dict]:
     return [box("purple_box", "purple", w, h, x, h / 2 + GAP, dynamic=False)]
 
 
+# Scenery (`templates_2d.decorate` adds it around a template's story): small static balls and
+# bars in the air, balls and boxes resting on the floor, static purple blocks. Resting or static,
+# so it moves only when the story's bodies run into it. `area` (px^2) sets an object's size
+# (clipped to a PHYRE-like range: the smallest size once the scene is full); without it the
+# size is drawn.
+def _ball_radius(rng, area: float | None) -> float:
+    if area is None:
+        return uniform(rng, 8, 18)
+    return float(np.clip(math.sqrt(max(area, 0.0) / math.pi) * uniform(rng, 0.85, 1.15), 8, 30))
+
+
+def _box_sides(rng, area: float | None, lo: float, hi: float) -> tuple[float, float]:
+    side = uniform(rng, lo, hi) if area is None else float(
+        np.clip(math.sqrt(max(area, 0.0)), lo, hi))
+    aspect = uniform(rng, 0.6, 1.6)
+    return (float(np.clip(side * math.sqrt(aspect), lo, hi)),
+            float(np.clip(side / math.sqrt(aspect), lo, hi)))
+
+
+def g_static_ball(rng, xr: XR = ALL, yr: tuple[float, float] = (90, 440),
+                  area: float | None = None) -> list[dict]:
+    r, c = _ball_radius(rng, area), static_color(rng)
+    return [ball(f"{c}_ball", c, r, centre_x(rng, r, *xr), uniform(rng, *yr), dynamic=False)]
+
+
+def g_floor_ball(rng, xr: XR = ALL, area: float | None = None) -> list[dict]:
+    r, c = _ball_radius(rng, area), dynamic_color(rng)
+    return [ball(f"{c}_ball", c, r, centre_x(rng, r, *xr), r + GAP)]
+
+
+def g_short_bar(rng, xr: XR = ALL, yr: tuple[float, float] = (90, 440),
+                area: float | None = None) -> list[dict]:
+    length = uniform(rng, 60, 130) if area is None else float(
+        np.clip(max(area, 0.0) / BAR * uniform(rng, 0.85, 1.15), 50, 180))
+    a, c = uniform(rng, -0.6, 0.6), static_color(rng)
+    x = centre_x(rng, length / 2 * abs(math.cos(a)) + BAR, *xr)
+    return [bar(f"{c}_bar", c, length, x, uniform(rng, *yr), a)]
+
+
+def g_small_box(rng, xr: XR = ALL, area: float | None = None) -> list[dict]:
+    (w, h), c = _box_sides(rng, area, 18, 48), dynamic_color(rng)
+    return [box(f"{c}_box", c, w, h, centre_x(rng, w / 2, *xr), h / 2 + GAP)]
+
+
+def g_small_block(rng, xr: XR = ALL, yr: tuple[float, float] = (90, 440),
+                  area: float | None = None) -> list[dict]:
+    w, h = _box_sides(rng, area, 18, 48)
+    return [box("purple_box", "purple", w, h, centre_x(rng, w / 2, *xr), uniform(rng, *yr),
+                dynamic=False)]
+
+
 GROUPS: dict[str, Callable[..., list[dict]]] = {
     "tbar": g_tbar, "hbar_ball": g_hbar_ball, "hbar_box": g_hbar_box, "pblock": g_pblock,
     "cup": g_cup, "jar": g_jar, "jar_ball": g_jar_ball, "box": g_box, "stack": g_stack,
     "tower": g_tower, "ball": g_ball, "sticks": g_sticks, "tri": g_tri, "wedge": g_wedge,
     "bridge": g_bridge, "seesaw": g_seesaw, "plank": g_plank, "dominoes": g_dominoes,
-    "pblock_floor": g_pblock_floor,
+    "pblock_floor": g_pblock_floor, "static_ball": g_static_ball, "floor_ball": g_floor_ball,
+    "short_bar": g_short_bar, "small_box": g_small_box, "small_block": g_small_block,
 }
 
 

@@ -49,7 +49,7 @@ from visphy_plugins.datasets.visphybench.blocks2d import (
     mirror,
     uniform,
 )
-from visphy_core.spec2d import CATEGORIES, category_of
+from visphy_core.spec2d import CATEGORIES, category_of, shape_area_centroid
 
 W, H = bk.CANVAS
 LAYOUT_TRIES = 40
@@ -101,9 +101,19 @@ PHRASES = {
 
 
 # ------------------------------------------------------------------------------ action ball
+#: Red-ball radius (px) of the published 2D clips: min 17, median 39, max 56.
+RED_RADIUS = (17.0, 56.0)
+
+
+def red_radius(rng) -> float:
+    """A red-ball radius in 17-56 px, skewed so the median is about 39 px (published clips)."""
+    lo, hi = RED_RADIUS
+    return lo + (hi - lo) * float(rng.random()) ** 0.9
+
+
 def red_drop(rng, target: list[dict], y_min: float = 330.0, r: float | None = None) -> dict:
     """The red action ball at rest somewhere above a target group (it will fall onto it)."""
-    r = uniform(rng, 10, 20) if r is None else r
+    r = red_radius(rng) if r is None else r
     ext = np.array([bk.extent(b) for b in target])
     xmin, xmax, ymax = ext[:, 0].min(), ext[:, 1].max(), ext[:, 3].max()
     inset = 0.15 * (xmax - xmin)
@@ -143,7 +153,7 @@ def red_launch(rng, target: list[dict] | None = None, speed: float | None = None
     point of the target's top (ignoring obstacles); when no aim is possible (or no target) it
     starts on the left and keeps `speed` (or 100-220 px/s) at an angle drawn from `deg`.
     """
-    r = uniform(rng, 10, 20)
+    r = red_radius(rng)
     x0, y0, side = uniform(rng, r + 5, 90), uniform(rng, *yr), 1.0
     shot = None
     if target is not None:
@@ -158,6 +168,72 @@ def red_launch(rng, target: list[dict] | None = None, speed: float | None = None
     v, ang = shot
     return bk.ball("red_ball", "red", r, x0, y0,
                    velocity=(side * v * math.cos(ang), v * math.sin(ang), 0.0))
+
+
+# ------------------------------------------------------------------------------- scenery
+#: Scenery around every template's story, so a scene holds about 7 objects in the paper's mix
+#: (1,523 objects over 209 scenes: 779 circles, 344 lines, 321 rectangles, ...): extra balls
+#: (static in the air or resting on the floor), an extra static bar where the template already
+#: has a line, an extra block or box where it already has a rectangle - so the categories a
+#: template contains, and the benchmark's category shares, do not change.
+EXTRA_BALLS = (1, 4)
+P_EXTRA_BAR = 0.75
+P_EXTRA_BOX = 0.8
+#: Drawn share of the canvas the bodies of a scene cover (published clips: 3.3-4.4-6.6 % of a
+#: frame is not background); scenery is sized to fill what the story leaves of it.
+AREA_SHARE = (0.034, 0.05)
+#: A sparse story gets extra balls (up to MAX_BALLS) while each would exceed BIG_BALL_AREA px^2.
+MAX_BALLS, BIG_BALL_AREA = 5, math.pi * 24.0 ** 2
+#: Seconds of the red ball's free flight kept clear of scenery (the clip lasts 3.4 s).
+FLIGHT_S = 3.4
+
+
+def flight_path(ball: dict, g: float = 9.8, seconds: float = FLIGHT_S,
+                dt: float = 1 / 30) -> list[tuple[float, float]]:
+    """Centres of a ball's free flight (no obstacles) under g m/s^2, until it leaves the canvas."""
+    p, v, r = ball["pose"], ball.get("velocity", {}), ball["shape"]["radius_px"]
+    x0, y0 = p["x_px"], p["y_px"]
+    vx, vy = v.get("vx_px_s", 0.0), v.get("vy_px_s", 0.0)
+    out = []
+    for k in range(int(seconds / dt) + 1):
+        t = k * dt
+        x, y = x0 + vx * t, y0 + vy * t - 0.5 * g * PPM * t * t
+        if not (r <= x <= W - r and r <= y):
+            break
+        out.append((x, y))
+    return out
+
+
+def decorate(rng, layout: Layout, bodies: list[dict], g: float = 9.8,
+             static_only: bool = False) -> list[dict]:
+    """The story's bodies plus scenery placed clear of them and of the red ball's free flight.
+
+    Scenery never moves on its own (static, or resting on the floor), so the story stays the
+    red ball's; `static_only` keeps every extra body static (mass-ratio scenes compare the
+    densities of all their dynamic bodies). Scenery that does not fit is left out.
+    """
+    cats = {category_of(b) for b in bodies}
+    red = next(b for b in bodies if b["id"] == "red_ball")
+    layout.reserve(flight_path(red, g), red["shape"]["radius_px"] + 6)
+    area = sum(shape_area_centroid(b["shape"])[0] for b in bodies)
+    target = W * H * uniform(rng, *AREA_SHARE)
+    kinds = []
+    if "line" in cats and rng.random() < P_EXTRA_BAR:
+        kinds.append(bk.g_short_bar)
+    if "rectangle" in cats and rng.random() < P_EXTRA_BOX:
+        kinds.append(bk.g_small_block if static_only or rng.random() < 0.5 else bk.g_small_box)
+    n_balls = int(rng.integers(EXTRA_BALLS[0], EXTRA_BALLS[1] + 1))
+    while n_balls < MAX_BALLS and (target - area) / (len(kinds) + n_balls) > BIG_BALL_AREA:
+        n_balls += 1  # a sparse story gets more scenery rather than giant balls
+    for _ in range(n_balls):
+        kinds.append(bk.g_static_ball if static_only or rng.random() < 0.6 else bk.g_floor_ball)
+    extras: list[dict] = []
+    for k, build in enumerate(kinds):
+        share = (target - area) / (len(kinds) - k)  # what is left of the area, per object
+        group = layout.try_place(rng, lambda r, b=build, a=share: b(r, area=a))
+        area += sum(shape_area_centroid(b["shape"])[0] for b in group)
+        extras += group
+    return bodies + extras
 
 
 def _finish(rng, bodies: list[dict]) -> list[dict]:
@@ -194,7 +270,7 @@ def _combinatorial(tid: int, groups: tuple[str, ...], action: str) -> Builder:
             red = layout.place(rng, lambda r: [red_drop(r, target)])
         else:
             red = layout.place(rng, lambda r: [red_launch(r, target)])
-        bodies = _finish(rng, red + [b for g in placed for b in g])
+        bodies = _finish(rng, decorate(rng, layout, red + [b for g in placed for b in g]))
         return bk.scene2d(tid, variant, "combinatorial", description, bodies)
     return build
 
@@ -283,18 +359,20 @@ def _box_on(rng, support: dict, along: float) -> dict:
     return bk.box(f"{c}_box", c, w, h, x, y, support["pose"]["angle_rad"])
 
 
-def _ball_above(rng, support: dict, along: float, y_min: float = 380.0) -> dict:
+def _ball_above(rng, support: dict, along: float, y_min: float = 380.0,
+                r: float | None = None) -> dict:
     """Red ball at rest high above the point `along` px from a bar's centre."""
-    r = uniform(rng, 10, 18)
+    r = red_radius(rng) if r is None else r
     x, y = bk.on_bar(support, along, r + 20)
     lo, hi = max(y, y_min), H - r - 4
     return bk.ball("red_ball", "red", r, float(np.clip(x, r + 3, W - r - 3)),
                    uniform(rng, lo, hi) if lo < hi else hi)
 
 
-def _law_spec(rng, tid: int, variant: int, description: str, bodies: list[dict],
-              gravity: float | None = None, pairs=None) -> dict:
-    bodies = _finish(rng, bodies)
+def _law_spec(rng, lay: Layout, tid: int, variant: int, description: str, bodies: list[dict],
+              gravity: float | None = None, pairs=None, static_only: bool = False) -> dict:
+    bodies = _finish(rng, decorate(rng, lay, bodies, 9.8 if gravity is None else gravity,
+                                   static_only))
     contacts = [bk.contact_pair(a, b, f, e) for a, b, f, e in (pairs or [])]
     return bk.scene2d(tid, variant, "law", description, bodies, gravity=gravity,
                       contacts=contacts)
@@ -305,8 +383,10 @@ def _bar_into_jar(rng, lay: Layout, bar: dict) -> tuple[list[dict], list[dict]]:
     half, up = bar["shape"]["length_px"] / 2, math.copysign(1.0, bar["pose"]["angle_rad"])
     low_x = bk.on_bar(bar, -up * half, 0)[0]
     xr = (low_x - 120, low_x + 40) if up > 0 else (low_x - 40, low_x + 120)
-    jar = lay.place(rng, lambda r: g_jar(r, xr=xr))
-    red = lay.place(rng, lambda r: [_ball_above(r, bar, up * uniform(r, 0.1, 0.8) * half)])
+    rad = red_radius(rng)  # the jar is wide enough to catch the ball
+    jar = lay.place(rng, lambda r: g_jar(r, xr=xr, min_width=2 * rad + 2 * BAR + 12))
+    red = lay.place(rng, lambda r: [_ball_above(r, bar, up * uniform(r, 0.1, 0.8) * half,
+                                                r=rad)])
     return red, jar
 
 
@@ -316,11 +396,12 @@ def law_gravity_arc(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
     bar = lay.place(rng, lambda r: g_tbar(r, xr=(260, W), yr=(90, 240)))
 
     def red(r):
-        rad, y0 = uniform(r, 10, 18), uniform(r, 40, 170)
+        rad = red_radius(r)
+        y0 = uniform(r, rad + 20, 170)
         vy = uniform(r, 0.6, 0.95) * math.sqrt(2 * g * PPM * (440 - y0 - rad))
         return [bk.ball("red_ball", "red", rad, uniform(r, rad + 5, 100), y0,
                         velocity=(uniform(r, 40, 110), vy, 0.0))]
-    return _law_spec(rng, tid, v, desc, lay.place(rng, red) + bar, gravity=g)
+    return _law_spec(rng, lay, tid, v, desc, lay.place(rng, red) + bar, gravity=g)
 
 
 def law_gravity_block(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
@@ -328,7 +409,7 @@ def law_gravity_block(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
     block = lay.place(rng, lambda r: g_pblock(r, yr=(140, 280)))
     floor = lay.place(rng, g_box) + lay.place(rng, g_ball)
     red = lay.place(rng, lambda r: [red_drop(r, block, y_min=400)])
-    return _law_spec(rng, tid, v, desc, red + block + floor, gravity=g)
+    return _law_spec(rng, lay, tid, v, desc, red + block + floor, gravity=g)
 
 
 def law_gravity_two_fall(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
@@ -340,21 +421,21 @@ def law_gravity_two_fall(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
         return [bk.box(f"{c}_box", c, w, h, centre_x(r, w / 2), uniform(r, 280, 450))]
     box_ = lay.place(rng, falling_box)
     red = lay.place(rng, lambda r: [red_drop(r, bar, y_min=380)])
-    return _law_spec(rng, tid, v, desc, red + bar + box_, gravity=g)
+    return _law_spec(rng, lay, tid, v, desc, red + bar + box_, gravity=g)
 
 
 def law_gravity_bar_jar(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
     g = law_value(rng, v, GRAVITY_RANGE)
     bar = lay.place(rng, lambda r: g_tbar(r, yr=(200, 330)))[0]
     red, jar = _bar_into_jar(rng, lay, bar)
-    return _law_spec(rng, tid, v, desc, red + [bar] + jar, gravity=g)
+    return _law_spec(rng, lay, tid, v, desc, red + [bar] + jar, gravity=g)
 
 
 def law_gravity_shelf_launch(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
     g = law_value(rng, v, GRAVITY_RANGE)
     def shelf_and_ball(r):
         shelf = draw_shelf(r, uniform(r, 120, 200), (0, 230), (220, 380), 0.0)
-        rad = uniform(r, 10, 18)
+        rad = red_radius(r)
         along = -shelf["shape"]["length_px"] / 2 + rad + uniform(r, 5, 30)
         x, y = bk.on_bar(shelf, along, rad + GAP)
         speed = uniform(r, 40, 150)
@@ -362,7 +443,7 @@ def law_gravity_shelf_launch(rng, lay: Layout, v: int, tid: int, desc: str) -> d
     red, shelf = lay.place(rng, shelf_and_ball)
     right = bk.extent(shelf)[1]
     floor = lay.place(rng, lambda r: g_box(r, xr=(right, W))) + lay.place(rng, g_box)
-    return _law_spec(rng, tid, v, desc, [red, shelf] + floor, gravity=g)
+    return _law_spec(rng, lay, tid, v, desc, [red, shelf] + floor, gravity=g)
 
 
 def law_gravity_two_balls(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
@@ -374,7 +455,7 @@ def law_gravity_two_balls(rng, lay: Layout, v: int, tid: int, desc: str) -> dict
         return [bk.ball(f"{c}_ball", c, rad, centre_x(r, rad), uniform(r, 220, 360))]
     other = lay.place(rng, gray)
     red = lay.place(rng, lambda r: [red_drop(r, bar, y_min=380)])
-    return _law_spec(rng, tid, v, desc, red + bar + other, gravity=g)
+    return _law_spec(rng, lay, tid, v, desc, red + bar + other, gravity=g)
 
 
 # Restitution: bounces with an explicit pair restitution e in 0.1-0.9 (friction stays 0.5).
@@ -386,7 +467,7 @@ def law_bounce_bar(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
     e = law_value(rng, v, RESTITUTION_RANGE)
     bar = lay.place(rng, lambda r: [draw_shelf(r, uniform(r, 160, 300), ALL, (60, 180), 0.03)])
     red = lay.place(rng, lambda r: [red_drop(r, bar, y_min=420)])
-    return _law_spec(rng, tid, v, desc, red + bar, pairs=[_bounce(red[0], bar[0], e)])
+    return _law_spec(rng, lay, tid, v, desc, red + bar, pairs=[_bounce(red[0], bar[0], e)])
 
 
 def law_bounce_floor(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
@@ -394,10 +475,10 @@ def law_bounce_floor(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
     floor = lay.place(rng, g_box) + lay.place(rng, g_box)
 
     def red(r):
-        rad = uniform(r, 10, 18)
+        rad = red_radius(r)
         return [bk.ball("red_ball", "red", rad, centre_x(r, rad), uniform(r, 400, H - rad - 4))]
     red_ = lay.place(rng, red)
-    return _law_spec(rng, tid, v, desc, red_ + floor,
+    return _law_spec(rng, lay, tid, v, desc, red_ + floor,
                      pairs=[_bounce(red_[0], "wall_bottom", e)])
 
 
@@ -406,7 +487,7 @@ def law_bounce_block(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
     block = lay.place(rng, lambda r: g_pblock(r, yr=(180, 300)))
     bar = lay.place(rng, lambda r: g_tbar(r, yr=(70, 150)))
     red = lay.place(rng, lambda r: [red_drop(r, block, y_min=380)])
-    return _law_spec(rng, tid, v, desc, red + block + bar,
+    return _law_spec(rng, lay, tid, v, desc, red + block + bar,
                      pairs=[_bounce(red[0], block[0], e), _bounce(red[0], bar[0], e)])
 
 
@@ -414,7 +495,7 @@ def law_bounce_bar_jar(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
     e = law_value(rng, v, RESTITUTION_RANGE)
     bar = lay.place(rng, lambda r: g_tbar(r, yr=(180, 320)))[0]
     red, jar = _bar_into_jar(rng, lay, bar)
-    return _law_spec(rng, tid, v, desc, red + [bar] + jar, pairs=[_bounce(red[0], bar, e)])
+    return _law_spec(rng, lay, tid, v, desc, red + [bar] + jar, pairs=[_bounce(red[0], bar, e)])
 
 
 def law_bounce_two_balls(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
@@ -427,7 +508,7 @@ def law_bounce_two_balls(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
         return [bk.ball(f"{c}_ball", c, rad, x, uniform(r, 250, 420))]
     other = lay.place(rng, gray)
     red = lay.place(rng, lambda r: [red_drop(r, bar, y_min=300)])
-    return _law_spec(rng, tid, v, desc, red + bar + other,
+    return _law_spec(rng, lay, tid, v, desc, red + bar + other,
                      pairs=[_bounce(red[0], bar[0], e1), _bounce(other[0], bar[0], e2)])
 
 
@@ -450,7 +531,7 @@ def law_friction_ramp(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
     bar, box_ = _incline_box(rng, lay, (150, 320))
     length = bar["shape"]["length_px"]
     red = lay.place(rng, lambda r: [_ball_above(r, bar, uniform(r, 0.32, 0.45) * length)])
-    return _law_spec(rng, tid, v, desc, red + [bar, box_], pairs=[_slide(box_, bar, mu)])
+    return _law_spec(rng, lay, tid, v, desc, red + [bar, box_], pairs=[_slide(box_, bar, mu)])
 
 
 def law_friction_two_ramps(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
@@ -458,7 +539,7 @@ def law_friction_two_ramps(rng, lay: Layout, v: int, tid: int, desc: str) -> dic
     bar1, box1 = _incline_box(rng, lay, (280, 380))
     bar2, box2 = _incline_box(rng, lay, (90, 200))
     red = lay.place(rng, lambda r: [red_drop(r, [box1], y_min=400)])
-    return _law_spec(rng, tid, v, desc, red + [bar1, box1, bar2, box2],
+    return _law_spec(rng, lay, tid, v, desc, red + [bar1, box1, bar2, box2],
                      pairs=[_slide(box1, bar1, mu1), _slide(box2, bar2, mu2)])
 
 
@@ -469,7 +550,7 @@ def law_friction_ramp_shelf(rng, lay: Layout, v: int, tid: int, desc: str) -> di
     shelf = lay.place(rng, lambda r: [draw_shelf(r, uniform(r, 140, 220), (0, low_x + 60),
                                                  (60, 150), 0.0)])[0]
     red = lay.place(rng, lambda r: [red_drop(r, [box_], y_min=380)])
-    return _law_spec(rng, tid, v, desc, red + [bar, box_, shelf],
+    return _law_spec(rng, lay, tid, v, desc, red + [bar, box_, shelf],
                      pairs=[_slide(box_, bar, mu), _slide(box_, shelf, mu)])
 
 
@@ -478,7 +559,8 @@ def law_friction_ramp_ball(rng, lay: Layout, v: int, tid: int, desc: str) -> dic
     bar, box_ = _incline_box(rng, lay, (150, 300))
     floor = lay.place(rng, lambda r: g_ball(r, xr=(0, bk.extent(bar)[0] + 40)))
     red = lay.place(rng, lambda r: [red_drop(r, [box_], y_min=380)])
-    return _law_spec(rng, tid, v, desc, red + [bar, box_] + floor, pairs=[_slide(box_, bar, mu)])
+    return _law_spec(rng, lay, tid, v, desc, red + [bar, box_] + floor,
+                     pairs=[_slide(box_, bar, mu)])
 
 
 def law_friction_ramp_jar(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
@@ -488,7 +570,7 @@ def law_friction_ramp_jar(rng, lay: Layout, v: int, tid: int, desc: str) -> dict
     jar = lay.place(rng, lambda r: g_jar(r, xr=(low_x - 130, low_x + 30)))
     length = bar["shape"]["length_px"]
     red = lay.place(rng, lambda r: [_ball_above(r, bar, uniform(r, 0.32, 0.45) * length)])
-    return _law_spec(rng, tid, v, desc, red + [bar, box_] + jar, pairs=[_slide(box_, bar, mu)])
+    return _law_spec(rng, lay, tid, v, desc, red + [bar, box_] + jar, pairs=[_slide(box_, bar, mu)])
 
 
 # Initial velocity: the red ball launched at 50-250 px/s in a template-specific direction.
@@ -503,34 +585,34 @@ def law_launch_shelf(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
     shelf = lay.place(rng, lambda r: g_hbar_box(r, xr=(230, W), yr=(120, 280)))
     floor = lay.place(rng, lambda r: g_box(r, xr=(150, W)))
     red = _launched(rng, lay, v, shelf[1:], (10, 40), (60, 250))
-    return _law_spec(rng, tid, v, desc, red + shelf + floor)
+    return _law_spec(rng, lay, tid, v, desc, red + shelf + floor)
 
 
 def law_launch_jar(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
     jar = lay.place(rng, lambda r: g_jar(r, xr=(200, W)))
     bar = lay.place(rng, lambda r: g_tbar(r, yr=(250, 400)))
     red = _launched(rng, lay, v, jar, (20, 60), (60, 250))
-    return _law_spec(rng, tid, v, desc, red + jar + bar)
+    return _law_spec(rng, lay, tid, v, desc, red + jar + bar)
 
 
 def law_launch_dominoes(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
     dom = lay.place(rng, lambda r: g_dominoes(r, xr=(200, W)))
     red = _launched(rng, lay, v, dom, (-10, 20), (40, 150))
-    return _law_spec(rng, tid, v, desc, red + dom)
+    return _law_spec(rng, lay, tid, v, desc, red + dom)
 
 
 def law_launch_up(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
     bars = lay.place(rng, lambda r: g_tbar(r, yr=(250, 420))) + lay.place(
         rng, lambda r: g_tbar(r, yr=(250, 420)))
     red = _launched(rng, lay, v, bars[:1], (45, 80), (30, 120))
-    return _law_spec(rng, tid, v, desc, red + bars)
+    return _law_spec(rng, lay, tid, v, desc, red + bars)
 
 
 def law_launch_sticks(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
     st = lay.place(rng, lambda r: g_sticks(r, xr=(200, W)))
     bar = lay.place(rng, g_tbar)
     red = _launched(rng, lay, v, st, (0, 35), (60, 250))
-    return _law_spec(rng, tid, v, desc, red + st + bar)
+    return _law_spec(rng, lay, tid, v, desc, red + st + bar)
 
 
 # Mass ratio: the red ball (density d_red) hits dynamic bodies of density d_target.
@@ -540,7 +622,7 @@ def _long_shelf(rng) -> dict:
 
 def _roller(rng, shelf: dict, density: float) -> dict:
     """The red ball resting on a shelf's left part, rolling right at 80-200 px/s."""
-    r = uniform(rng, 10, 18)
+    r = red_radius(rng)
     x, y = bk.on_bar(shelf, -shelf["shape"]["length_px"] / 2 + r + uniform(rng, 5, 20), r + GAP)
     return bk.ball("red_ball", "red", r, x, y, velocity=(uniform(rng, 80, 200), 0.0, 0.0),
                    density=density)
@@ -555,7 +637,7 @@ def law_mass_balls(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
         along = uniform(r, 0, shelf["shape"]["length_px"] / 2 - rad - 10)
         x, y = bk.on_bar(shelf, along, rad + GAP)
         return [_roller(r, shelf, d_red), bk.ball(f"{c}_ball", c, rad, x, y, density=d_tgt), shelf]
-    return _law_spec(rng, tid, v, desc, lay.place(rng, pair))
+    return _law_spec(rng, lay, tid, v, desc, lay.place(rng, pair), static_only=True)
 
 
 def law_mass_box_on_shelf(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
@@ -567,7 +649,7 @@ def law_mass_box_on_shelf(rng, lay: Layout, v: int, tid: int, desc: str) -> dict
         x, y = bk.on_bar(shelf, uniform(r, 0, shelf["shape"]["length_px"] / 2 - w / 2 - 10),
                          h / 2 + GAP)
         return [_roller(r, shelf, d_red), bk.box(f"{c}_box", c, w, h, x, y, density=d_tgt), shelf]
-    return _law_spec(rng, tid, v, desc, lay.place(rng, pair))
+    return _law_spec(rng, lay, tid, v, desc, lay.place(rng, pair), static_only=True)
 
 
 def law_mass_floor_boxes(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
@@ -581,10 +663,10 @@ def law_mass_floor_boxes(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
     floor = lay.place(rng, boxes)
 
     def red(r):
-        rad = uniform(r, 10, 18)
+        rad = red_radius(r)
         return [bk.ball("red_ball", "red", rad, uniform(r, rad + 5, 120), rad + GAP,
                         velocity=(uniform(r, 80, 200), 0.0, 0.0), density=d_red)]
-    return _law_spec(rng, tid, v, desc, lay.place(rng, red) + floor)
+    return _law_spec(rng, lay, tid, v, desc, lay.place(rng, red) + floor, static_only=True)
 
 
 def law_mass_seesaw(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
@@ -603,7 +685,7 @@ def law_mass_seesaw(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
         ball_ = _ball_above(r, plank, -uniform(r, 0.3, 0.42) * plank["shape"]["length_px"])
         ball_["material"]["density_kg_m2"] = d_red
         return [ball_]
-    return _law_spec(rng, tid, v, desc, lay.place(rng, red) + group)
+    return _law_spec(rng, lay, tid, v, desc, lay.place(rng, red) + group, static_only=True)
 
 
 def law_mass_jar_on_shelf(rng, lay: Layout, v: int, tid: int, desc: str) -> dict:
@@ -615,7 +697,7 @@ def law_mass_jar_on_shelf(rng, lay: Layout, v: int, tid: int, desc: str) -> dict
         x, y = bk.on_bar(shelf, uniform(r, 0, shelf["shape"]["length_px"] / 2 - w / 2 - 10),
                          BAR / 2 + GAP)
         return [_roller(r, shelf, d_red), bk.jar(f"{c}_jar", c, w, h, x, y, density=d_tgt), shelf]
-    return _law_spec(rng, tid, v, desc, lay.place(rng, pair))
+    return _law_spec(rng, lay, tid, v, desc, lay.place(rng, pair), static_only=True)
 
 
 #: (law, description, builder) of the 26 law templates, ids 10071..10096, two variants each.
