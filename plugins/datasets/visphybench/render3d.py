@@ -4,9 +4,11 @@
 (camera, lights, floor, bodies' shapes and colours, per-frame poses); it is a pure function of
 (spec, poses, fps, n_frames), and the threejs engine's reference program for 3D scenes is the
 same page. `render_clip_3d` renders it in the sandbox's virtual time (frame k captured at
-k / fps s, animation ticks every 1/60 s): perspective camera from the spec, Lambert materials
-under a fixed hemisphere + directional light (with shadows when ``render.shadows``), grey floor,
-white sky, no antialiasing, pixel ratio 1. SwiftShader rendering is deterministic, so the same
+k / fps s, animation ticks every 1/60 s): the spec's fixed perspective camera, Lambert-shaded
+colours under a hemisphere + directional light (shadow-mapped shadows only when
+``render.shadows``; the generated scenes have none), translucent bodies (``opacity``) blended,
+multisampled edges when ``render.antialias``, grey floor, white sky, pixel ratio 1. SwiftShader
+rendering (its multisampling included) is deterministic, so the same
 inputs give the same frames.
 """
 
