@@ -262,20 +262,27 @@ class Layout:
 
     def __init__(self, strict: bool = True) -> None:
         self.occ = np.zeros((H, W), dtype=bool)
+        self.halo = np.zeros((H, W), dtype=bool)  # extra keep-out for `clear_halo` groups
         self.strict = strict
 
     def _free(self, b: dict) -> bool:
+        return self._misses(b, self.occ)
+
+    def _misses(self, b: dict, grid: np.ndarray) -> bool:
+        """The body lies on screen and none of its pixels is set in `grid`."""
         xmin, xmax, ymin, ymax = extent(b)
         if xmin < 2 or xmax > W - 2 or ymin < 0.25 or ymax > H - 2:
             return False
         p = b["pose"]
-        win = window_mask(b, (p["x_px"], p["y_px"], p["angle_rad"]), W, H)
-        r, c, m = win
-        return not np.any(self.occ[r:r + m.shape[0], c:c + m.shape[1]] & m)
+        r, c, m = window_mask(b, (p["x_px"], p["y_px"], p["angle_rad"]), W, H)
+        return not np.any(grid[r:r + m.shape[0], c:c + m.shape[1]] & m)
 
-    def add(self, group: list[dict]) -> list[dict]:
-        """Occupy the group's space, or raise LayoutFull when it collides (strict mode)."""
-        if self.strict and not all(self._free(b) for b in group):
+    def add(self, group: list[dict], clear_halo: bool = False) -> list[dict]:
+        """Occupy the group's space, or raise LayoutFull when it collides (strict mode).
+
+        With `clear_halo` the group must also miss the halos (see `add_halo`)."""
+        if self.strict and not all(self._free(b) and (not clear_halo or self._misses(b, self.halo))
+                                   for b in group):
             raise LayoutFull
         for b in group:
             p = b["pose"]
@@ -298,12 +305,24 @@ class Layout:
 
     def try_place(self, rng: np.random.Generator,
                   build: Callable[[np.random.Generator], list[dict]],
-                  tries: int = 12) -> list[dict]:
+                  tries: int = 12, clear_halo: bool = False) -> list[dict]:
         """Like `place`, but an optional group that does not fit is left out ([])."""
-        try:
-            return self.place(rng, build, tries)
-        except LayoutFull:
-            return []
+        for _ in range(tries):
+            try:
+                return self.add(build(rng), clear_halo)
+            except LayoutFull:
+                continue
+        return []
+
+    def add_halo(self, bodies: Iterable[dict], d: float) -> None:
+        """Mark the bodies grown by d px as a halo that `clear_halo` groups keep out of."""
+        for b in bodies:
+            p = b["pose"]
+            win = window_mask({"shape": inflate_shape(b["shape"], d)},
+                              (p["x_px"], p["y_px"], p["angle_rad"]), W, H)
+            if win is not None:
+                r, c, m = win
+                self.halo[r:r + m.shape[0], c:c + m.shape[1]] |= m
 
     def reserve(self, centres: Iterable[Sequence[float]], r: float) -> None:
         """Keep discs of radius r around `centres` free (a flight path later groups avoid)."""

@@ -188,6 +188,9 @@ MAX_BALLS, BIG_BALL_AREA = 5, math.pi * 24.0 ** 2
 FLIGHT_S = 3.4
 
 
+AIR_SCENERY = (bk.g_static_ball, bk.g_short_bar, bk.g_small_block)
+
+
 def flight_path(ball: dict, g: float = 9.8, seconds: float = FLIGHT_S,
                 dt: float = 1 / 30) -> list[tuple[float, float]]:
     """Centres of a ball's free flight (no obstacles) under g m/s^2, until it leaves the canvas."""
@@ -214,7 +217,10 @@ def decorate(rng, layout: Layout, bodies: list[dict], g: float = 9.8,
     """
     cats = {category_of(b) for b in bodies}
     red = next(b for b in bodies if b["id"] == "red_ball")
-    layout.reserve(flight_path(red, g), red["shape"]["radius_px"] + 6)
+    r_red = red["shape"]["radius_px"]
+    layout.reserve(flight_path(red, g), r_red + 6)
+    # scenery in the air leaves the red ball room to roll along and off the story's supports
+    layout.add_halo([b for b in bodies if not b["dynamic"]], 2 * r_red + 4)
     area = sum(shape_area_centroid(b["shape"])[0] for b in bodies)
     target = W * H * uniform(rng, *AREA_SHARE)
     kinds = []
@@ -230,7 +236,8 @@ def decorate(rng, layout: Layout, bodies: list[dict], g: float = 9.8,
     extras: list[dict] = []
     for k, build in enumerate(kinds):
         share = (target - area) / (len(kinds) - k)  # what is left of the area, per object
-        group = layout.try_place(rng, lambda r, b=build, a=share: b(r, area=a))
+        group = layout.try_place(rng, lambda r, b=build, a=share: b(r, area=a),
+                                 clear_halo=build in AIR_SCENERY)
         area += sum(shape_area_centroid(b["shape"])[0] for b in group)
         extras += group
     return bodies + extras
