@@ -15,6 +15,10 @@ Which categories a template contains never depends on `rng` (only positions, siz
 colours and law values do), so the category shares of the benchmark are fixed by the template mix
 (see `category_shares`); `variant` picks the action's target (combinatorial) or the half of the
 law's range (law templates, so the two variants of a law template differ in their law).
+Sizes follow the published clips: the red ball is 17-56 px in radius (median about 39), and
+`decorate` adds scenery around each story (balls, bars and blocks that are static or rest on the
+floor, sized to fill 3.4-5 % of the frame, clear of the red ball's free flight and of the room it
+needs to roll off the story's supports), so a scene holds about 7.7 objects in the paper's mix.
 """
 
 from __future__ import annotations
