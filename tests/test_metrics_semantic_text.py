@@ -207,6 +207,31 @@ def test_bertscore_does_not_truncate_long_texts(no_weights):
     assert float(f1[0]) == pytest.approx(float(f2[0]), abs=1e-7)
 
 
+def test_bertscore_runs_on_one_torch_thread_and_restores_the_count(no_weights, monkeypatch):
+    """Two short texts: BERTScore's matrices are too small to share between threads (and a
+    second thread on busy cores multiplies its time), so it runs on one; the process's setting
+    is back afterwards, whatever happens inside."""
+    from visphy_plugins.metrics import _torch
+
+    t = _torch.torch()
+    before = t.get_num_threads()
+    seen = []
+    real = T.bertscore_f1
+
+    def spy(scorer, candidate, reference):
+        seen.append(t.get_num_threads())
+        return real(scorer, candidate, reference)
+
+    monkeypatch.setattr(T, "bertscore_f1", spy)
+    m = T.BERTScore()
+    value = m.compute(inp(SHORT_A, SHORT_B))
+    assert seen == [1] and t.get_num_threads() == before and 0.0 < value < 1.0
+    monkeypatch.setattr(T, "bertscore_f1", lambda *a: 1 / 0)
+    with pytest.raises(ZeroDivisionError):
+        m.compute(inp(SHORT_A, SHORT_B))
+    assert t.get_num_threads() == before
+
+
 def _tiny_roberta(path: Path) -> None:
     """A random 24-layer RoBERTa with a byte-level tokenizer, saved as a model directory."""
     from transformers import RobertaConfig, RobertaModel, RobertaTokenizer

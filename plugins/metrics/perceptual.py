@@ -66,6 +66,8 @@ every pair), and the value is recorded in the identity, as ST-LPIPS' working siz
 from __future__ import annotations
 
 import importlib.util
+import inspect
+import math
 import sys
 import types
 import warnings
@@ -73,6 +75,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+import cv2
 import numpy as np
 
 from visphy_core import weights as _weights
@@ -97,8 +100,148 @@ STLPIPS_FILES = ("alex_shift_tolerant.pth",)
 MS_SSIM_MIN_SIZE = 161  # (11 - 1) * 2 ** 4 + 1
 
 
-# --------------------------------------------------------------------------- weight-free (piq)
+# --------------------------------------------------------------------------- MS-SSIM
+_MS_TAPS = np.exp(-(np.arange(11) - 5.0) ** 2 / (2 * 1.5**2))
+#: piq's 11×11 Gaussian window (σ 1.5) is the outer product of this normalised 1-D kernel
+_MS_KERNEL = (_MS_TAPS / _MS_TAPS.sum()).astype(np.float32)
+#: Wang et al. 2003's scale weights, as piq uses them
+MS_SSIM_WEIGHTS = np.array([0.0448, 0.2856, 0.3001, 0.2363, 0.1333])
+_MS_C1, _MS_C2 = np.float32(0.01**2), np.float32(0.03**2)
+
+
+def _halve(x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """piq's step to the next scale: when either side is odd, one row and one column of edge
+    values added at the top and left (``F.pad(..., [p, 0, p, 0], 'replicate')``), then 2×2
+    means (``avg_pool2d(2)``, an odd last row or column dropped). OpenCV's area resize of the
+    even part is that block mean, bit for bit."""
+    p = max(x.shape[0] % 2, x.shape[1] % 2)
+    if p:
+        x = cv2.copyMakeBorder(x, p, 0, p, 0, cv2.BORDER_REPLICATE)
+    h, w = x.shape[0] // 2, x.shape[1] // 2
+    return cv2.resize(x[:2 * h, :2 * w], (w, h), dst=out, interpolation=cv2.INTER_AREA)
+
+
+def _channel_means(m: np.ndarray) -> np.ndarray:
+    """Per-channel means of an H×W×3 float32 map, summed in float64."""
+    return np.array(cv2.sumElems(m)[:3]) / (m.shape[0] * m.shape[1])
+
+
+class _MsSsimScale:
+    """The work arrays of one scale (allocated once per batch of pairs: fresh multi-megabyte
+    arrays for every operation cost more in page faults than the arithmetic)."""
+
+    def __init__(self, h: int, w: int):
+        r = 5
+        full = lambda: np.empty((h, w, 3), np.float32)  # noqa: E731
+        self.x, self.y, self.prod = full(), full(), full()
+        # blurred x, y, x², y², xy over the whole image; the valid part is kept
+        self.blurred = [full() for _ in range(5)]
+        self.valid = [b[r:h - r, r:w - r] for b in self.blurred]
+        vh, vw = h - 2 * r, w - 2 * r
+        self.t = [np.empty((vh, vw, 3), np.float32) for _ in range(3)]
+
+    def blur(self, src: np.ndarray, k: int) -> None:
+        cv2.sepFilter2D(src, -1, _MS_KERNEL, _MS_KERNEL, dst=self.blurred[k],
+                        borderType=cv2.BORDER_REFLECT)
+
+    def means(self, last: bool) -> np.ndarray:
+        """piq's ``_ssim_per_channel`` on ``x``, ``y``: the per-channel mean of the cs map
+        (``last``: of the SSIM map), with piq's float32 operations in piq's order."""
+        x, y, p = self.x, self.y, self.prod
+        self.blur(x, 0)
+        self.blur(y, 1)
+        np.multiply(x, x, out=p)
+        self.blur(p, 2)
+        np.multiply(y, y, out=p)
+        self.blur(p, 3)
+        np.multiply(x, y, out=p)
+        self.blur(p, 4)
+        mx, my, sxx, syy, sxy = self.valid
+        mxx, myy, mxy = self.t
+        np.multiply(mx, mx, out=mxx)
+        np.multiply(my, my, out=myy)
+        np.multiply(mx, my, out=mxy)
+        sxx -= mxx  # σx² = conv(x²) − μx², …
+        syy -= myy
+        sxy -= mxy
+        cs = sxy  # cs = (2σxy + C2) / (σx² + σy² + C2)
+        cs *= np.float32(2.0)
+        cs += _MS_C2
+        sxx += syy
+        sxx += _MS_C2
+        cs /= sxx
+        if not last:
+            return _channel_means(cs)
+        ss = mxy  # ss = (2μxμy + C1) / (μx² + μy² + C1) · cs
+        ss *= np.float32(2.0)
+        ss += _MS_C1
+        mxx += myy
+        mxx += _MS_C1
+        ss /= mxx
+        ss *= cs
+        return _channel_means(ss)
+
+
+def _ms_ssim_scales(h: int, w: int) -> list[_MsSsimScale]:
+    shapes = [(h, w)]
+    for _ in range(len(MS_SSIM_WEIGHTS) - 1):
+        h, w = shapes[-1]
+        p = max(h % 2, w % 2)
+        shapes.append(((h + p) // 2, (w + p) // 2))
+    return [_MsSsimScale(*hw) for hw in shapes]
+
+
+def ms_ssim_pair(a: np.ndarray, b: np.ndarray, scales: list[_MsSsimScale] | None = None
+                 ) -> float:
+    """``piq.multi_scale_ssim(x, y, data_range=1.0, reduction='none')`` of one pair of H×W×3
+    uint8 frames (x = frame / 255, float32), computed with separable OpenCV filters
+    (``scales``: work arrays from `_ms_ssim_scales`, reused across pairs of one size).
+
+    Per scale and channel, as piq: valid-mode Gaussian moments; the contrast-structure mean
+    ``cs`` at the first four scales and the SSIM mean at the fifth (the luminance term times the
+    cs map), with piq's float32 operations in piq's order; each mean clipped at 0 (``relu``),
+    raised to its scale weight and multiplied over the scales; then the mean over the channels.
+    Means are summed in float64 (piq: float32), so the value is within a few 1e-6 of piq's and
+    closer to piq's own float64 result than piq's float32 result is."""
+    a, b = np.asarray(a)[..., :3], np.asarray(b)[..., :3]
+    scales = scales or _ms_ssim_scales(*a.shape[:2])
+    first = scales[0]
+    first.x[...] = a
+    first.x /= np.float32(255.0)
+    first.y[...] = b
+    first.y /= np.float32(255.0)
+    per_scale = []
+    for level, sc in enumerate(scales):
+        if level:
+            _halve(scales[level - 1].x, out=sc.x)
+            _halve(scales[level - 1].y, out=sc.y)
+        per_scale.append(sc.means(last=level == len(scales) - 1))
+    values = np.maximum(np.stack(per_scale), 0.0)  # scales × channels
+    return float(np.prod(values ** MS_SSIM_WEIGHTS[:, None], axis=0).mean())
+
+
+class MSSSIM(Metric):
+    name = "ms_ssim"
+    family = "perceptual"
+    kind = PAIRS
+    direction = HIGHER
+    score_range = (0.0, 1.0)
+    max_pairs = PIQ_MAX_PAIRS
+
+    def pair_values(self, reference: np.ndarray, generated: np.ndarray) -> np.ndarray:
+        if min(np.shape(reference)[1:3]) < MS_SSIM_MIN_SIZE:
+            return np.full(len(reference), np.nan)
+        scales = _ms_ssim_scales(*np.shape(reference)[1:3]) if len(reference) else None
+        return np.array([ms_ssim_pair(a, b, scales) for a, b in zip(reference, generated)])
+
+
+# --------------------------------------------------------------------------- FSIM, VSI (piq)
 class _PiqMetric(Metric):
+    """A piq metric split into what each frame needs alone (`frame_features`, piq's own
+    functions on a batch of frames) and what each pair needs (`combine`, piq's remaining
+    operations on the pairs' stacked features): the features are computed once per distinct
+    frame (`_torch.per_frame`), and the values are piq's."""
+
     family = "perceptual"
     kind = PAIRS
     direction = HIGHER
@@ -108,50 +251,203 @@ class _PiqMetric(Metric):
     def unavailable_reason(self) -> str | None:
         return _torch.missing_packages("torch", "piq")
 
-    def _piq(self, x, y):  # pragma: no cover - abstract
+    def frame_features(self, frames: np.ndarray) -> list[tuple]:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def combine(self, fx: tuple, fy: tuple):  # pragma: no cover - abstract
         raise NotImplementedError
 
     def pair_values(self, reference: np.ndarray, generated: np.ndarray) -> np.ndarray:
         t = _torch.torch()
         out = []
         with t.inference_mode():
+            ns = (self.name, str(_torch.device()))
+            f_ref = _torch.per_frame(reference, ns + ("reference",), self.frame_features, CHUNK)
+            f_gen = _torch.per_frame(generated, ns + ("generated",), self.frame_features, CHUNK)
             for s in range(0, len(reference), CHUNK):
-                x = _torch.to_tensor(reference[s:s + CHUNK])
-                y = _torch.to_tensor(generated[s:s + CHUNK])
-                out.append(self._piq(x, y).double().cpu().numpy().reshape(-1))
+                fx = tuple(t.stack(z) for z in zip(*f_ref[s:s + CHUNK]))
+                fy = tuple(t.stack(z) for z in zip(*f_gen[s:s + CHUNK]))
+                out.append(self.combine(fx, fy).double().cpu().numpy().reshape(-1))
         return np.concatenate(out) if out else np.zeros(0)
 
 
-class MSSSIM(_PiqMetric):
-    name = "ms_ssim"
+def _defaults(fn: Callable) -> dict:
+    return {k: p.default for k, p in inspect.signature(fn).parameters.items()
+            if p.default is not inspect.Parameter.empty}
 
-    def pair_values(self, reference: np.ndarray, generated: np.ndarray) -> np.ndarray:
-        if min(np.shape(reference)[1:3]) < MS_SSIM_MIN_SIZE:
-            return np.full(len(reference), np.nan)
-        return super().pair_values(reference, generated)
 
-    def _piq(self, x, y):
-        import piq
-
-        return piq.multi_scale_ssim(x, y, data_range=1.0, reduction="none")
+def _split(*batches) -> list[tuple]:
+    """Per frame, a tuple of its own copies of each batch tensor's slice."""
+    return [tuple(b[i].clone() for b in batches) for i in range(len(batches[0]))]
 
 
 class FSIM(_PiqMetric):
+    """`piq.fsim(x, y, data_range=1.0, chromatic=True)`: per frame its YIQ I and Q channels,
+    the phase congruency and the gradient magnitude of its luma (after piq's average pooling);
+    per pair the similarity maps and the PC-weighted mean."""
+
     name = "fsim"
 
-    def _piq(self, x, y):
+    def frame_features(self, frames: np.ndarray) -> list[tuple]:
         import piq
+        from piq.functional import gradient_map, rgb2yiq, scharr_filter
 
-        return piq.fsim(x, y, data_range=1.0, reduction="none", chromatic=True)
+        t = _torch.torch()
+        d = _defaults(piq.fsim)
+        x = _torch.to_tensor(frames) / float(1.0) * 255
+        x = t.nn.functional.avg_pool2d(x, max(1, round(min(x.shape[-2:]) / 256)))
+        x_yiq = rgb2yiq(x)
+        x_lum = x_yiq[:, :1]
+        pc = _phase_congruency(x_lum, _fsim_filters(x_lum, d), scales=d["scales"],
+                               orientations=d["orientations"], k=d["k"])
+        sch = scharr_filter(device=x_lum.device, dtype=x_lum.dtype)
+        grad = gradient_map(x_lum, t.stack([sch, sch.transpose(-1, -2)]))
+        return _split(pc, grad, x_yiq[:, 1:2], x_yiq[:, 2:])
+
+    def combine(self, fx: tuple, fy: tuple):
+        from piq.functional import similarity_map
+
+        t = _torch.torch()
+        pc_x, grad_map_x, x_i, x_q = fx
+        pc_y, grad_map_y, y_i, y_q = fy
+        T1, T2, T3, T4, lmbda = 0.85, 160, 200, 200, 0.03  # piq.fsim's constants
+        PC = similarity_map(pc_x, pc_y, T1)
+        GM = similarity_map(grad_map_x, grad_map_y, T2)
+        pc_max = t.where(pc_x > pc_y, pc_x, pc_y)
+        score = GM * PC * pc_max
+        S_I = similarity_map(x_i, y_i, T3)
+        S_Q = similarity_map(x_q, y_q, T4)
+        score = score * t.abs(S_I * S_Q) ** lmbda
+        return score.sum(dim=[1, 2, 3]) / pc_max.sum(dim=[1, 2, 3])
+
+
+_FSIM_FILTERS: dict[tuple, Any] = {}
+
+
+def _fsim_filters(x_lum, d: dict) -> tuple:
+    """piq's log-Gabor filter bank for this image size (it depends on nothing else), built by
+    piq's ``_construct_filters``, with what piq's ``_phase_congruency`` derives from the filters
+    alone (the mean squared smallest-scale filter, and the sums of the spatial filters' squares
+    and neighbouring-scale products): once per size, device and dtype."""
+    from piq.fsim import _construct_filters
+
+    t = _torch.torch()
+    names = ("scales", "orientations", "min_length", "mult", "sigma_f", "delta_theta")
+    key = (tuple(x_lum.shape[-2:]), str(x_lum.device), x_lum.dtype) + tuple(d[n] for n in names)
+    if key not in _FSIM_FILTERS:
+        filters = _construct_filters(x_lum, *(d[n] for n in names))
+        scales, orientations = d["scales"], d["orientations"]
+        H, W = x_lum.shape[-2:]
+        # piq's _phase_congruency, the lines that read the filters only (batch of one)
+        filters_ifft = t.fft.ifft2(filters)
+        filters_ifft = filters_ifft.real * math.sqrt(H * W)
+        em_n = (filters.view(1, orientations, scales, H, W)[:, :, :1, ...] ** 2).sum(
+            dim=[-2, -1], keepdims=True)
+        filters_ifft = filters_ifft.view(1, orientations, scales, H, W)
+        sum_an2 = t.sum(filters_ifft ** 2, dim=-3, keepdim=True)
+        sum_ai_aj = t.zeros(1, orientations, 1, H, W, dtype=x_lum.dtype, device=x_lum.device)
+        for s in range(scales - 1):
+            sum_ai_aj = sum_ai_aj + (filters_ifft[:, :, s: s + 1]
+                                     * filters_ifft[:, :, s + 1:]).sum(dim=-3, keepdim=True)
+        sum_an2 = t.sum(sum_an2, dim=[-1, -2], keepdim=True)
+        sum_ai_aj = t.sum(sum_ai_aj, dim=[-1, -2], keepdim=True)
+        _FSIM_FILTERS[key] = (filters, em_n, sum_an2, sum_ai_aj)
+    return _FSIM_FILTERS[key]
+
+
+def _phase_congruency(x, bank: tuple, scales: int, orientations: int, k: float):
+    """piq's ``fsim._phase_congruency(x, filters, scales, orientations, k)`` (torch ≥ 1.8
+    branch), line for line, with the filters' own terms from `_fsim_filters` (piq recomputes
+    them, 16 inverse FFTs at 256², on every call: most of its time on a few frames)."""
+    t = _torch.torch()
+    filters, em_n, sum_an2, sum_ai_aj = bank
+    EPS = t.finfo(x.dtype).eps
+    N, _, H, W = x.shape
+    imagefft = t.fft.fft2(x)
+    even_odd = t.view_as_real(t.fft.ifft2(imagefft * filters)).view(N, orientations, scales, H,
+                                                                        W, 2)
+    an = t.sqrt(t.sum(even_odd ** 2, dim=-1))
+    sum_e = even_odd[..., 0].sum(dim=2, keepdims=True)
+    sum_o = even_odd[..., 1].sum(dim=2, keepdims=True)
+    x_energy = t.sqrt(sum_e ** 2 + sum_o ** 2) + EPS
+    mean_e = sum_e / x_energy
+    mean_o = sum_o / x_energy
+    even = even_odd[..., 0]
+    odd = even_odd[..., 1]
+    energy = (even * mean_e + odd * mean_o - t.abs(even * mean_o - odd * mean_e)).sum(
+        dim=2, keepdim=True)
+    abs_eo = t.sqrt(t.sum(even_odd[:, :, :1, ...] ** 2, dim=-1)).reshape(N, orientations, 1, 1,
+                                                                          H * W)
+    median_e2n = t.median(abs_eo ** 2, dim=-1, keepdim=True).values
+    mean_e2n = - median_e2n / math.log(0.5)
+    noise_power = mean_e2n / em_n
+    noise_energy2 = 2 * noise_power * sum_an2 + 4 * noise_power * sum_ai_aj
+    tau = t.sqrt(noise_energy2 / 2)
+    noise_energy = tau * math.sqrt(math.pi / 2)
+    moise_energy_sigma = t.sqrt((2 - math.pi / 2) * tau ** 2)
+    T = noise_energy + k * moise_energy_sigma
+    T = T / 1.7
+    energy = t.max(energy - T, t.zeros_like(T))
+    energy_all = energy.sum(dim=[1, 2]) + EPS
+    an_all = an.sum(dim=[1, 2]) + EPS
+    result_pc = energy_all / an_all
+    return result_pc.unsqueeze(1)
 
 
 class VSI(_PiqMetric):
+    """`piq.vsi(x, y, data_range=1.0)`: per frame its SDSP saliency map, its LMN channels (both
+    padded and average-pooled as piq does) and the gradient magnitude of L; per pair the
+    similarity maps and the saliency-weighted mean."""
+
     name = "vsi"
 
-    def _piq(self, x, y):
+    def frame_features(self, frames: np.ndarray) -> list[tuple]:
         import piq
+        from piq.functional import gradient_map, rgb2lmn, scharr_filter
+        from piq.vsi import sdsp
 
-        return piq.vsi(x, y, data_range=1.0, reduction="none")
+        t = _torch.torch()
+        F = t.nn.functional
+        d = _defaults(piq.vsi)
+        x = _torch.to_tensor(frames) * 255. / float(1.0)
+        vs_x = sdsp(x, data_range=255, omega_0=d["omega_0"], sigma_f=d["sigma_f"],
+                    sigma_d=d["sigma_d"], sigma_c=d["sigma_c"])
+        x_lmn = rgb2lmn(x)
+        kernel_size = max(1, round(min(vs_x.size()[-2:]) / 256))
+        padding = kernel_size // 2
+        if padding:
+            bottom = (kernel_size - 1) // 2
+            pad_to_use = [padding, bottom, padding, bottom]
+            vs_x = F.pad(vs_x, pad=pad_to_use, mode="replicate")
+            x_lmn = F.pad(x_lmn, pad=pad_to_use, mode="replicate")
+        vs_x = F.avg_pool2d(vs_x, kernel_size=kernel_size)
+        x_lmn = F.avg_pool2d(x_lmn, kernel_size=kernel_size)
+        sch = scharr_filter(device=x_lmn.device, dtype=x_lmn.dtype)
+        gm_x = gradient_map(x_lmn[:, :1], t.stack([sch, sch.transpose(1, 2)]))
+        return _split(vs_x, gm_x, x_lmn[:, 1:2], x_lmn[:, 2:])
+
+    def combine(self, fx: tuple, fy: tuple):
+        import piq
+        from piq.functional import similarity_map
+
+        t = _torch.torch()
+        d = _defaults(piq.vsi)
+        c1, c2, c3, alpha, beta = d["c1"], d["c2"], d["c3"], d["alpha"], d["beta"]
+        vs_x, gm_x, x_m, x_n = fx
+        vs_y, gm_y, y_m, y_n = fy
+        s_vs = similarity_map(vs_x, vs_y, c1)
+        s_gm = similarity_map(gm_x, gm_y, c2)
+        s_m = similarity_map(x_m, y_m, c3)
+        s_n = similarity_map(x_n, y_n, c3)
+        s_c = s_m * s_n
+        s_c_complex = [s_c.abs(), t.atan2(t.zeros_like(s_c), s_c)]
+        s_c_complex_pow = [s_c_complex[0] ** beta, s_c_complex[1] * beta]
+        s_c_real_pow = s_c_complex_pow[0] * t.cos(s_c_complex_pow[1])
+        s = s_vs * s_gm.pow(alpha) * s_c_real_pow
+        vs_max = t.max(vs_x, vs_y)
+        eps = t.finfo(vs_max.dtype).eps
+        output = s * vs_max
+        return ((output.sum(dim=(-1, -2)) + eps) / (vs_max.sum(dim=(-1, -2)) + eps)).squeeze(-1)
 
 
 # --------------------------------------------------------------------------- loaded models
@@ -274,16 +570,62 @@ class _NetMetric(Metric):
         lo, hi = self.value_range
         return x * (hi - lo) + lo if (lo, hi) != (0.0, 1.0) else x
 
+    #: the net's features are computed once per distinct frame (`features`, `combine`);
+    #: False: ``forward(model, x, y)`` on each chunk of pairs
+    per_frame_features = False
+
+    def features(self, model, x) -> list:  # pragma: no cover - abstract
+        """Per frame of the batch ``x`` (``_tensor``'s): what ``forward`` computes of it alone."""
+        raise NotImplementedError
+
+    def combine(self, model, fx: tuple, fy: tuple):  # pragma: no cover - abstract
+        """``forward``'s value for the pairs whose frames' stacked `features` are fx, fy."""
+        raise NotImplementedError
+
     def pair_values(self, reference: np.ndarray, generated: np.ndarray) -> np.ndarray:
         t = _torch.torch()
         model = self.model()
         out = []
         with t.inference_mode():
+            if self.per_frame_features:
+                ns = (self.name, self.files().key(), str(_torch.device()), self.size)
+
+                def feats(frames):
+                    return self.features(model, self._tensor(frames))
+
+                f_ref = _torch.per_frame(reference, ns + ("reference",), feats, CHUNK)
+                f_gen = _torch.per_frame(generated, ns + ("generated",), feats, CHUNK)
             for s in range(0, len(reference), CHUNK):
-                x = self._tensor(reference[s:s + CHUNK])
-                y = self._tensor(generated[s:s + CHUNK])
-                out.append(self.forward(model, x, y).double().cpu().numpy().reshape(-1))
+                if self.per_frame_features:
+                    fx = tuple(t.stack(z) for z in zip(*f_ref[s:s + CHUNK]))
+                    fy = tuple(t.stack(z) for z in zip(*f_gen[s:s + CHUNK]))
+                    value = self.combine(model, fx, fy)
+                else:
+                    x = self._tensor(reference[s:s + CHUNK])
+                    y = self._tensor(generated[s:s + CHUNK])
+                    value = self.forward(model, x, y)
+                out.append(value.double().cpu().numpy().reshape(-1))
         return np.concatenate(out) if out else np.zeros(0)
+
+
+def _lpips_features(model, x, normalize_tensor) -> list[tuple]:
+    """What ``LPIPS.forward(in0, in1)`` (lpips and stlpips-pytorch alike) computes of ``in0``
+    alone: the input scaling (v0.1), the net's five feature maps, each unit-normalised over its
+    channels; per frame, its own copies."""
+    inp = model.scaling_layer(x) if model.version == "0.1" else x
+    outs = model.net.forward(inp)
+    return _split(*[normalize_tensor(o) for o in outs])
+
+
+def _lpips_combine(model, fx: tuple, fy: tuple):
+    """The rest of ``LPIPS.forward`` (lpips=True, spatial=False): per layer the squared
+    difference of the normalised features, its linear layer, the spatial mean; their sum."""
+    val = None
+    for kk in range(model.L):
+        diff = (fx[kk] - fy[kk]) ** 2
+        res = model.lins[kk](diff).mean([2, 3], keepdim=True)
+        val = res if val is None else val + res
+    return val
 
 
 # ----------------------------------------------------------------------------- ST-LPIPS
@@ -359,6 +701,16 @@ class STLPIPS(_NetMetric):
     def forward(self, model, x, y):
         return model(x, y)
 
+    per_frame_features = True
+
+    def features(self, model, x) -> list:
+        from stlpips_pytorch import utils
+
+        return _lpips_features(model, x, utils.normalize_tensor)
+
+    def combine(self, model, fx: tuple, fy: tuple):
+        return _lpips_combine(model, fx, fy)
+
 
 # ----------------------------------------------------------------------------- LPIPS
 def lpips_linear_file(net: str = "alex") -> Path | None:
@@ -416,6 +768,16 @@ class LPIPS(_NetMetric):
 
     def forward(self, model, x, y):
         return model(x, y)
+
+    per_frame_features = True
+
+    def features(self, model, x) -> list:
+        import lpips
+
+        return _lpips_features(model, x, lpips.normalize_tensor)
+
+    def combine(self, model, fx: tuple, fy: tuple):
+        return _lpips_combine(model, fx, fy)
 
 
 # ----------------------------------------------------------------------------- DISTS

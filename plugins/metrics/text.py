@@ -28,6 +28,17 @@ None.
   special tokens take part in matching with weight 0, exactly as bert_score treats the special
   tokens of a single window). Texts that fit in the context are scored by
   ``BERTScorer.score`` itself, and the windowed computation equals it on them.
+
+Cost. What loads is loaded once per process: the ROUGE scorer (importing ``rouge_score`` pulls in
+nltk, scipy and scikit-learn: about 4 s, once) and the BERTScore model (a few seconds, once).
+Per scene, ROUGE-L takes about a millisecond and BERTScore two forward passes of its model over
+a few dozen tokens: about 0.03 s for all-MiniLM-L6-v2 on one thread. BERTScore runs with one
+torch thread (`_torch.threads`): matrices of a few dozen rows gain nothing from a second
+thread, and where other processes keep the cores busy two threads made it 10–30× slower
+(0.4–2 s a scene, measured on this project's 2-core machines). The 0.33 s (ROUGE-L) and 0.46 s
+(BERTScore) per 2D scene once reported by ``benchmarks/bench_metrics.py`` were these one-time
+loads, counted in the first timed scene (its warm-up scene had no analysis text, so the text
+metrics loaded nothing there).
 """
 
 from __future__ import annotations
@@ -311,7 +322,11 @@ class BERTScore(_TextMetric):
         m = find_bert_model()
         if m is None:
             raise RuntimeError(self._missing())
-        return bertscore_f1(bert_scorer(m), analysis, reference)
+        from visphy_plugins.metrics import _torch
+
+        scorer = bert_scorer(m)
+        with _torch.threads(1):  # two short texts: nothing to share between threads
+            return bertscore_f1(scorer, analysis, reference)
 
 
 @hookimpl
