@@ -291,7 +291,8 @@ def _per_pair(metric, ref: np.ndarray, gen: np.ndarray) -> np.ndarray:
 def test_per_frame_paths_equal_the_per_pair_computation(name, weight_dir, monkeypatch):
     """Each frame's share computed once (in the batch and across calls, as the scorer asks for
     a scene's pairings one after the other) gives the per-pair values: SSIM bit for bit, the
-    torch metrics to 1e-6; the cache's hits are real, and a disabled cache changes nothing."""
+    torch metrics to 1e-6; the cache's hits are real, and a disabled cache (for SSIM: a batch
+    too large to keep) changes nothing."""
     if name == "lpips":
         save_alexnet(weight_dir / "alexnet-owt-7be5be79.pth", seed=0)
     metric = SSIM() if name == "ssim" else {"fsim": P.FSIM, "vsi": P.VSI, "st_lpips": P.STLPIPS,
@@ -309,6 +310,8 @@ def test_per_frame_paths_equal_the_per_pair_computation(name, weight_dir, monkey
             before = dict(_T.frame_cache_stats)
             ours = metric.pair_values(ref, gen)
             assert np.allclose(ours, expected[k], rtol=0, atol=atol), (k, ours - expected[k])
+            if not cache_bytes:  # (SSIM: moments pair by pair; the others: per chunk)
+                continue
             hits = _T.frame_cache_stats["hits"] - before["hits"]
             misses = _T.frame_cache_stats["misses"] - before["misses"]
             assert hits + misses == 2 * len(ref)
@@ -316,10 +319,28 @@ def test_per_frame_paths_equal_the_per_pair_computation(name, weight_dir, monkey
             new = {side: {f.tobytes() for f in frames} - seen[side]
                    for side, frames in (("reference", ref), ("generated", gen))}
             assert misses == len(new["reference"]) + len(new["generated"]), k
-            if cache_bytes:
-                for side in seen:
-                    seen[side] |= new[side]
-    monkeypatch.setattr(_T, "FRAME_CACHE_BYTES", 512 * 2**20)
+            for side in seen:
+                seen[side] |= new[side]
+
+
+def test_ssim_keeps_moments_only_for_batches_that_fit(monkeypatch):
+    """More pairs than `PAIR_CHUNK`; a batch whose frames' moments would not fit in the cache
+    (a 3D scene's 75 pairs) is computed pair by pair, nothing kept, with the same values."""
+    from visphy_plugins.metrics import pixel
+
+    ref = np.concatenate([structured(6, 64), random_frames(5, 64, 8)])
+    gen = noisy(ref, 12.0)
+    assert len(ref) > pixel.PAIR_CHUNK
+    expected = [ssim_frame(a, b) for a, b in zip(ref, gen)]
+    before = dict(_T.frame_cache_stats)
+    assert SSIM().pair_values(ref, gen).tolist() == expected
+    assert _T.frame_cache_stats["misses"] - before["misses"] == 2 * len(ref)
+    monkeypatch.setattr(_T, "FRAME_CACHE_BYTES", 2 * len(ref) * 4 * 2 * 64 * 64 * 4 - 1)
+    _T.clear_frame_cache()
+    before = dict(_T.frame_cache_stats)
+    assert SSIM().pair_values(ref, gen[::-1].copy()).tolist() == \
+        [ssim_frame(a, b) for a, b in zip(ref, gen[::-1])]
+    assert _T.frame_cache_stats == before and _T._frames_bytes == 0
 
 
 def test_per_frame_cache_dedupes_keeps_sides_apart_and_stays_in_its_budget(monkeypatch):
@@ -354,7 +375,7 @@ def test_per_frame_cache_dedupes_keeps_sides_apart_and_stays_in_its_budget(monke
     with pytest.raises(ValueError, match=_T.FRAME_CACHE_ENV):
         _T._cache_bytes()
     monkeypatch.delenv(_T.FRAME_CACHE_ENV)
-    assert _T._cache_bytes() == 512 * 2**20
+    assert _T._cache_bytes() == 384 * 2**20
 
 
 # ----------------------------------------------------------------------------- ST-LPIPS

@@ -130,22 +130,23 @@ def area_resize(frames: np.ndarray, size: int) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- per-frame cache
-#: what the per-frame cache may hold, in MiB, when set (default 512)
+#: what the per-frame cache may hold, in MiB, when set (default 384)
 FRAME_CACHE_ENV = "VISPHY_FRAME_CACHE_MB"
 
 
 def _cache_bytes() -> int:
     env = os.environ.get(FRAME_CACHE_ENV, "").strip()
     try:
-        return max(0, int(float(env) * 2**20)) if env else 512 * 2**20
+        return max(0, int(float(env) * 2**20)) if env else 384 * 2**20
     except ValueError:
         raise ValueError(f"${FRAME_CACHE_ENV} must be a number of MiB, not {env!r}") from None
 
 
 #: What the per-frame cache may hold, in bytes (all metrics together; least recently used
-#: entries go first): ``$VISPHY_FRAME_CACHE_MB``, default 512 MiB (a 2D scene's SSIM moments
-#: take about 270 MiB, its ST-LPIPS features about 160 MiB). 0 turns it off: each call still
-#: computes each distinct frame of its batch once.
+#: entries go first): ``$VISPHY_FRAME_CACHE_MB``, default 384 MiB (a 2D scene's SSIM moments
+#: take about 270 MiB, its ST-LPIPS features about 160 MiB; metrics run one after the other, so
+#: the largest one's share is what counts). 0 turns it off: each call still computes each
+#: distinct frame of its batch once.
 FRAME_CACHE_BYTES = _cache_bytes()
 
 _FRAMES: "OrderedDict[tuple, tuple[Any, int]]" = OrderedDict()
@@ -194,12 +195,14 @@ def _put(key: tuple, value: Any) -> None:
 
 
 def per_frame(frames: np.ndarray, namespace: tuple, compute: Callable[[np.ndarray], Sequence],
-              chunk: int | None = None) -> list:
+              chunk: int | None = None, store: bool = True) -> list:
     """``compute``'s result for each of ``frames`` (a K×H×W×C batch): one per distinct frame,
     from the cache or computed, where missing, on the distinct missing frames together (in
-    chunks of ``chunk`` frames when given). ``compute(batch)`` returns one result per frame of
-    its batch, each its own memory (never a view into a larger batch's storage). Results are
-    shared between the returned positions and the cache: never modify them in place."""
+    chunks of ``chunk`` frames when given), and kept in the cache (``store``). ``compute(batch)``
+    returns one result per frame of its batch, each its own memory (never a view into a larger
+    batch's storage). Results are shared between the returned positions and the cache: never
+    modify them in place. Every result of the batch is held until the call returns: callers
+    pass their pairs a few at a time."""
     keys = [namespace + frame_key(f) for f in frames]
     found: dict[tuple, Any] = {}
     with _FRAMES_LOCK:
@@ -225,6 +228,6 @@ def per_frame(frames: np.ndarray, namespace: tuple, compute: Callable[[np.ndarra
             results += out
         for k, r in zip(missing, results):
             found[k] = r
-            if FRAME_CACHE_BYTES > 0:
+            if store and FRAME_CACHE_BYTES > 0:
                 _put(k, r)
     return [found[k] for k in keys]

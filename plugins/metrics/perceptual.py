@@ -1,14 +1,26 @@
 """Perceptual metrics on aligned frame pairs (family ``perceptual``, kind ``pairs``).
 
-Weight-free (piq 0.8, called as they are, on [0, 1] RGB tensors with ``data_range=1``):
+Weight-free, equal to piq 0.8's functions on [0, 1] RGB tensors with ``data_range=1``:
 
 * ``ms_ssim`` ↑ [0, 1]: `piq.multi_scale_ssim` (5 scales, 11-tap Gaussian σ 1.5, Wang 2003
-  weights). Frames need at least 161 px a side; smaller frames give NaN (recorded as None).
+  weights), re-implemented with separable OpenCV float32 filters (`ms_ssim_pair`: piq's
+  valid-mode windows, its replicate padding and 2×2 average pooling between scales, the cs
+  means at scales 1–4 and the SSIM mean at scale 5, relu, the weights' product, the mean over
+  R, G, B last). It equals piq's float32 value within 1e-5 (a few 1e-6 on rendered frames:
+  piq's own float32 rounding; the value here is closer to piq's float64 result). Frames need
+  at least 161 px a side; smaller frames give NaN (recorded as None). Needs neither torch nor
+  piq.
 * ``fsim`` ↑ [0, 1]: `piq.fsim` with its default ``chromatic=True`` (FSIMc). piq average-pools
   by ``round(min(H, W) / 256)`` first (2 at 512²); nothing is pre-downsampled here, so the value
-  is exactly piq's on the full-size frames.
+  is piq's on the full-size frames.
 * ``vsi`` ↑ [0, 1]: `piq.vsi` (its saliency map is computed at 256² inside piq; the frames are
   passed at full size: VSI pads before pooling, so pre-downsampling would change its value).
+
+FSIM and VSI run piq's own code split in two (`_PiqMetric`): what piq computes of each image
+alone (FSIM: YIQ, phase congruency, gradient magnitude; VSI: SDSP saliency, LMN, gradient
+magnitude, padded and pooled) and piq's remaining per-pair operations on them. FSIM's
+log-Gabor bank and what piq's phase congruency derives from the filters alone are built once
+per image size (piq rebuilds them on every call). Values equal direct piq calls to 1e-6.
 
 Learned (models load once per process, cached by weight file and device, and run under
 ``torch.inference_mode`` on ``metrics.device``). Weights are never downloaded: the files below
@@ -37,30 +49,45 @@ Every metric's identity carries the digest of the files it loaded.
 Inputs: LPIPS and ST-LPIPS get the frames in [−1, 1] (their convention), DISTS and the piq
 metrics in [0, 1]. Pairs run in chunks of `CHUNK` (bounded memory on 75-frame 512² clips).
 
-Cost and ``max_pairs``. CPU seconds per 512² pair, one core (torch 2.14, this project's 2-core
-machines; 2 threads give at best about half of it as wall time):
+Per-frame work. The scorer asks for a scene's pairs one pairing at a time (unaligned, aligned,
+paper), and the same reference and generated frames come back in each (and held frames within
+one). What a metric computes of one frame alone — FSIM's and VSI's per-image maps, ST-LPIPS'
+and LPIPS' normalised net features (``LPIPS.forward`` split at the difference of the features:
+`_lpips_features`, `_lpips_combine`) — is computed once per distinct frame and kept in the
+per-frame cache (`visphy_plugins.metrics._torch.per_frame`); per pair only the comparison runs.
+The values equal the per-pair computation to 1e-6 (tested on batches with and without
+repeated frames). DISTS keeps its per-pair path: its VGG16 features take about 30 MiB per 256²
+frame, more memory than a scene's reuse is worth.
 
-============  ==========  ===========================================================
-metric        s / pair    what runs
-============  ==========  ===========================================================
-``vsi``       0.06        piq, saliency at 256², similarity at 256² (pooled by 2)
-``ms_ssim``   0.11        piq, 5 scales from 512²
-``fsim``      0.10–0.13   piq, phase congruency at 256² (pooled by 2)
-``lpips``     0.19        AlexNet at 512²
-``st_lpips``  0.28–0.35   shift-tolerant AlexNet at 256² (1.3–1.6 at 512²)
-``dists``     0.9–1.2     VGG16 at 256² (piq resizes)
-============  ==========  ===========================================================
+Cost and ``max_pairs``. CPU seconds at 512², one torch thread (torch 2.14, this project's 2-core
+machines; the minimum of 5 runs of 8 pairs): before, per pair as piq computed it; now, per
+distinct frame (once) and per pair:
+
+============  ===========  ====================  ==============================================
+metric        before       now: frame + pair     what runs
+============  ===========  ====================  ==============================================
+``ms_ssim``   0.116        — + 0.017             OpenCV, 5 scales from 512² (piq: full 11×11
+                                                 convolutions)
+``vsi``       0.050        0.025 + 0.004         piq, saliency at 256², similarity at 256²
+``fsim``      0.095        0.041 + 0.003         piq, phase congruency at 256² (pooled by 2)
+``lpips``     0.19                               AlexNet at 512² (per frame since)
+``st_lpips``  0.29         0.133 + 0.024         shift-tolerant AlexNet at 256² (1.3–1.6 at 512²)
+``dists``     0.9–1.2      unchanged             VGG16 at 256² (piq resizes)
+============  ===========  ====================  ==============================================
 
 The scorer computes each distinct pair of a scene once for the three pairings; with
 ``max_pairs`` m per pairing a 17-frame scene has about 7 (m 4), 12 (m 8) or 17 (every pair)
 distinct pairs at offset 0, 10 / 18 / 32 when the aligned offset is not 0, and a 75-frame scene
-7–8 / 12–20 / 75–148. Defaults: m = 8 (`PIQ_MAX_PAIRS`, `LPIPS_MAX_PAIRS`, `DISTS_MAX_PAIRS`)
-keeps the paper pairing of a 2D scene whole (every 3rd of 17 frames: 6 pairs) while bounding 3D
-scenes; ST-LPIPS, the costliest offline metric, runs at `STLPIPS_SIZE` = 256 (its ranking of
-shifted, recoloured and resized objects at 256² matched 512² at Spearman 0.99 on synthetic
-scenes, for a quarter of the cost) on m = 4 (`STLPIPS_MAX_PAIRS`). The sampled pairs are evenly
-spaced in time, first and last included; ``metrics.max_pairs.<name>`` overrides (0 or null:
-every pair), and the value is recorded in the identity, as ST-LPIPS' working size is.
+7–8 / 12–20 / 75–148. The frames are fewer than twice the pairs: on the benchmark's 2D scenes
+(aligned offset 2) 11 pairs use 17 distinct frames (m 4) and 20 pairs 30 (m 8); on its 3D
+scenes (offset 0) each frame is used once. Defaults: m = 8 (`PIQ_MAX_PAIRS`, `LPIPS_MAX_PAIRS`,
+`DISTS_MAX_PAIRS`) keeps the paper pairing of a 2D scene whole (every 3rd of 17 frames: 6 pairs)
+while bounding 3D scenes; ST-LPIPS, the costliest offline metric, runs at `STLPIPS_SIZE` = 256
+(its ranking of shifted, recoloured and resized objects at 256² matched 512² at Spearman 0.99
+on synthetic scenes, for a quarter of the cost) on m = 4 (`STLPIPS_MAX_PAIRS`). The sampled
+pairs are evenly spaced in time, first and last included; ``metrics.max_pairs.<name>``
+overrides (0 or null: every pair), and the value is recorded in the identity, as ST-LPIPS'
+working size is.
 """
 
 from __future__ import annotations
@@ -262,11 +289,13 @@ class _PiqMetric(Metric):
         out = []
         with t.inference_mode():
             ns = (self.name, str(_torch.device()))
-            f_ref = _torch.per_frame(reference, ns + ("reference",), self.frame_features, CHUNK)
-            f_gen = _torch.per_frame(generated, ns + ("generated",), self.frame_features, CHUNK)
             for s in range(0, len(reference), CHUNK):
-                fx = tuple(t.stack(z) for z in zip(*f_ref[s:s + CHUNK]))
-                fy = tuple(t.stack(z) for z in zip(*f_gen[s:s + CHUNK]))
+                f_ref = _torch.per_frame(reference[s:s + CHUNK], ns + ("reference",),
+                                         self.frame_features)
+                f_gen = _torch.per_frame(generated[s:s + CHUNK], ns + ("generated",),
+                                         self.frame_features)
+                fx = tuple(t.stack(z) for z in zip(*f_ref))
+                fy = tuple(t.stack(z) for z in zip(*f_gen))
                 out.append(self.combine(fx, fy).double().cpu().numpy().reshape(-1))
         return np.concatenate(out) if out else np.zeros(0)
 
@@ -587,18 +616,17 @@ class _NetMetric(Metric):
         model = self.model()
         out = []
         with t.inference_mode():
-            if self.per_frame_features:
-                ns = (self.name, self.files().key(), str(_torch.device()), self.size)
+            ns = (self.name, self.files().key(), str(_torch.device()), self.size)
 
-                def feats(frames):
-                    return self.features(model, self._tensor(frames))
+            def feats(frames):
+                return self.features(model, self._tensor(frames))
 
-                f_ref = _torch.per_frame(reference, ns + ("reference",), feats, CHUNK)
-                f_gen = _torch.per_frame(generated, ns + ("generated",), feats, CHUNK)
             for s in range(0, len(reference), CHUNK):
                 if self.per_frame_features:
-                    fx = tuple(t.stack(z) for z in zip(*f_ref[s:s + CHUNK]))
-                    fy = tuple(t.stack(z) for z in zip(*f_gen[s:s + CHUNK]))
+                    f_ref = _torch.per_frame(reference[s:s + CHUNK], ns + ("reference",), feats)
+                    f_gen = _torch.per_frame(generated[s:s + CHUNK], ns + ("generated",), feats)
+                    fx = tuple(t.stack(z) for z in zip(*f_ref))
+                    fy = tuple(t.stack(z) for z in zip(*f_gen))
                     value = self.combine(model, fx, fy)
                 else:
                     x = self._tensor(reference[s:s + CHUNK])
