@@ -7,9 +7,18 @@ Targets (issue 9): ≤ 0.5 s per 2D scene (17 frames of 512², 5 fps) and ≤ 2 
 (75 frames of 512², 15 fps) on 2 cores, under the default protocol (visphy unaligned + aligned,
 and the paper's pairing). Each video is decoded once per scene (not timed: decoding is the
 pipeline's, shared by every metric) and models load once per process (the load is timed
-apart, on a warm-up scene). The generated clip of each scene is its ground truth re-timed by two
+apart, on a warm-up scene scored with an analysis and a reference text, so the text metrics'
+models load there too). The generated clip of each scene is its ground truth re-timed by two
 frames with the first frames held (a realistic "slightly wrong timing" clip: every pairing,
-flow and track has work to do). Prints per-metric seconds per scene, the total, and peak RSS.
+flow and track has work to do). Prints per-metric wall seconds per scene (each metric scored on
+its own, the scorer's clip digests included, and all of them in one call), the CPU seconds of
+this process per scene (steadier than wall time where other processes share the cores; with
+several threads it counts each), torch's thread count, the per-frame cache's hits and misses,
+and peak RSS. The per-frame cache starts empty for every scene and metric (no metric reuses
+what another scene or metric computed).
+
+Timings on a shared machine: run the before and after in the same go, several repeats
+(``--repeat``: each scene scored that many times, the median kept).
 """
 
 from __future__ import annotations
@@ -35,6 +44,8 @@ def main() -> None:
     parser.add_argument("--metrics", default=None,
                         help="comma-separated names (default: conf/metrics/default.yaml)")
     parser.add_argument("--json", default=None)
+    parser.add_argument("--repeat", type=int, default=1,
+                        help="score each scene this many times and keep the median")
     args = parser.parse_args()
 
     from omegaconf import OmegaConf
@@ -64,40 +75,61 @@ def main() -> None:
 
     cache = Cache(Path(tempfile.mkdtemp(prefix="visphy-bench-metrics-")), enabled=False)
 
-    # warm-up: load every model once (timed apart)
+    from visphy_plugins.metrics import _torch
+
+    analysis = "The red ball falls and bounces twice."
+    reference_text = "A red ball falls onto the floor and bounces."
+    # warm-up: load every model once (timed apart), the text metrics' included
     warm = picked[0]
     ref = warm.reference_frames()
     t0 = time.perf_counter()
-    score_scene(warm, ref, _generated(ref), available, None, None, cache, protocol=protocol,
-                reference_text="a ball falls")
+    score_scene(warm, ref, _generated(ref), available, analysis, None, cache, protocol=protocol,
+                reference_text=reference_text)
     load_s = time.perf_counter() - t0
 
+    def timed(fn) -> tuple[float, float]:
+        """Median wall and CPU seconds of ``fn`` over ``--repeat`` runs, each on an empty
+        per-frame cache."""
+        runs = []
+        for _ in range(max(1, args.repeat)):
+            _torch.clear_frame_cache()
+            w0, c0 = time.perf_counter(), time.process_time()
+            fn()
+            runs.append((time.perf_counter() - w0, time.process_time() - c0))
+        wall, cpu = np.median(np.array(runs), axis=0)
+        return float(wall), float(cpu)
+
     per_dim: dict[str, dict[str, list[float]]] = {"2d": {}, "3d": {}}
+    cpu_dim: dict[str, dict[str, list[float]]] = {"2d": {}, "3d": {}}
+
+    def record(dim: str, name: str, wall_cpu: tuple[float, float]) -> None:
+        per_dim[dim].setdefault(name, []).append(wall_cpu[0])
+        cpu_dim[dim].setdefault(name, []).append(wall_cpu[1])
+
     for scene in picked:
         ref = scene.reference_frames()
         gen = _generated(ref)
-        t0 = time.perf_counter()
-        alignments(ref, gen, protocol)
-        per_dim[scene.dim].setdefault("alignment", []).append(time.perf_counter() - t0)
+        record(scene.dim, "alignment", timed(lambda: alignments(ref, gen, protocol)))
         for m in available:
-            t0 = time.perf_counter()
-            score_scene(scene, ref, gen, [m], "The red ball falls and bounces twice.", None,
-                        cache, protocol=protocol,
-                        reference_text="A red ball falls onto the floor and bounces.")
-            per_dim[scene.dim].setdefault(m.name, []).append(time.perf_counter() - t0)
-        t0 = time.perf_counter()
-        score_scene(scene, ref, gen, available, "The red ball falls and bounces twice.", None,
-                    cache, protocol=protocol,
-                    reference_text="A red ball falls onto the floor and bounces.")
-        per_dim[scene.dim].setdefault("TOTAL (all metrics, one call)", []).append(
-            time.perf_counter() - t0)
+            record(scene.dim, m.name, timed(lambda m=m: score_scene(
+                scene, ref, gen, [m], analysis, None, cache, protocol=protocol,
+                reference_text=reference_text)))
+        record(scene.dim, "TOTAL (all metrics, one call)", timed(lambda: score_scene(
+            scene, ref, gen, available, analysis, None, cache, protocol=protocol,
+            reference_text=reference_text)))
 
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+    def means(table: dict) -> dict:
+        return {dim: {k: round(float(np.mean(v)), 4) for k, v in d.items()}
+                for dim, d in table.items() if d}
+
     result = {"metrics": [m.name for m in available], "unavailable": skipped,
+              "torch_threads": _torch.torch().get_num_threads(),
               "model_load_and_first_scene_s": round(load_s, 2), "peak_rss_mb": round(peak_mb),
-              "seconds_per_scene": {
-                  dim: {k: round(float(np.mean(v)), 4) for k, v in d.items()}
-                  for dim, d in per_dim.items() if d},
+              "seconds_per_scene": means(per_dim),
+              "cpu_seconds_per_scene": means(cpu_dim),
+              "frame_cache": dict(_torch.frame_cache_stats),
               "scenes": {dim: len(next(iter(d.values()), [])) for dim, d in per_dim.items()}}
     print(json.dumps(result, indent=1))
     if args.json:
