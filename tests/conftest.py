@@ -35,10 +35,16 @@ def pytest_collection_modifyitems(config, items):
 @pytest.fixture(scope="session")
 def mini_root(tmp_path_factory) -> Path:
     """The generated benchmark with its `mini` split rendered, built once per test session
-    (the whole catalogue is simulated: labels and splits are benchmark-wide)."""
-    from visphy_plugins.datasets.visphybench.build import build_dataset
+    (the whole catalogue is simulated: labels and splits are benchmark-wide).
 
-    return build_dataset(tmp_path_factory.mktemp("data"), split="mini", progress=False)
+    Built **lossless** (exact RGB clips) and placed where a default run looks for it: the
+    tests compare reference programs, oracles and metrics with the exact ground truth, not
+    with the published-style crf-23 encoding (tested on its own in test_ground_truth.py)."""
+    from visphy_plugins.datasets.visphybench.build import build_dataset, dataset_root
+
+    data = tmp_path_factory.mktemp("data")
+    exact = build_dataset(data, split="mini", progress=False, lossless=True)
+    return exact.rename(dataset_root(data))
 
 
 @pytest.fixture(scope="session")

@@ -104,6 +104,34 @@ def test_build_is_byte_identical_and_seeds_matter(tmp_path):
         assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
 
 
+def test_clips_are_encoded_like_the_published_ones_or_exactly(tmp_path):
+    """Default: H.264 yuv420p at crf 23 (the published clips'); lossless: frames decode back to
+    the rasteriser's pixels bit for bit."""
+    import av
+
+    from visphy_core.video import decode_video
+    from visphy_plugins.datasets.visphybench.build import write_scene
+    from visphy_plugins.datasets.visphybench.catalogue import build_catalogue, units
+    from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
+
+    entry = build_catalogue(seed=0, workers=1, progress=False,
+                            only=[u for u in units() if u.dim == "2d"][:1]).entries[0]
+    published = write_scene(entry, tmp_path / "pub")
+    exact = write_scene(entry, tmp_path / "exact", lossless=True)
+    sid = entry.spec["scene_id"]
+    assert published["encoding"] == "h264-yuv420p-crf23"
+    assert exact["encoding"] == "h264rgb-lossless"
+    pub_file = tmp_path / "pub" / "videos" / f"{sid}.mp4"
+    with av.open(str(pub_file)) as c:
+        assert c.streams.video[0].codec_context.pix_fmt == "yuv420p"
+    assert b"crf=23.0" in pub_file.read_bytes()  # x264 writes its settings into the stream
+    truth = render_clip_2d(entry.spec, simulate_2d(entry.spec).frame_poses)
+    decoded = decode_video(tmp_path / "exact" / "videos" / f"{sid}.mp4")[0]
+    assert np.array_equal(decoded, truth)
+    lossy = decode_video(pub_file)[0]
+    assert not np.array_equal(lossy, truth) and np.abs(lossy.astype(int) - truth).mean() < 2
+
+
 def test_built_layout_and_loader(mini_root, mini_scenes):
     catalogue = json.loads((mini_root / "catalogue.json").read_text())
     assert len(catalogue["splits"]["mini"]) == len(mini_scenes) >= 3

@@ -56,15 +56,15 @@ def test_every_parameter_worsens_the_track_and_flow_metrics(specs):
     # a scene where a parameter barely matters (or the outcome flips) may wobble; on average
     # over the scenes every checked metric worsens with the size of the error
     for name in CHECKED:
-        assert table[name]["pooled_rho"] >= 0.9, (name, table[name])
+        assert table[name]["pooled_rho"] >= 0.9 - 1e-9, (name, table[name])
     assert table["track_vel_err"]["passed"] >= table["track_vel_err"]["cases"] / 2
     for p in PARAMS:  # per parameter, the velocity error of the object tracks
         per = summarise(cases, {"track_vel_err": "lower"}, param=p)["track_vel_err"]
-        assert per["pooled_rho"] >= 0.9, (p, per)
+        assert per["pooled_rho"] >= 0.9 - 1e-9, (p, per)
     # event times are sub-frame: the contact timing error grows with the parameters that move
     # the contact (with whole-frame times it was flat or wobbled at this step size)
     for name, params in TIMED.items():
-        assert table[name]["pooled_rho"] >= 0.9, (name, table[name])
+        assert table[name]["pooled_rho"] >= 0.9 - 1e-9, (name, table[name])
         for p in params:
             per = summarise(cases, {name: "lower"}, param=p)[name]
-            assert per["pooled_rho"] >= 0.9, (name, p, per)
+            assert per["pooled_rho"] >= 0.9 - 1e-9, (name, p, per)
