@@ -223,8 +223,10 @@ def centre_error(frames: np.ndarray, truth: np.ndarray, spec: dict) -> float:
     return float(np.mean(errs))
 
 
+# p5's reference program writes the ground truth's pixels exactly; SVG draws real shapes with
+# crispEdges, whose edge rule is Chromium's (the conformance floor is 38 dB)
 @pytest.mark.parametrize("engine_name, max_error, min_psnr",
-                         [("p5", 2.0, 35.0), ("svg", 2.0, 40.0)])
+                         [("p5", 0.5, 60.0), ("svg", 2.0, 38.0)])
 def test_reference_programs_track_the_ground_truth(engines, mini_scenes, engine_name, max_error,
                                                    min_psnr):
     from visphy_plugins.metrics.pixel import psnr_frame
