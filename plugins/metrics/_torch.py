@@ -157,16 +157,18 @@ frame_cache_stats = {"hits": 0, "misses": 0}
 
 
 def nbytes(obj: Any) -> int:
-    """Memory held by a per-frame result: numpy arrays and torch tensors, in tuples, lists and
-    dicts (anything else counts 0)."""
+    """Memory held by a per-frame result: numpy arrays and torch tensors (their own elements: a
+    view into a batch's tensor counts its part), in tuples, lists and dicts (anything else
+    counts 0)."""
     if isinstance(obj, np.ndarray):
         return int(obj.nbytes)
     if isinstance(obj, (tuple, list)):
         return sum(nbytes(o) for o in obj)
     if isinstance(obj, dict):
         return sum(nbytes(o) for o in obj.values())
-    n = getattr(obj, "untyped_storage", None)  # a torch tensor: its whole storage
-    return int(n().nbytes()) if callable(n) else 0
+    if hasattr(obj, "element_size") and hasattr(obj, "numel"):  # a torch tensor (or a view)
+        return int(obj.numel() * obj.element_size())
+    return 0
 
 
 def frame_key(frame: np.ndarray) -> tuple:
@@ -199,10 +201,10 @@ def per_frame(frames: np.ndarray, namespace: tuple, compute: Callable[[np.ndarra
     """``compute``'s result for each of ``frames`` (a K×H×W×C batch): one per distinct frame,
     from the cache or computed, where missing, on the distinct missing frames together (in
     chunks of ``chunk`` frames when given), and kept in the cache (``store``). ``compute(batch)``
-    returns one result per frame of its batch, each its own memory (never a view into a larger
-    batch's storage). Results are shared between the returned positions and the cache: never
-    modify them in place. Every result of the batch is held until the call returns: callers
-    pass their pairs a few at a time."""
+    returns one result per frame of its batch (views into the batch's arrays are fine: the
+    batch's memory goes when all its frames' entries have). Results are shared between the
+    returned positions and the cache: never modify them in place. Every result of the batch
+    is held until the call returns: callers pass their pairs a few at a time."""
     keys = [namespace + frame_key(f) for f in frames]
     found: dict[tuple, Any] = {}
     with _FRAMES_LOCK:

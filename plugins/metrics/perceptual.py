@@ -282,6 +282,7 @@ class _PiqMetric(Metric):
         raise NotImplementedError
 
     def combine(self, fx: tuple, fy: tuple):  # pragma: no cover - abstract
+        """piq's value for one pair from its frames' `frame_features` (batches of one)."""
         raise NotImplementedError
 
     def pair_values(self, reference: np.ndarray, generated: np.ndarray) -> np.ndarray:
@@ -294,9 +295,8 @@ class _PiqMetric(Metric):
                                          self.frame_features)
                 f_gen = _torch.per_frame(generated[s:s + CHUNK], ns + ("generated",),
                                          self.frame_features)
-                fx = tuple(t.stack(z) for z in zip(*f_ref))
-                fy = tuple(t.stack(z) for z in zip(*f_gen))
-                out.append(self.combine(fx, fy).double().cpu().numpy().reshape(-1))
+                for fx, fy in zip(f_ref, f_gen):
+                    out.append(self.combine(fx, fy).double().cpu().numpy().reshape(-1))
         return np.concatenate(out) if out else np.zeros(0)
 
 
@@ -306,8 +306,9 @@ def _defaults(fn: Callable) -> dict:
 
 
 def _split(*batches) -> list[tuple]:
-    """Per frame, a tuple of its own copies of each batch tensor's slice."""
-    return [tuple(b[i].clone() for b in batches) for i in range(len(batches[0]))]
+    """Per frame, a tuple of its slice (a batch of one) of each batch tensor: views, not copies
+    (fresh memory costs page faults; a batch's storage is freed once all its frames are)."""
+    return [tuple(b[i:i + 1] for b in batches) for i in range(len(batches[0]))]
 
 
 class FSIM(_PiqMetric):
@@ -608,7 +609,7 @@ class _NetMetric(Metric):
         raise NotImplementedError
 
     def combine(self, model, fx: tuple, fy: tuple):  # pragma: no cover - abstract
-        """``forward``'s value for the pairs whose frames' stacked `features` are fx, fy."""
+        """``forward``'s value for one pair from its frames' `features` (batches of one)."""
         raise NotImplementedError
 
     def pair_values(self, reference: np.ndarray, generated: np.ndarray) -> np.ndarray:
@@ -625,9 +626,8 @@ class _NetMetric(Metric):
                 if self.per_frame_features:
                     f_ref = _torch.per_frame(reference[s:s + CHUNK], ns + ("reference",), feats)
                     f_gen = _torch.per_frame(generated[s:s + CHUNK], ns + ("generated",), feats)
-                    fx = tuple(t.stack(z) for z in zip(*f_ref))
-                    fy = tuple(t.stack(z) for z in zip(*f_gen))
-                    value = self.combine(model, fx, fy)
+                    value = t.cat([self.combine(model, fx, fy).reshape(-1)
+                                   for fx, fy in zip(f_ref, f_gen)])
                 else:
                     x = self._tensor(reference[s:s + CHUNK])
                     y = self._tensor(generated[s:s + CHUNK])
