@@ -250,6 +250,23 @@ def test_ms_ssim_equals_piq_on_rendered_and_random_frames(mini_scenes):
     assert worst < 2e-5  # in practice: a few 1e-6
 
 
+def test_fsim_phase_congruency_is_piqs_bit_for_bit():
+    """The phase congruency with the filter bank's own terms built once per size (and planar
+    even/odd responses) is piq's ``_phase_congruency``, bit for bit, at even and odd sizes."""
+    from piq.fsim import _phase_congruency
+
+    d = P._defaults(piq.fsim)
+    for size in (64, 131):
+        frames = np.concatenate([structured(2, size), random_frames(2, size, 3)])
+        x = (to01(frames) * 255)[:, :1]
+        with torch.inference_mode():
+            bank = P._fsim_filters(x, d)
+            assert bank is P._fsim_filters(x, d)
+            theirs = _phase_congruency(x, bank[0], d["scales"], d["orientations"], d["k"])
+            ours = P._phase_congruency(x, bank, d["scales"], d["orientations"], d["k"])
+        assert torch.equal(ours, theirs), size
+
+
 def test_ms_ssim_needs_161_pixels():
     frames = structured(2, 128)
     assert np.isnan(P.MSSSIM().pair_values(frames, frames)).all()

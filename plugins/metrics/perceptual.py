@@ -386,28 +386,30 @@ def _fsim_filters(x_lum, d: dict) -> tuple:
 
 
 def _phase_congruency(x, bank: tuple, scales: int, orientations: int, k: float):
-    """piq's ``fsim._phase_congruency(x, filters, scales, orientations, k)`` (torch ≥ 1.8
-    branch), line for line, with the filters' own terms from `_fsim_filters` (piq recomputes
-    them, 16 inverse FFTs at 256², on every call: most of its time on a few frames)."""
+    """piq's ``fsim._phase_congruency(x, filters, scales, orientations, k)`` (its torch ≥ 1.8
+    branch), operation for operation, with two changes that leave every value bit for bit the
+    same: the filters' own terms come from `_fsim_filters` (piq recomputes them, 16 inverse
+    FFTs at 256², on every call), and the even and odd filter responses are contiguous planes
+    rather than the interleaved real/imaginary view (piq's strided arithmetic on that view is
+    a fifth slower)."""
     t = _torch.torch()
     filters, em_n, sum_an2, sum_ai_aj = bank
     EPS = t.finfo(x.dtype).eps
     N, _, H, W = x.shape
     imagefft = t.fft.fft2(x)
-    even_odd = t.view_as_real(t.fft.ifft2(imagefft * filters)).view(N, orientations, scales, H,
-                                                                        W, 2)
-    an = t.sqrt(t.sum(even_odd ** 2, dim=-1))
-    sum_e = even_odd[..., 0].sum(dim=2, keepdims=True)
-    sum_o = even_odd[..., 1].sum(dim=2, keepdims=True)
+    eo = t.fft.ifft2(imagefft * filters)
+    even = eo.real.contiguous().view(N, orientations, scales, H, W)
+    odd = eo.imag.contiguous().view(N, orientations, scales, H, W)
+    del eo
+    an = t.sqrt(even ** 2 + odd ** 2)  # piq: sqrt(sum(even_odd ** 2, dim=-1))
+    sum_e = even.sum(dim=2, keepdims=True)
+    sum_o = odd.sum(dim=2, keepdims=True)
     x_energy = t.sqrt(sum_e ** 2 + sum_o ** 2) + EPS
     mean_e = sum_e / x_energy
     mean_o = sum_o / x_energy
-    even = even_odd[..., 0]
-    odd = even_odd[..., 1]
     energy = (even * mean_e + odd * mean_o - t.abs(even * mean_o - odd * mean_e)).sum(
         dim=2, keepdim=True)
-    abs_eo = t.sqrt(t.sum(even_odd[:, :, :1, ...] ** 2, dim=-1)).reshape(N, orientations, 1, 1,
-                                                                          H * W)
+    abs_eo = an[:, :, :1].reshape(N, orientations, 1, 1, H * W)  # piq recomputes it
     median_e2n = t.median(abs_eo ** 2, dim=-1, keepdim=True).values
     mean_e2n = - median_e2n / math.log(0.5)
     noise_power = mean_e2n / em_n
