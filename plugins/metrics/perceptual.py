@@ -16,11 +16,12 @@ Weight-free, equal to piq 0.8's functions on [0, 1] RGB tensors with ``data_rang
 * ``vsi`` ↑ [0, 1]: `piq.vsi` (its saliency map is computed at 256² inside piq; the frames are
   passed at full size: VSI pads before pooling, so pre-downsampling would change its value).
 
-FSIM and VSI run piq's own code split in two (`_PiqMetric`): what piq computes of each image
-alone (FSIM: YIQ, phase congruency, gradient magnitude; VSI: SDSP saliency, LMN, gradient
-magnitude, padded and pooled) and piq's remaining per-pair operations on them. FSIM's
-log-Gabor bank and what piq's phase congruency derives from the filters alone are built once
-per image size (piq rebuilds them on every call). Values equal direct piq calls to 1e-6.
+FSIM and VSI run piq's code split in two (`_PiqMetric`): what piq computes of each image alone
+(FSIM: YIQ, phase congruency, gradient magnitude; VSI: SDSP saliency, LMN, gradient magnitude,
+padded and pooled), with piq's own functions, and piq's remaining per-pair operations on them.
+FSIM's phase congruency is piq's, bit for bit, with the log-Gabor bank and the terms piq derives
+from the filters alone built once per image size (piq rebuilds them, 16 inverse FFTs at 256²,
+on every call). Values equal direct piq calls to 1e-6.
 
 Learned (models load once per process, cached by weight file and device, and run under
 ``torch.inference_mode`` on ``metrics.device``). Weights are never downloaded: the files below
@@ -60,20 +61,26 @@ repeated frames). DISTS keeps its per-pair path: its VGG16 features take about 3
 frame, more memory than a scene's reuse is worth.
 
 Cost and ``max_pairs``. CPU seconds at 512², one torch thread (torch 2.14, this project's 2-core
-machines; the minimum of 5 runs of 8 pairs): before, per pair as piq computed it; now, per
-distinct frame (once) and per pair:
+machines, shared; the lowest of repeated runs of 8 pairs): before, per pair as piq or the
+package computed it; now, per distinct frame (once per scene) and per pair:
 
 ============  ===========  ====================  ==============================================
 metric        before       now: frame + pair     what runs
 ============  ===========  ====================  ==============================================
-``ms_ssim``   0.116        — + 0.017             OpenCV, 5 scales from 512² (piq: full 11×11
-                                                 convolutions)
-``vsi``       0.050        0.025 + 0.004         piq, saliency at 256², similarity at 256²
-``fsim``      0.095        0.041 + 0.003         piq, phase congruency at 256² (pooled by 2)
-``lpips``     0.19                               AlexNet at 512² (per frame since)
-``st_lpips``  0.29         0.133 + 0.024         shift-tolerant AlexNet at 256² (1.3–1.6 at 512²)
+``ms_ssim``   0.09–0.12    — + 0.016             OpenCV separable filters, 5 scales from 512²
+                                                 (piq: full 11×11 convolutions in torch)
+``vsi``       0.048        0.023 + 0.005         piq, saliency at 256², similarity at 256²
+``fsim``      0.074        0.027 + 0.004         piq, phase congruency at 256² (pooled by 2)
+``lpips``     0.21         0.10 + 0.007          AlexNet at 512²
+``st_lpips``  0.25         0.13 + 0.007          shift-tolerant AlexNet at 256² (1.3–1.6 at 512²)
 ``dists``     0.9–1.2      unchanged             VGG16 at 256² (piq resizes)
 ============  ===========  ====================  ==============================================
+
+MS-SSIM's per-frame share (two of five blurs per scale) is not cached: its 12 MiB of maps per
+512² frame cost about as much in fresh memory as they would save on the frames a 2D scene
+reuses. With two torch threads the wall time is at best about half the CPU time on idle cores,
+and much worse than one thread where other processes keep the cores busy
+(`_torch.default_threads`, ``$VISPHY_TORCH_THREADS``).
 
 The scorer computes each distinct pair of a scene once for the three pairings; with
 ``max_pairs`` m per pairing a 17-frame scene has about 7 (m 4), 12 (m 8) or 17 (every pair)

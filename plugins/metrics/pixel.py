@@ -8,19 +8,19 @@ Cost. SSIM is five separable 11-tap blurs per channel (OpenCV float32), twenty p
 eight of them (each channel's mean and mean square) depend on one frame only. `SSIM` computes
 those once per distinct frame and keeps them in the per-frame cache
 (`visphy_plugins.metrics._torch.per_frame`) for the scene's other pairings, and only the cross
-term per pair, in reused work arrays. CPU seconds at 512², one thread (minimum of 5 runs of 8
-pairs):
+term per pair, in reused work arrays. CPU seconds at 512², one thread (the lowest of repeated
+runs of 8 pairs, on this project's shared 2-core machines):
 
 =================================  =========  ==============================================
 SSIM                               s          what runs
 =================================  =========  ==============================================
-before, per pair                   0.021      20 blurs and the map, fresh arrays throughout
-now, per distinct frame            0.006      8 blurs (4 channels' mean and variance)
+before, per pair                   0.020      20 blurs and the map, fresh arrays throughout
+now, per distinct frame            0.007      8 blurs (4 channels' mean and variance)
 now, per pair                      0.006      4 blurs (the cross term) and the map in place
 =================================  =========  ==============================================
 
 A 2D scene of the benchmark (17 frames, aligned offset 2) has 32 distinct pairs over 34 frames:
-about 0.66 s of one core before, 0.40 s now. The moments take 8 MiB per 512² frame: a batch is
+about 0.64 s of one core before, 0.43 s now. The moments take 8 MiB per 512² frame: a batch is
 kept only when its frames fit in the cache (a 2D pairing's 17 pairs: 270 MiB); a larger one (a
 3D scene's 75 pairs, whose frames no later pairing asks for again) is computed pair by pair
 into reused arrays. The values are bit for bit those of `ssim_frame` either way (the same
