@@ -107,10 +107,11 @@ def spec_scene(scene: Scene, reply: dict, timeout_s: float = 60.0) -> Scene:
     return simulated_scene(scene, merged_spec(scene.spec, reply), timeout_s=timeout_s)
 
 
-def simulated_scene(scene: Scene, spec: dict, timeout_s: float = 60.0) -> Scene:
+def simulated_scene(scene: Scene, spec: dict, timeout_s: float = 60.0,
+                    rollout: Any = None) -> Scene:
     """``scene`` with ``spec`` (a full, valid scene spec) as its spec and the rollout of
-    ``spec`` as its trajectory."""
-    rollout = simulate(spec, timeout_s=timeout_s)
+    ``spec`` as its trajectory (``rollout``: that simulation, when the caller already ran it)."""
+    rollout = simulate(spec, timeout_s=timeout_s) if rollout is None else rollout
     trajectory: dict[str, Any] = {
         "body_ids": np.array(rollout.body_ids, dtype=str),
         "frame_poses": rollout.frame_poses, "frame_steps": rollout.frame_steps,
