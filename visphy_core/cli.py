@@ -255,12 +255,12 @@ def run_hydra(argv: list[str]) -> int:
     GlobalHydra.instance().clear()
 
     @hydra.main(version_base="1.3", config_path="pkg://visphy_conf", config_name="config")
-    def _main(cfg) -> None:
+    def _main(cfg) -> dict:
         from visphy_core.run import run_experiment
 
         try:
             check_inputs(cfg)
-            run_experiment(cfg)
+            return run_experiment(cfg)  # a study's job record reads the run dir from it
         except Exception as exc:  # noqa: BLE001
             if show_traceback or not is_user_error(exc):
                 raise

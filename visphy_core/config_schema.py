@@ -163,6 +163,7 @@ class TrackingConfig:
     experiment: str = "visphy"
     uri: Optional[str] = None
     artifact_root: Optional[str] = None
+    log_videos: bool = False   # also log each scene's generated clip (videos/<scene>/video.mp4)
 
 
 @dataclass

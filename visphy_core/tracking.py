@@ -1,14 +1,28 @@
-"""MLflow tracking as a lifecycle-hook plugin: one MLflow run per visphy run.
+"""MLflow tracking as a lifecycle-hook plugin: one MLflow run per visphy run, and one parent run
+per study (a multirun) with the jobs' runs as its children.
 
 Default store: ``sqlite:///<paths.root>/mlflow.db`` with the explicit artifact root
-``<paths.root>/mlartifacts`` (MLflow 3 refuses the plain file store). See the run with
+``<paths.root>/mlartifacts`` (MLflow 3 refuses the plain file store); ``tracking.uri`` may name
+a tracking server (``http://host:port``), which then decides where artifacts go unless
+``tracking.artifact_root`` says. See the runs with
 ``mlflow ui --backend-store-uri sqlite:///visphy-out/mlflow.db``.
+
+A run logs the flattened config as params, every metric mean in both success views with its
+count, success rates, usage and judge counts as metrics, per-scene scores as steps, and the run's
+files (config, manifest, summary, the per-scene table as Parquet and JSONL, the call ledger, the
+HTML report under ``report/`` when one was written, the clips under ``videos/`` with
+``tracking.log_videos=true``) as artifacts. System tags: ``visphy.model``, ``visphy.engine``,
+``visphy.prompt_version``, ``visphy.benchmark_version``, ``visphy.study``,
+``mlflow.source.git.commit`` and ``visphy.git_commit`` (when visphy runs from a git checkout).
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
+import subprocess
+import time
 from pathlib import Path
 from typing import Any
 
@@ -16,20 +30,55 @@ from omegaconf import OmegaConf
 
 from visphy_core.hookspecs import hookimpl
 
+log = logging.getLogger("visphy.tracking")
 _ACTIVE: dict[int, Any] = {}
 #: visphy run status (``summary["status"]``) → MLflow run status. An interrupted run (SIGINT,
 #: SIGTERM) ends KILLED, a run that raised ends FAILED: never left RUNNING.
 _MLFLOW_STATUS = {"finished": "FINISHED", "interrupted": "KILLED", "failed": "FAILED",
                   "cost_cap": "KILLED"}
+#: The run's own files logged as artifacts (when present).
+RUN_FILES = ("config.yaml", "manifest.json", "summary.json", "results.parquet", "results.jsonl",
+             "calls.jsonl")
+#: Summary counts logged as metrics.
+SUMMARY_COUNTS = ("model_success_rate", "model_success_rate_evaluable", "system_success_rate",
+                  "model_success", "system_success", "repaired", "fallbacks", "n_scenes",
+                  "n_evaluable")
+USAGE_FIELDS = ("calls", "cache_hits", "errors", "input_tokens", "output_tokens",
+                "cached_input_tokens", "reasoning_tokens", "cost_usd", "cost_usd_incl_cached")
 
 
-def tracking_uris(cfg, root: Path) -> tuple[str, str]:
-    """(tracking URI, artifact root URI) from the ``tracking`` config group."""
+# ------------------------------------------------------------------------------ store
+
+
+def tracking_uris(cfg, root: Path) -> tuple[str, str | None]:
+    """(tracking URI, artifact root URI) from the ``tracking`` config group. A tracking server
+    (http/https) chooses the artifact location itself unless ``tracking.artifact_root`` is set
+    (artifact root None)."""
     uri = cfg.tracking.uri or f"sqlite:///{(root / 'mlflow.db').resolve()}"
-    artifacts = cfg.tracking.artifact_root or str((root / "mlartifacts").resolve())
+    artifacts = cfg.tracking.artifact_root
+    if not artifacts and uri.split("://", 1)[0] in ("http", "https"):
+        return uri, None
+    artifacts = artifacts or str((root / "mlartifacts").resolve())
     if "://" not in artifacts:
         artifacts = Path(artifacts).resolve().as_uri()
     return uri, artifacts
+
+
+def open_store(cfg, root: Path):
+    """(MlflowClient, tracking URI, experiment id) of ``tracking.experiment``, created on first
+    use with the configured artifact root."""
+    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
+    from mlflow.tracking import MlflowClient
+
+    logging.getLogger("alembic").setLevel(logging.WARNING)
+    logging.getLogger("mlflow").setLevel(logging.WARNING)
+    uri, artifacts = tracking_uris(cfg, root)
+    client = MlflowClient(tracking_uri=uri)
+    name = cfg.tracking.experiment
+    exp = client.get_experiment_by_name(name)
+    exp_id = exp.experiment_id if exp else client.create_experiment(
+        name, artifact_location=artifacts)
+    return client, uri, exp_id
 
 
 def flatten(d: Any, prefix: str = "") -> dict[str, Any]:
@@ -42,6 +91,111 @@ def flatten(d: Any, prefix: str = "") -> dict[str, Any]:
     return out
 
 
+def log_params(client, run_id: str, params: dict[str, Any]) -> None:
+    """Params in batches (one request per 100 over a tracking server); MLflow's length limits."""
+    from mlflow.entities import Param
+
+    client.log_batch(run_id, params=[Param(key[:250], str(value)[:6000])
+                                     for key, value in sorted(params.items())])
+
+
+def log_metrics(client, run_id: str, metrics: dict[str, float], step: int = 0) -> None:
+    from mlflow.entities import Metric
+
+    now = int(time.time() * 1000)
+    client.log_batch(run_id, metrics=[Metric(key, float(value), now, step)
+                                      for key, value in metrics.items() if value is not None])
+
+
+# ------------------------------------------------------------------------------ tags
+
+
+@functools.lru_cache(maxsize=1)
+def git_commit() -> str | None:
+    """The commit of the visphy checkout this code runs from (None for an installed wheel, or
+    when git is missing)."""
+    repo = Path(__file__).resolve().parents[1]
+    if not (repo / ".git").exists():
+        return None
+    try:
+        out = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True,
+                             text=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    commit = out.stdout.strip()
+    return commit if out.returncode == 0 and len(commit) == 40 else None
+
+
+def source_tags() -> dict[str, str]:
+    commit = git_commit()
+    return {"mlflow.source.git.commit": commit, "visphy.git_commit": commit} if commit else {}
+
+
+def benchmark_version(run) -> str:
+    """The dataset config's name and the benchmark build the scenes come from (a generated
+    build's folder names its generator version and seed: ``visphybench-v3-seed0``)."""
+    builds = sorted({s.dataset for s in run.scenes if s.dataset})
+    return f"{run.cfg.dataset.name}:{','.join(builds)}" if builds else str(run.cfg.dataset.name)
+
+
+def _run_tags(run) -> dict[str, str]:
+    return {"visphy.run_dir": str(run.run_dir), "visphy.model": run.model_name,
+            "visphy.engine": run.engine_name, "visphy.benchmark_version": benchmark_version(run),
+            **source_tags()}
+
+
+# ------------------------------------------------------------------------------ studies
+
+
+def start_study_run(cfg, study: str, run_name: str, tags: dict[str, str],
+                    params: dict[str, Any]) -> dict[str, str]:
+    """Open a study's parent run; returns what its jobs need to become its children."""
+    root = Path(cfg.paths.root).resolve()
+    client, uri, exp_id = open_store(cfg, root)
+    mlrun = client.create_run(exp_id, run_name=run_name,
+                              tags={"visphy.study": study, "visphy.role": "study", **tags,
+                                    **source_tags()})
+    log_params(client, mlrun.info.run_id, params)
+    return {"tracking_uri": uri, "run_id": mlrun.info.run_id, "experiment_id": exp_id,
+            "experiment": str(cfg.tracking.experiment)}
+
+
+def end_study_run(parent: dict[str, str], status: str, metrics: dict[str, float],
+                  artifacts: list[tuple[Path, str | None]], tags: dict[str, str]) -> None:
+    """Log the study's metrics and outputs (files or folders, each with its artifact path) to
+    the parent run and close it with MLflow status ``status``."""
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=parent["tracking_uri"])
+    run_id = parent["run_id"]
+    log_metrics(client, run_id, metrics)
+    for key, value in tags.items():
+        client.set_tag(run_id, key, value)
+    for path, artifact_path in artifacts:
+        if path.is_dir():
+            client.log_artifacts(run_id, str(path), artifact_path)
+        elif path.is_file():
+            client.log_artifact(run_id, str(path), artifact_path)
+    client.set_terminated(run_id, status=status)
+
+
+def _study_parent(uri: str) -> tuple[dict, dict] | None:
+    """(job record, parent run) when this run is a job of a study tracked in the same store."""
+    from visphy_core.study.records import current_job
+
+    found = current_job()
+    if found is None:
+        return None
+    job, study = found
+    parent = study.get("parent")
+    if not parent or parent.get("tracking_uri") != uri:
+        return None
+    return job, dict(parent, study=study.get("name", ""))
+
+
+# ------------------------------------------------------------------------------ hooks
+
+
 def _enabled(run) -> bool:
     return run.cfg.tracking.backend == "mlflow"
 
@@ -50,23 +204,17 @@ def _enabled(run) -> bool:
 def visphy_run_start(run):
     if not _enabled(run):
         return
-    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
-    from mlflow.tracking import MlflowClient
-
-    logging.getLogger("alembic").setLevel(logging.WARNING)
-    logging.getLogger("mlflow").setLevel(logging.WARNING)
-    uri, artifacts = tracking_uris(run.cfg, run.root)
-    client = MlflowClient(tracking_uri=uri)
-    exp = client.get_experiment_by_name(run.cfg.tracking.experiment)
-    exp_id = exp.experiment_id if exp else client.create_experiment(
-        run.cfg.tracking.experiment, artifact_location=artifacts)
-    params = flatten(OmegaConf.to_container(run.cfg, resolve=True))
-    mlrun = client.create_run(exp_id, run_name=run.run_dir.name,
-                              tags={"visphy.run_dir": str(run.run_dir),
-                                    "visphy.model": run.model_name,
-                                    "visphy.engine": run.engine_name})
-    for key, value in sorted(params.items()):
-        client.log_param(mlrun.info.run_id, key[:250], str(value)[:6000])
+    client, uri, exp_id = open_store(run.cfg, run.root)
+    tags, run_name = _run_tags(run), run.run_dir.name
+    study = _study_parent(uri)
+    if study is not None:
+        job, parent = study
+        exp_id = parent["experiment_id"]
+        tags.update({"mlflow.parentRunId": parent["run_id"], "visphy.study": parent["study"],
+                     "visphy.job": str(job.get("num", ""))})
+        run_name = job.get("label") or run_name
+    mlrun = client.create_run(exp_id, run_name=run_name, tags=tags)
+    log_params(client, mlrun.info.run_id, flatten(OmegaConf.to_container(run.cfg, resolve=True)))
     _ACTIVE[id(run)] = (client, mlrun.info.run_id)
     previous = (run.extra.get("resumed_from") or {}).get("mlflow") or {}
     if previous.get("run_id"):  # the killed process's run: resumed here, so no longer RUNNING
@@ -75,8 +223,8 @@ def visphy_run_start(run):
             if client.get_run(previous["run_id"]).info.status == "RUNNING":
                 client.set_terminated(previous["run_id"], status="KILLED")
         except Exception as exc:  # noqa: BLE001 - another store, or the run was deleted
-            logging.getLogger("visphy.tracking").warning(
-                "could not close the interrupted MLflow run %s: %s", previous["run_id"], exc)
+            log.warning("could not close the interrupted MLflow run %s: %s",
+                        previous["run_id"], exc)
     run.extra["mlflow"] = {"tracking_uri": uri, "run_id": mlrun.info.run_id,
                            "experiment_id": exp_id}
 
@@ -87,10 +235,45 @@ def visphy_scene_done(run, scene, result):
     if active is None:
         return
     client, run_id = active
-    step = len(run.results)
-    for name, value in result.scores.items():
-        if value is not None:
-            client.log_metric(run_id, f"scene/{name}", value, step=step)
+    log_metrics(client, run_id, {f"scene/{name}": value for name, value in result.scores.items()},
+                step=len(run.results))
+
+
+def summary_metrics(summary: dict) -> dict[str, float]:
+    """The run's aggregate metrics: each metric's mean over model successes (``<name>``) and
+    over all scenes with fallbacks scored (``<name>_with_fallbacks``), each with its count
+    (``_n``); success counts and rates; usage per stage; judge verdict counts."""
+    out: dict[str, float] = {}
+    for name, m in summary["metrics"].items():
+        for key, mean, count in ((name, "mean_model_success", "n_model_success"),
+                                 (f"{name}_with_fallbacks", "mean_with_fallbacks",
+                                  "n_with_fallbacks")):
+            if m.get(mean) is not None:
+                out[key] = m[mean]
+            out[f"{key}_n"] = float(m.get(count) or 0)
+    for key in SUMMARY_COUNTS:
+        if summary.get(key) is not None:
+            out[key] = float(summary[key])
+    for stage, totals in (summary.get("usage") or {}).items():
+        for field in USAGE_FIELDS:
+            out[f"usage.{stage}.{field}"] = float(totals.get(field) or 0)
+    for key, judge in (summary.get("judges") or {}).items():
+        out[f"judge.{key}.n_valid"] = float(judge["n_valid"])
+        out[f"judge.{key}.n_invalid"] = float(judge["n_invalid"])
+    return out
+
+
+def _log_run_files(client, run_id: str, run) -> None:
+    for name in RUN_FILES:
+        path = run.run_dir / name
+        if path.is_file():
+            client.log_artifact(run_id, str(path))
+    report = run.run_dir / "report"
+    if report.is_dir():
+        client.log_artifacts(run_id, str(report), "report")
+    if run.cfg.tracking.get("log_videos"):
+        for video in sorted(run.run_dir.glob("scenes/*/video.mp4")):
+            client.log_artifact(run_id, str(video), f"videos/{video.parent.name}")
 
 
 @hookimpl
@@ -99,30 +282,10 @@ def visphy_run_end(run, summary):
     if active is None:
         return
     client, run_id = active
-    for name, m in summary["metrics"].items():
-        if m["mean_model_success"] is not None:
-            client.log_metric(run_id, name, m["mean_model_success"])
-        if m["mean_with_fallbacks"] is not None:
-            client.log_metric(run_id, f"{name}_with_fallbacks", m["mean_with_fallbacks"])
-    for key in ("model_success_rate", "model_success_rate_evaluable", "system_success_rate",
-                "fallbacks", "n_scenes", "n_evaluable"):
-        if summary.get(key) is not None:
-            client.log_metric(run_id, key, float(summary[key]))
-    for stage, totals in (summary.get("usage") or {}).items():
-        for field in ("calls", "cache_hits", "errors", "input_tokens", "output_tokens",
-                      "cached_input_tokens", "reasoning_tokens", "cost_usd",
-                      "cost_usd_incl_cached"):
-            client.log_metric(run_id, f"usage.{stage}.{field}", float(totals.get(field) or 0))
-    for key, judge in (summary.get("judges") or {}).items():
-        client.log_metric(run_id, f"judge.{key}.n_valid", float(judge["n_valid"]))
-        client.log_metric(run_id, f"judge.{key}.n_invalid", float(judge["n_invalid"]))
+    log_metrics(client, run_id, summary_metrics(summary))
     if summary.get("prompt_versions"):
         client.set_tag(run_id, "visphy.prompt_version", ",".join(summary["prompt_versions"]))
-    for name in ("config.yaml", "manifest.json", "summary.json", "results.parquet",
-                 "results.jsonl", "calls.jsonl"):
-        path = run.run_dir / name
-        if path.is_file():
-            client.log_artifact(run_id, str(path))
+    _log_run_files(client, run_id, run)
     status = _MLFLOW_STATUS.get(summary.get("status", "finished"), "FAILED")
     client.set_terminated(run_id, status=status)
     summary["mlflow"] = dict(run.extra["mlflow"], status=status)

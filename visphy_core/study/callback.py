@@ -1,0 +1,134 @@
+"""The Hydra callback that makes a multirun a study (enabled in
+``conf/hydra/callbacks/visphy_study.yaml``).
+
+* ``on_multirun_start`` (the launching process): open the parent MLflow run and write the study
+  file into the sweep dir; register an exit handler so that a sweep that dies (a job raised, a
+  Ctrl-C) still closes the parent run and analyses the jobs that finished.
+* ``on_job_start`` / ``on_job_end`` (wherever the launcher runs the job): the job record in the
+  Hydra job dir, and ``$VISPHY_STUDY_JOB`` while the job runs so that the tracking plugin makes
+  the job's MLflow run a child of the parent.
+* ``on_multirun_end``: `finish.finish_study` (analysis, report, parent run closed).
+
+The study's name is the experiment's (``experiment=leaderboard``), ``multirun`` without one.
+"""
+
+from __future__ import annotations
+
+import atexit
+import datetime as dt
+import os
+from pathlib import Path
+from typing import Any
+
+from hydra.experimental.callback import Callback
+from hydra.types import RunMode
+from omegaconf import DictConfig, OmegaConf
+
+from visphy_core.study import records
+
+
+def study_name(config: DictConfig) -> str:
+    choice = OmegaConf.select(config, "hydra.runtime.choices.experiment", default=None)
+    return str(choice) if choice else "multirun"
+
+
+def swept_keys(config: DictConfig) -> list[str]:
+    """The keys a multirun sweeps: the experiment's ``hydra.sweeper.params`` and every
+    command-line override with several values (a command-line sweep replaces the file's)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    params = OmegaConf.select(config, "hydra.sweeper.params", default=None) or {}
+    keys = [str(k) for k in params]
+    parsed = OverridesParser.create().parse_overrides(list(config.hydra.overrides.task))
+    for ov in parsed:
+        if ov.is_sweep_override() and ov.get_key_element() not in keys:
+            keys.append(ov.get_key_element())
+    return keys
+
+
+def _multirun(config: DictConfig) -> bool:
+    return OmegaConf.select(config, "hydra.mode", default=None) == RunMode.MULTIRUN
+
+
+def _sweep_dir(config: DictConfig) -> Path:
+    return Path(str(config.hydra.sweep.dir)).resolve()
+
+
+def _now() -> str:
+    return dt.datetime.now().isoformat(timespec="seconds")
+
+
+class StudyCallback(Callback):
+    """Parent/child MLflow runs, job records and the study analysis for every multirun. Holds
+    no state: it is pickled to the launcher's workers, and everything shared is a file."""
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        sweep_dir = _sweep_dir(config)
+        sweep_dir.mkdir(parents=True, exist_ok=True)
+        study = study_name(config)
+        overrides = [str(o) for o in config.hydra.overrides.task]
+        params = OmegaConf.select(config, "hydra.sweeper.params", default=None) or {}
+        parent = None
+        if str(OmegaConf.select(config, "tracking.backend", default="none")) == "mlflow":
+            from visphy_core.tracking import start_study_run
+
+            parent = start_study_run(
+                config, study, run_name=sweep_dir.name,
+                tags={"visphy.sweep_dir": str(sweep_dir),
+                      "visphy.dataset": str(OmegaConf.select(config, "dataset.name"))},
+                params={"study": study, "overrides": " ".join(overrides),
+                        **{f"sweep.{k}": v for k, v in params.items()}})
+        records.write_json(records.study_file(sweep_dir), {
+            "name": study, "sweep_dir": str(sweep_dir), "status": "running",
+            "started": _now(), "overrides": overrides, "swept_keys": swept_keys(config),
+            "parent": parent})
+        print(f"study {study}: {sweep_dir}", flush=True)
+        atexit.register(_finish_at_exit, sweep_dir)
+
+    def on_job_start(self, config: DictConfig, **kwargs: Any) -> None:
+        if not _multirun(config):
+            return
+        sweep_dir = _sweep_dir(config)
+        study = records.read_study(sweep_dir) or {}
+        keys = set(study.get("swept_keys") or [])
+        overrides = [str(o) for o in config.hydra.overrides.task]
+        num = int(config.hydra.job.num)
+        label = " ".join(o for o in overrides if o.split("=", 1)[0].lstrip("+~") in keys)
+        job_dir = Path(str(config.hydra.runtime.output_dir)).resolve()
+        records.write_job(job_dir, num=num, sweep_dir=str(sweep_dir), overrides=overrides,
+                          label=label or f"{study.get('name', 'job')} #{num}",
+                          status=records.RUNNING, pid=os.getpid(), started=_now())
+        os.environ[records.JOB_ENV] = str(job_dir)
+
+    def on_job_end(self, config: DictConfig, job_return: Any, **kwargs: Any) -> None:
+        if not _multirun(config):
+            return
+        from hydra.core.utils import JobStatus
+
+        job_dir = Path(str(config.hydra.runtime.output_dir)).resolve()
+        value = getattr(job_return, "_return_value", None)
+        fields: dict[str, Any] = {"ended": _now()}
+        if job_return.status == JobStatus.COMPLETED:
+            summary = value if isinstance(value, dict) else {}
+            fields.update(status=records.COMPLETED, run_dir=summary.get("run_dir"),
+                          run_status=summary.get("status"),
+                          mlflow_run_id=(summary.get("mlflow") or {}).get("run_id"))
+        else:
+            fields.update(status=records.FAILED, error=f"{type(value).__name__}: {value}")
+        records.write_job(job_dir, **fields)
+        os.environ.pop(records.JOB_ENV, None)
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        from visphy_core.study.finish import finish_study
+
+        finish_study(_sweep_dir(config))
+
+
+def _finish_at_exit(sweep_dir: Path) -> None:
+    """The sweep ended without ``on_multirun_end`` (a job raised, the user interrupted it)."""
+    study = records.read_study(sweep_dir)
+    if study is None or study.get("status") != "running":
+        return
+    from visphy_core.study.finish import finish_study
+
+    finish_study(sweep_dir, ended_early=True)
