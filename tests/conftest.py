@@ -66,7 +66,8 @@ def visphy_home(tmp_path, mini_root) -> Path:
 #: CLI subprocess would cost minutes over the suite); tests of the metric suite name their own.
 FAST_METRICS = ("metrics.names=[psnr,ssim]", "metrics.spec_track=false",
                 "metrics.variance_norm=false")
-SUBCOMMANDS = ("plugins", "setup", "build-dataset", "normalise", "render", "metrics")
+SUBCOMMANDS = ("plugins", "setup", "build-dataset", "normalise", "render", "metrics",
+               "intervene", "rate")
 
 
 def with_fast_metrics(args: tuple[str, ...]) -> tuple[str, ...]:

@@ -7,6 +7,9 @@ Subcommands:
   build-dataset  generate VisPhyBench: build-dataset [--split S] [--seed N] [--data-dir DIR]
   normalise      resample a foreign video to a reference clip: normalise IN --like REF -o OUT
   render         extract, render and score one reply: render REPLY --engine E --scene ID
+  intervene      change physical parameters, re-simulate, render side by side:
+                 intervene --scene ID (--gt | --run RUN_DIR) --set gravity=-20 [--set ...]
+  rate           model-blind human rating page on localhost: rate PATH... --rater ID
 Anything else is a Hydra run: ``python -m visphy_core engine=threejs model=oracle dataset=mini``.
 
 Bad input (a config value, a missing dataset, a plugin that does not load, Chromium missing) is
@@ -233,8 +236,21 @@ def cmd_render(argv: list[str]) -> int:
     return render_reply(argv)
 
 
+def cmd_intervene(argv: list[str]) -> int:
+    from visphy_core.cli_intervene import intervene_command
+
+    return intervene_command(argv)
+
+
+def cmd_rate(argv: list[str]) -> int:
+    from visphy_core.cli_rate import rate_command
+
+    return rate_command(argv)
+
+
 SUBCOMMANDS = {"plugins": cmd_plugins, "setup": cmd_setup, "build-dataset": cmd_build_dataset,
-               "normalise": cmd_normalise, "render": cmd_render, "metrics": cmd_metrics}
+               "normalise": cmd_normalise, "render": cmd_render, "metrics": cmd_metrics,
+               "intervene": cmd_intervene, "rate": cmd_rate}
 
 
 def run_hydra(argv: list[str]) -> int:
