@@ -10,6 +10,8 @@ Subcommands:
   intervene      change physical parameters, re-simulate, render side by side:
                  intervene --scene ID (--gt | --run RUN_DIR) --set gravity=-20 [--set ...]
   rate           model-blind human rating page on localhost: rate PATH... --rater ID
+  score          re-score a finished run (other metrics/judges; no model call, no render):
+                 score RUN_DIR [metrics.names=[...] | judge=... | ...] [--in-place]
 Anything else is a Hydra run: ``python -m visphy_core engine=threejs model=oracle dataset=mini``.
 
 Bad input (a config value, a missing dataset, a plugin that does not load, Chromium missing) is
@@ -248,9 +250,15 @@ def cmd_rate(argv: list[str]) -> int:
     return rate_command(argv)
 
 
+def cmd_score(argv: list[str]) -> int:
+    from visphy_core.cli_score import cmd_score as score
+
+    return score(argv)
+
+
 SUBCOMMANDS = {"plugins": cmd_plugins, "setup": cmd_setup, "build-dataset": cmd_build_dataset,
                "normalise": cmd_normalise, "render": cmd_render, "metrics": cmd_metrics,
-               "intervene": cmd_intervene, "rate": cmd_rate}
+               "intervene": cmd_intervene, "rate": cmd_rate, "score": cmd_score}
 
 
 def run_hydra(argv: list[str]) -> int:
