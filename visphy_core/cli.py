@@ -12,6 +12,8 @@ Subcommands:
   rate           model-blind human rating page on localhost: rate PATH... --rater ID
   score          re-score a finished run (other metrics/judges; no model call, no render):
                  score RUN_DIR [metrics.names=[...] | judge=... | ...] [--in-place]
+  analyse        tables and figures from finished runs (leaderboard, bootstrap CIs, Spearman):
+                 analyse PATH... [-o OUT] [--study NAME] [--metrics a,b]
 Anything else is a Hydra run: ``python -m visphy_core engine=threejs model=oracle dataset=mini``.
 
 Bad input (a config value, a missing dataset, a plugin that does not load, Chromium missing) is
@@ -256,9 +258,16 @@ def cmd_score(argv: list[str]) -> int:
     return score(argv)
 
 
+def cmd_analyse(argv: list[str]) -> int:
+    from visphy_core.cli_analysis import cmd_analyse as analyse
+
+    return analyse(argv)
+
+
 SUBCOMMANDS = {"plugins": cmd_plugins, "setup": cmd_setup, "build-dataset": cmd_build_dataset,
                "normalise": cmd_normalise, "render": cmd_render, "metrics": cmd_metrics,
-               "intervene": cmd_intervene, "rate": cmd_rate, "score": cmd_score}
+               "intervene": cmd_intervene, "rate": cmd_rate, "score": cmd_score,
+               "analyse": cmd_analyse}
 
 
 def run_hydra(argv: list[str]) -> int:

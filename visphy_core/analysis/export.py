@@ -1,0 +1,92 @@
+"""Tables as files a paper can take: CSV (full precision), Markdown and LaTeX (booktabs).
+
+Markdown and LaTeX show numbers with 4 significant digits (integers as integers, rates and
+coefficients alike), a missing value as an em dash, and keep the direction arrows of headers
+(LaTeX: ``$\\uparrow$``). Written here rather than through pandas' ``to_markdown`` so the
+output needs no optional dependency and is identical everywhere.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from visphy_core.analysis.figures import safe_name
+
+MISSING = "—"
+LATEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#",
+                 "_": r"\_", "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}",
+                 "^": r"\textasciicircum{}"}
+LATEX_SYMBOLS = {"↑": r"$\uparrow$", "↓": r"$\downarrow$", "ρ": r"$\rho$", "α": r"$\alpha$",
+                 "μ": r"$\mu$", "−": "--", "²": r"$^2$", "Δ": r"$\Delta$", "…": r"\ldots{}",
+                 "—": "---", "→": r"$\rightarrow$"}
+
+
+def fmt(value) -> str:
+    """One cell as text."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return MISSING
+    if isinstance(value, (bool, np.bool_)):
+        return "true" if value else "false"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        v = float(value)
+        if math.isinf(v):
+            return "∞" if v > 0 else "-∞"
+        if v.is_integer() and abs(v) < 1e6:
+            return str(int(v))
+        return f"{v:.4g}"
+    return str(value)
+
+
+def to_markdown(df: pd.DataFrame) -> str:
+    """A GitHub-flavoured Markdown table (numbers right-aligned)."""
+    def cell(text: str) -> str:
+        return text.replace("|", "\\|").replace("\n", " ")
+
+    heads = [cell(str(c)) for c in df.columns]
+    numeric = [pd.api.types.is_numeric_dtype(df[c]) and not pd.api.types.is_bool_dtype(df[c])
+               for c in df.columns]
+    lines = ["| " + " | ".join(heads) + " |",
+             "|" + "|".join("---:" if n else ":---" for n in numeric) + "|"]
+    for row in df.itertuples(index=False):
+        lines.append("| " + " | ".join(cell(fmt(v)) for v in row) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def latex_escape(text: str) -> str:
+    out = "".join(LATEX_SPECIAL.get(ch, ch) for ch in text)
+    for symbol, tex in LATEX_SYMBOLS.items():
+        out = out.replace(symbol, tex)
+    return out
+
+
+def to_latex(df: pd.DataFrame, caption: str | None = None) -> str:
+    """A booktabs ``tabular`` (inside a ``table`` with a caption when one is given)."""
+    numeric = [pd.api.types.is_numeric_dtype(df[c]) and not pd.api.types.is_bool_dtype(df[c])
+               for c in df.columns]
+    spec = "".join("r" if n else "l" for n in numeric)
+    lines = [rf"\begin{{tabular}}{{{spec}}}", r"\toprule",
+             " & ".join(latex_escape(str(c)) for c in df.columns) + r" \\", r"\midrule"]
+    for row in df.itertuples(index=False):
+        lines.append(" & ".join(latex_escape(fmt(v)) for v in row) + r" \\")
+    lines += [r"\bottomrule", r"\end{tabular}"]
+    if caption:
+        lines = [r"\begin{table}[t]", r"\centering", *lines,
+                 rf"\caption{{{latex_escape(caption)}}}", r"\end{table}"]
+    return "\n".join(lines) + "\n"
+
+
+def write_table(df: pd.DataFrame, out_dir: Path, name: str,
+                caption: str | None = None) -> list[Path]:
+    """``<name>.csv``, ``<name>.md`` and ``<name>.tex`` under ``out_dir``."""
+    base = out_dir / safe_name(name)
+    csv, md, tex = (base.with_name(base.name + ext) for ext in (".csv", ".md", ".tex"))
+    df.to_csv(csv, index=False)
+    md.write_text(to_markdown(df))
+    tex.write_text(to_latex(df, caption))
+    return [csv, md, tex]

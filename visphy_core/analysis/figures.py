@@ -1,0 +1,116 @@
+"""Figures for a paper: per-scene boxplots per metric (one box per run) and a radar chart of the
+runs over the headline metrics, each written as PNG and SVG (matplotlib, Agg backend: no
+display needed).
+
+The radar scales each metric to 0..1 across the runs compared, with direction respected: the
+best run on a metric sits at 1 and the worst at 0 whether higher or lower is better (a metric on
+which all runs tie sits at 1 for all). The scaled values are returned as a table as well, so the
+figure can be checked and re-drawn. SVG output is deterministic (no date, fixed id salt).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from visphy_core.analysis.columns import MODEL_SUCCESS, direction, header, scene_values
+from visphy_core.analysis.load import RunData
+
+FORMATS = ("png", "svg")
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    plt.rcParams["svg.hashsalt"] = "visphy"
+    return plt
+
+
+def safe_name(text: str) -> str:
+    """A file-name-safe version of a table or metric name."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_") or "x"
+
+
+def save(fig, out_dir: Path, name: str) -> list[Path]:
+    """``fig`` as ``<name>.png`` and ``<name>.svg`` under ``out_dir``."""
+    plt = _pyplot()
+    paths = []
+    for ext in FORMATS:
+        path = out_dir / f"{safe_name(name)}.{ext}"
+        meta = {"Date": None} if ext == "svg" else {"Software": None}
+        fig.savefig(path, dpi=150, bbox_inches="tight", metadata=meta)
+        paths.append(path)
+    plt.close(fig)
+    return paths
+
+
+def _short(label: str, width: int = 28) -> str:
+    return label if len(label) <= width else label[:width - 1] + "…"
+
+
+def boxplot(runs: list[RunData], labels: list[str], column: str, out_dir: Path,
+            view: str = MODEL_SUCCESS) -> list[Path]:
+    """One box per run of the column's per-scene values (n under each box); [] when no run has
+    a value."""
+    data = [scene_values(r, column, view).to_numpy(np.float64) for r in runs]
+    if not any(len(d) for d in data):
+        return []
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(max(4.0, 1.2 * len(runs) + 1.5), 3.6))
+    ax.boxplot([d if len(d) else [np.nan] for d in data], showmeans=True)
+    ax.set_xticks(range(1, len(runs) + 1),
+                  [f"{_short(lab)}\nn={len(d)}" for lab, d in zip(labels, data)],
+                  rotation=20 if len(runs) > 3 else 0, ha="right" if len(runs) > 3 else "center",
+                  fontsize=8)
+    ax.set_ylabel(header(runs, column))
+    ax.set_title(f"{header(runs, column)} per scene ({view.replace('_', ' ')})", fontsize=10)
+    ax.grid(axis="y", alpha=0.3)
+    return save(fig, out_dir, f"boxplot_{column}")
+
+
+def radar_table(runs: list[RunData], labels: list[str], columns: list[str],
+                view: str = MODEL_SUCCESS) -> pd.DataFrame:
+    """Runs × metrics, each metric's run means scaled to 0..1 across runs (1 = best); metrics
+    without a direction or with no value for some run are left out."""
+    means = {}
+    for col in columns:
+        way = direction(runs, col)
+        vals = [scene_values(r, col, view) for r in runs]
+        if way is None or not all(len(v) for v in vals):
+            continue
+        m = np.array([v.mean() for v in vals], dtype=np.float64)
+        span = m.max() - m.min()
+        scaled = np.ones_like(m) if span == 0 else (m - m.min()) / span
+        means[header(runs, col)] = scaled if way == "higher" else (
+            np.ones_like(m) if span == 0 else 1.0 - scaled)
+    table = pd.DataFrame(means)
+    table.insert(0, "run", labels)
+    return table
+
+
+def radar(table: pd.DataFrame, out_dir: Path) -> list[Path]:
+    """The radar chart of `radar_table` (at least 3 metrics and 2 runs, else [])."""
+    metrics = [c for c in table.columns if c != "run"]
+    if len(metrics) < 3 or len(table) < 2:
+        return []
+    plt = _pyplot()
+    angles = np.linspace(0, 2 * np.pi, len(metrics), endpoint=False)
+    closed = np.concatenate([angles, angles[:1]])
+    fig, ax = plt.subplots(figsize=(6.0, 6.0), subplot_kw={"projection": "polar"})
+    for _, row in table.iterrows():
+        values = row[metrics].to_numpy(np.float64)
+        ax.plot(closed, np.concatenate([values, values[:1]]), linewidth=1.5,
+                label=_short(str(row["run"]), 40))
+        ax.fill(closed, np.concatenate([values, values[:1]]), alpha=0.08)
+    ax.set_xticks(angles, metrics, fontsize=8)
+    ax.set_ylim(0, 1.05)
+    ax.set_yticks([0.25, 0.5, 0.75, 1.0], ["", "", "", "best"], fontsize=7)
+    ax.set_title("runs over the headline metrics (0 = worst, 1 = best run)", fontsize=10)
+    ax.legend(loc="upper right", bbox_to_anchor=(1.35, 1.12), fontsize=7)
+    return save(fig, out_dir, "radar")
