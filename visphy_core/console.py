@@ -1,14 +1,18 @@
-"""What a person sees in the terminal: a progress bar over scenes and the final summary table."""
+"""What a person sees in the terminal: progress per stage while a run goes, then the summary
+table, the report's path and the command that opens the run in MLflow."""
 
 from __future__ import annotations
 
+import shlex
 import sys
+import time
 from contextlib import contextmanager
-from typing import Callable, Iterator
+from pathlib import Path
+from typing import Iterator
 
 from rich.console import Console
 from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
-                           TimeElapsedColumn, TimeRemainingColumn)
+                           TimeElapsedColumn)
 from rich.table import Table
 
 # A pipe or a log file gets 120 columns (rich's 80 would truncate the means table); a terminal
@@ -17,32 +21,132 @@ console = Console(stderr=False, highlight=False,
                   width=None if sys.stdout.isatty() else 120)
 #: the per-scene table's metric columns, by preference (every column is in the means table)
 SCENE_COLUMNS = ("psnr", "ssim", "st_lpips", "track_pos_err", "flow_epe_dis")
+#: A scene's stages, in the order they run: the model's reply, its render, metrics, judges.
+STAGES = ("generate", "render", "score", "judge")
+
+
+class StageEvents:
+    """What the pipeline reports while a scene goes through its stages. This base class
+    ignores everything (no progress wanted); `StageProgress` shows it."""
+
+    def begin(self, stage: str, scene_id: str) -> None:
+        """``scene_id`` entered ``stage`` (again, for a repair: the time adds up)."""
+
+    def end(self, stage: str, scene_id: str) -> None:
+        """``scene_id`` left ``stage``; the first end counts the scene as done there."""
+
+    def scene_finished(self, scene_id: str) -> None:
+        """The scene's row is written: stages it never reached count as skipped."""
+
+
+class StageProgress(StageEvents):
+    """One line per stage: scenes done / total, the scene in that stage now, the seconds spent
+    in it and the time since the run started.
+
+    Drawn live (rich, on stderr) when ``live``; either way `final_line` sums it up (counts,
+    skipped scenes and seconds per stage), printed at the end when nothing was drawn.
+    """
+
+    def __init__(self, total: int, stages: tuple[str, ...] | list[str], live: bool,
+                 out: Console | None = None):
+        self.total = total
+        self.stages = [s for s in STAGES if s in stages] + [s for s in stages
+                                                             if s not in STAGES]
+        self.done: dict[str, set[str]] = {s: set() for s in self.stages}
+        self.skipped = dict.fromkeys(self.stages, 0)
+        self.spent = dict.fromkeys(self.stages, 0.0)
+        self._since: dict[str, float] = {}
+        self.started = time.monotonic()
+        self.progress = None
+        self.tasks: dict[str, int] = {}
+        if live:
+            self.progress = Progress(
+                TextColumn("[bold]{task.fields[stage]:<8}"), BarColumn(bar_width=24),
+                MofNCompleteColumn(), TextColumn("{task.fields[spent]:>7}"),
+                TimeElapsedColumn(), TextColumn("{task.description}"),
+                console=out or Console(file=sys.stderr), transient=False)
+            for stage in self.stages:
+                self.tasks[stage] = self.progress.add_task("", total=total, stage=stage,
+                                                           spent="0.0s")
+
+    def begin(self, stage: str, scene_id: str) -> None:
+        if stage not in self.done:
+            return
+        self._since[stage] = time.monotonic()
+        if self.progress is not None:
+            self.progress.update(self.tasks[stage], description=scene_id)
+
+    def end(self, stage: str, scene_id: str) -> None:
+        if stage not in self.done:
+            return
+        since = self._since.pop(stage, None)
+        if since is not None:
+            self.spent[stage] += time.monotonic() - since
+        self._count(stage, scene_id)
+
+    def scene_finished(self, scene_id: str) -> None:
+        for stage in self.stages:
+            self._since.pop(stage, None)
+            if scene_id not in self.done[stage]:
+                self.skipped[stage] += 1
+                self._count(stage, scene_id)
+
+    def _count(self, stage: str, scene_id: str) -> None:
+        first = scene_id not in self.done[stage]
+        self.done[stage].add(scene_id)
+        if self.progress is None:
+            return
+        task = self.tasks[stage]
+        finished = len(self.done[stage]) >= self.total
+        self.progress.update(task, advance=1 if first else 0,
+                             spent=f"{self.spent[stage]:.1f}s",
+                             **({"description": "done"} if finished else {}))
+
+    def final_line(self) -> str:
+        parts = []
+        for stage in self.stages:
+            skipped = f", {self.skipped[stage]} skipped" if self.skipped[stage] else ""
+            parts.append(f"{stage} {len(self.done[stage])}/{self.total} "
+                         f"({self.spent[stage]:.1f} s{skipped})")
+        return (f"stages: {' · '.join(parts)} · {time.monotonic() - self.started:.1f} s "
+                "in all")
 
 
 @contextmanager
-def scene_progress(total: int, enabled: bool = True) -> Iterator[Callable[[str], None]]:
-    """Yields ``advance(scene_id)``: call it when a scene starts."""
-    if not enabled:
-        yield lambda _scene_id: None
-        return
-    progress = Progress(TextColumn("[bold]scenes"), BarColumn(), MofNCompleteColumn(),
-                        TextColumn("{task.description}"), TimeElapsedColumn(),
-                        TimeRemainingColumn(), console=Console(file=sys.stderr),
-                        transient=False)
-    started = {"n": 0}
-    with progress:
-        task = progress.add_task("", total=total)
+def stage_progress(total: int, stages: tuple[str, ...] | list[str], enabled: bool = True,
+                   out: Console | None = None) -> Iterator[StageProgress]:
+    """Yields the `StageProgress` to feed. Live bars when ``enabled`` and stdout is a
+    terminal (``out`` forces them onto that console); otherwise nothing until the end, then the
+    one `final_line` on stderr (also after an interruption: what was done so far)."""
+    live = out is not None or (enabled and sys.stdout.isatty())
+    stages_progress = StageProgress(total, stages, live=live, out=out)
+    try:
+        if stages_progress.progress is not None:
+            with stages_progress.progress:
+                yield stages_progress
+        else:
+            yield stages_progress
+    finally:
+        if stages_progress.progress is None:
+            print(stages_progress.final_line(), file=sys.stderr, flush=True)
 
-        def advance(scene_id: str) -> None:
-            if started["n"]:
-                progress.advance(task)
-            started["n"] += 1
-            progress.update(task, description=scene_id)
 
-        yield advance
-        if started["n"]:
-            progress.advance(task)
-        progress.update(task, description="done")
+def mlflow_command(tracking_uri: str) -> str:
+    """How to look at a tracking store: the exact ``mlflow ui`` command for a local store, the
+    server's address for a remote one."""
+    if tracking_uri.split("://", 1)[0].lower() in ("http", "https", "databricks"):
+        return f"open {tracking_uri} (the tracking server holding this run)"
+    return f"mlflow ui --backend-store-uri {shlex.quote(tracking_uri)}"
+
+
+def print_where_to_look(report: Path | None, tracking_uri: str | None) -> None:
+    """After the summary table: the HTML report and the command that opens the run in MLflow
+    (one line each; each only when there is one)."""
+    if report is not None:
+        console.print(f"report: {report}", markup=False, soft_wrap=True)
+    if tracking_uri:
+        console.print(f"MLflow: {mlflow_command(tracking_uri)}", markup=False,
+                      soft_wrap=True)
 
 
 def _fmt(value) -> str:

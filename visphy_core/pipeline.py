@@ -6,21 +6,20 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from visphy_core.cache import Cache, CorruptEntry, content_key, read_json
+from visphy_core.console import StageEvents
 from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
                                 RenderFlag, RenderResult, classify_frames)
 from visphy_core.errors import UserError
 from visphy_core.extract import extract_analysis, extract_spec
 from visphy_core.generation import ModelCaller
-from visphy_core.judge import JudgeInput
 from visphy_core.judging import JudgeCaller
-from visphy_core.metrics import SCENE, Metric
+from visphy_core.metrics import Metric
 from visphy_core.model import (ImageInput, Model, ModelRequest, ModelResponse, OutputContract,
                                build_model_request)
 from visphy_core.prompts.build import (PromptSettings, build_prompt, build_repair_prompt,
@@ -28,9 +27,11 @@ from visphy_core.prompts.build import (PromptSettings, build_prompt, build_repai
 from visphy_core.references import ReferenceWriter
 from visphy_core.reply_spec import spec_problems
 from visphy_core.scene import Scene, SceneDataError
-from visphy_core.scoring import (SPEC_PREFIX, ScoringProtocol, clip_digest, score_columns,
-                                 score_scene)
-from visphy_core.normalisation import norm_column, normalised, perturbation, twin_scene
+from visphy_core.scene_scores import (ReferenceClipUnavailable, ScoringServices, frozen_clip,
+                                      one_line, score_columns_of, score_outputs, write_artifact,
+                                      write_scores)
+from visphy_core.scoring import ScoringProtocol
+from visphy_core.normalisation import twin_scene
 from visphy_core.spec_track import SpecTrackError, spec_scene
 from visphy_core.secrets import redact, redact_obj
 from visphy_core.usage import CostCapReached
@@ -135,8 +136,7 @@ class RenderOutcome:
 RENDER_FLAGS = tuple(f.value for f in RenderFlag)
 
 
-def _one_line(text: str) -> str:
-    return " ".join(str(text).split())
+_one_line = one_line
 
 
 def _safe_render(engine: Engine, program: Program, contract: RenderContract) -> RenderResult:
@@ -241,15 +241,10 @@ class PipelineSettings:
     seed: int = 0
 
 
-def _write(path: Path, content: str | bytes) -> None:
-    """Atomic write; text passes through `redact` first (no secret value reaches the run dir)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(redact(content).encode() if isinstance(content, str) else content)
-    tmp.replace(path)
+_write = write_artifact
 
 
-def _fail(result: SceneResult, failure: FailureClass, detail: str) -> None:
+def mark_not_evaluable(result: SceneResult, failure: FailureClass, detail: str) -> None:
     """Mark a scene that could not be evaluated (data_error / infra_error): no clip, no scores."""
     result.model_success = result.system_success = result.fallback = False
     result.failure_class = failure.value
@@ -264,7 +259,8 @@ def _fail(result: SceneResult, failure: FailureClass, detail: str) -> None:
 @dataclass
 class SceneServices:
     """What every scene of a run shares: the model behind its caller, the engine, the metrics,
-    the judges, the reference writer, the settings and the cache."""
+    the judges, the reference writer, the settings, the cache, and who hears of each stage's
+    progress."""
 
     model: Model
     caller: ModelCaller
@@ -275,6 +271,52 @@ class SceneServices:
     judges: JudgeCaller | None = None
     references: ReferenceWriter | None = None
     protocol: ScoringProtocol = field(default_factory=ScoringProtocol)
+    progress: StageEvents = field(default_factory=StageEvents)
+
+    def scoring(self) -> ScoringServices:
+        """The scoring half (`visphy_core.scene_scores`): reference-program clips rendered by
+        this run's engine."""
+        return ScoringServices(metrics=self.metrics, cache=self.cache, protocol=self.protocol,
+                               clips=EngineReferenceClips(self.engine, self.cache),
+                               judges=self.judges, references=self.references,
+                               progress=self.progress)
+
+
+class EngineReferenceClips:
+    """`visphy_core.scene_scores.ReferenceClips` of a run: the engine's trusted reference
+    program renders S and the twin (through the render cache) into the scene's folder."""
+
+    def __init__(self, engine: Engine, cache: Cache):
+        self.engine = engine
+        self.cache = cache
+
+    def spec_replay(self, scene: Scene, spec: dict, contract: RenderContract,
+                    scene_dir: Path) -> np.ndarray:
+        try:
+            program = self.engine.program_from_spec(spec_scene(scene, spec))
+        except (SpecTrackError, ValueError, NotImplementedError) as exc:
+            raise ReferenceClipUnavailable(_one_line(str(exc))) from None
+        outcome = render_cached(self.engine, program, contract, self.cache)
+        if outcome.failure is not None:
+            raise ReferenceClipUnavailable(_one_line(
+                f"the reference program failed to replay S: {outcome.failure.value} "
+                f"{outcome.error or ''}"))
+        _write(scene_dir / "spec_video.mp4", outcome.video_path.read_bytes())
+        return outcome.frames
+
+    def twin(self, scene: Scene, contract: RenderContract, scene_dir: Path) -> np.ndarray:
+        try:
+            program = self.engine.program_from_spec(twin_scene(scene))
+        except (SpecTrackError, ValueError, NotImplementedError) as exc:
+            raise ReferenceClipUnavailable(
+                f"normalisation: no twin of the ground truth: {_one_line(str(exc))}") from None
+        outcome = render_cached(self.engine, program, contract, self.cache)
+        if outcome.failure is not None:
+            raise ReferenceClipUnavailable(
+                f"normalisation: the reference program failed to render the twin: "
+                f"{outcome.failure.value} {_one_line(outcome.error or '')}")
+        _write(scene_dir / "twin_video.mp4", outcome.video_path.read_bytes())
+        return outcome.frames
 
 
 class ProviderRejectedKey(UserError):
@@ -322,10 +364,7 @@ def process_scene(scene: Scene, services: SceneServices, scene_dir: Path) -> Sce
     redone on resume) and `ProviderRejectedKey` (every scene would fail). `BaseException`s that
     are not `Exception`s (an interrupted run, Ctrl-C) propagate.
     """
-    metrics = services.metrics
-    columns = [name for name, _ in score_columns(metrics, services.protocol)]
-    if services.judges is not None:
-        columns += [services.judges.column(k) for k, _ in services.judges.judges]
+    columns = score_columns_of(services.scoring())
     result = SceneResult(scene_id=scene.scene_id, dim=scene.dim, difficulty=scene.difficulty,
                          output_kind=services.model.output_kind,
                          scores={name: None for name in columns})  # same columns for every row
@@ -338,19 +377,17 @@ def process_scene(scene: Scene, services: SceneServices, scene_dir: Path) -> Sce
     except (CostCapReached, ProviderRejectedKey):
         raise
     except SceneDataError as exc:
-        _fail(result, FailureClass.DATA_ERROR, str(exc))
+        mark_not_evaluable(result, FailureClass.DATA_ERROR, str(exc))
     except Exception as exc:  # noqa: BLE001 - one scene's fault never aborts the run
-        _fail(result, FailureClass.INFRA_ERROR, f"{type(exc).__name__}: {exc}")
+        mark_not_evaluable(result, FailureClass.INFRA_ERROR, f"{type(exc).__name__}: {exc}")
     try:
-        _write(scene_dir / "scores.json", json.dumps(
-            {"scores": result.scores, "unavailable": result.unavailable,
-             "fallback": result.fallback, "failure_class": result.failure_class}, indent=1))
+        write_scores(scene_dir, result)
         _write(scene_dir / "frames_meta.json", json.dumps(
             {"fps": scene.clip.fps, "n_frames": scene.clip.n_frames, "width": scene.clip.width,
              "height": scene.clip.height, "frame_digests": result.frame_digests}, indent=1))
     except OSError as exc:
         if result.failure_class is None or result.evaluable:
-            _fail(result, FailureClass.INFRA_ERROR, f"{type(exc).__name__}: {exc}")
+            mark_not_evaluable(result, FailureClass.INFRA_ERROR, f"{type(exc).__name__}: {exc}")
     return result
 
 
@@ -407,7 +444,9 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
     attempts = (1, 2) if settings.retry and model.output_kind == "program" else (1,)
     for attempt in attempts:
         result.attempts = attempt
+        services.progress.begin("generate", scene.scene_id)
         response, cached = services.caller.call(request)
+        services.progress.end("generate", scene.scene_id)
         result.response_cached = cached
         result.model_calls += 0 if cached else 1
         result.model_latency_s += response.latency_s
@@ -451,8 +490,10 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
                 _write(scene_dir / f"program{suffix}."
                                    f"{'html' if program.language == 'html' else 'py'}",
                        program.source)
+                services.progress.begin("render", scene.scene_id)
                 outcome = _render_with_infra_retry(engine, program, contract, services.cache,
                                                    scene_dir, suffix, result)
+                services.progress.end("render", scene.scene_id)
                 if outcome.failure is None:
                     break
                 failure, detail, failed_source, logs = (outcome.failure, outcome.error or "",
@@ -493,26 +534,12 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
         # Fallback: the first key frame held for the whole clip ("nothing moves"). It uses only
         # what the model was given, keeps every metric defined, and is never a model success.
         result.fallback = result.system_success = True
-        generated = _frozen_clip(scene, contract, scene_dir / "video.mp4")
+        generated = frozen_clip(scene, contract, scene_dir / "video.mp4")
     else:
         generated = None
-    if generated is not None:
-        _score_and_judge(scene, reference, generated, analysis, spec, services, scene_dir,
-                         result, program if outcome is not None else None)
-    if services.protocol.spec_track and model.output_kind == "program":
-        _spec_track(scene, reference, spec, result.spec_valid, services, scene_dir, result,
-                    contract)
-    if services.protocol.variance_norm:
-        _normalise(scene, reference, services, scene_dir, result, contract)
-
-
-def _frozen_clip(scene: Scene, contract: RenderContract, path: Path) -> np.ndarray:
-    """The first key frame held for the whole clip, through the run's video codec (written to
-    ``path``): the fallback clip and the normalisation floor."""
-    frames = np.repeat(scene.key_frame(1)[None], contract.n_frames, axis=0)
-    encode_video(frames, path, contract.fps)
-    return decode_video(path)[0]
-
+    score_outputs(scene, reference, generated, analysis, spec, services.scoring(), scene_dir,
+                  result, contract, program if outcome is not None else None,
+                  spec_track=model.output_kind == "program")
 
 def _render_with_infra_retry(engine: Engine, program: Program, contract: RenderContract,
                              cache: Cache, scene_dir: Path, suffix: str,
@@ -560,124 +587,3 @@ def _video_reply(response: ModelResponse, scene: Scene
         return None, FailureClass.BLANK_OUTPUT, "every frame of the video is one flat colour"
     return clip, FailureClass.BLANK_OUTPUT, ""
 
-
-def _spec_track(scene: Scene, reference: np.ndarray, spec: dict | None,
-                spec_valid: bool | None, services: SceneServices, scene_dir: Path,
-                result: SceneResult, contract: RenderContract) -> None:
-    """Score S apart from the program: simulated by visphy, replayed by the engine's reference
-    program, scored under the same protocol with ``spec.``-prefixed columns."""
-    if spec is None or spec_valid is None:
-        result.spec_track = "no_spec"
-        return
-    if not spec_valid:
-        result.spec_track = "invalid_spec"
-        return
-    try:
-        program = services.engine.program_from_spec(spec_scene(scene, spec))
-    except (SpecTrackError, ValueError, NotImplementedError) as exc:
-        result.spec_track, result.spec_track_error = "failed", _one_line(str(exc))
-        return
-    outcome = render_cached(services.engine, program, contract, services.cache)
-    if outcome.failure is not None:
-        result.spec_track = "failed"
-        result.spec_track_error = _one_line(f"the reference program failed to replay S: "
-                                            f"{outcome.failure.value} {outcome.error or ''}")
-        return
-    _write(scene_dir / "spec_video.mp4", outcome.video_path.read_bytes())
-    metrics = [m for m in services.metrics if m.kind != SCENE]
-    scores, unavailable = score_scene(scene, reference, outcome.frames, metrics, None, None,
-                                      services.cache,
-                                      protocol=replace(services.protocol, spec_track=False))
-    result.spec_track = "rendered"
-    result.scores.update({f"{SPEC_PREFIX}{k}": v for k, v in scores.items()})
-    result.unavailable.update({f"{SPEC_PREFIX}{k}": v for k, v in unavailable.items()})
-
-
-def _normalise(scene: Scene, reference: np.ndarray, services: SceneServices, scene_dir: Path,
-               result: SceneResult, contract: RenderContract) -> None:
-    """``norm.`` columns: each frame/sequence metric between the frozen clip (0) and the
-    ground truth's twin (1), visphy_core.normalisation; the anchors in normalisation.json."""
-    metrics = [m for m in services.metrics if m.kind != SCENE]
-    targets = [c for c in (m.name for m in metrics) if c in result.scores] + [
-        SPEC_PREFIX + m.name for m in metrics if SPEC_PREFIX + m.name in result.scores]
-    if not targets:
-        return
-    direction = {m.name: m.direction for m in metrics}
-
-    def unavailable(why: str) -> None:
-        for col in targets:
-            result.scores[norm_column(col)] = None
-            result.unavailable[norm_column(col)] = why
-
-    try:
-        program = services.engine.program_from_spec(twin_scene(scene))
-    except (SpecTrackError, ValueError, NotImplementedError) as exc:
-        unavailable(f"normalisation: no twin of the ground truth: {_one_line(str(exc))}")
-        return
-    outcome = render_cached(services.engine, program, contract, services.cache)
-    if outcome.failure is not None:
-        unavailable(f"normalisation: the reference program failed to render the twin: "
-                    f"{outcome.failure.value} {_one_line(outcome.error or '')}")
-        return
-    _write(scene_dir / "twin_video.mp4", outcome.video_path.read_bytes())
-    with tempfile.TemporaryDirectory(prefix="visphy-frozen-") as tmp:
-        frozen = _frozen_clip(scene, contract, Path(tmp) / "frozen.mp4")
-    plain = ScoringProtocol(unaligned=True, aligned=False, paper=False)
-    ceiling, why_c = score_scene(scene, reference, outcome.frames, metrics, None, None,
-                                 services.cache, protocol=plain)
-    floor, why_f = score_scene(scene, reference, frozen, metrics, None, None, services.cache,
-                               protocol=plain)
-    anchors = {}
-    for col in targets:
-        base = col[len(SPEC_PREFIX):] if col.startswith(SPEC_PREFIX) else col
-        why = why_c.get(base) or why_f.get(base)
-        if why:
-            result.scores[norm_column(col)] = None
-            result.unavailable[norm_column(col)] = why
-            continue
-        value, reason = normalised(result.scores.get(col), floor.get(base), ceiling.get(base),
-                                   direction[base])
-        result.scores[norm_column(col)] = value
-        anchors[base] = {"floor": floor.get(base), "ceiling": ceiling.get(base)}
-        if reason and not col.startswith(SPEC_PREFIX):
-            anchors[base]["undefined"] = reason
-    _write(scene_dir / "normalisation.json", json.dumps(
-        {"perturbation": perturbation(), "twin_video": "twin_video.mp4",
-         "floor": "the first key frame held (the fallback clip)",
-         "pairing": "visphy (unaligned)", "anchors": anchors}, indent=1))
-
-
-def _score_and_judge(scene: Scene, reference: np.ndarray, generated: np.ndarray,
-                     analysis: str | None, spec: dict | None, services: SceneServices,
-                     scene_dir: Path, result: SceneResult, program: Program | None = None
-                     ) -> None:
-    reference_text = None
-    if services.references is not None:
-        reference_text, result.reference_source = services.references.describe(scene)
-        _write(scene_dir / "reference.txt", reference_text)
-    details: dict = {}
-    scores, unavailable = score_scene(scene, reference, generated, services.metrics, analysis,
-                                      spec, services.cache, reference_text=reference_text,
-                                      protocol=services.protocol,
-                                      program=program.source if program else None,
-                                      language=program.language if program else None,
-                                      details=details)
-    if details:
-        _write(scene_dir / "metric_details.json", json.dumps(details, indent=1, default=str))
-    result.scores.update(scores)
-    result.unavailable.update(unavailable)
-    if services.judges is None:
-        return
-    inp = JudgeInput(scene_id=scene.scene_id, dim=scene.dim, reference_video=scene.video_path,
-                     generated_video=scene_dir / "video.mp4", fps=scene.clip.fps,
-                     n_frames=scene.clip.n_frames)
-    verdicts = services.judges.judge_scene(inp, content_key(clip_digest(reference),
-                                                            clip_digest(generated)))
-    for key, verdict in verdicts.items():
-        column = services.judges.column(key)
-        result.scores[column] = verdict.score if verdict.valid else None
-        if not verdict.valid:
-            result.judge_errors[key] = verdict.error or "invalid verdict"
-            result.unavailable[column] = verdict.error or "invalid verdict"
-    _write(scene_dir / "verdicts.json", json.dumps(
-        {k: v.to_json() for k, v in verdicts.items()}, indent=1, default=str))

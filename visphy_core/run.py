@@ -28,7 +28,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from visphy_core.cache import Cache
-from visphy_core.console import print_summary, scene_progress
+from visphy_core.console import print_summary, print_where_to_look, stage_progress
 from visphy_core.dataset import load_dataset
 from visphy_core.errors import ConfigError
 from visphy_core.generation import ModelCaller, get_service
@@ -114,6 +114,34 @@ def _manifest(ctx: RunContext) -> dict:
         "judges": ctx.judges,
         "cost_cap_usd": ctx.cfg.run.get("cost_cap_usd"),
     }
+
+
+def run_stages(services: SceneServices) -> list[str]:
+    """The stages a scene of this run goes through (progress lines): no render for a model
+    that returns videos, no judge stage without judges."""
+    stages = ["generate"]
+    if services.model.output_kind == "program":
+        stages.append("render")
+    stages.append("score")
+    if services.judges is not None:
+        stages.append("judge")
+    return stages
+
+
+def write_report(run_dir: Path) -> Path | None:
+    """The run's HTML report (`visphy_core.report.write_run_report`) when that module is
+    installed; a report that fails is a warning, never a failed run."""
+    from importlib.util import find_spec
+
+    if find_spec("visphy_core.report") is None:
+        return None
+    try:
+        from visphy_core.report import write_run_report
+
+        return Path(write_run_report(run_dir))
+    except Exception as exc:  # noqa: BLE001 - the run's results are already written
+        log.warning("the HTML report of %s failed: %s: %s", run_dir, type(exc).__name__, exc)
+        return None
 
 
 def _version() -> str:
@@ -213,7 +241,7 @@ def _count_states(states) -> dict[str, int]:
     return out
 
 
-def _write_json(path: Path, data: Any) -> None:
+def write_json(path: Path, data: Any) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     with open(tmp, "w") as fh:
         fh.write(json.dumps(data, indent=1, default=str))
@@ -262,14 +290,14 @@ def _deferred_signals() -> Iterator[list[int]]:
             signal.signal(sig, old)
 
 
-def _build_judges(cfg: DictConfig, registry) -> list[tuple[str, Any]]:
+def build_judges(cfg: DictConfig, registry) -> list[tuple[str, Any]]:
     judges = []
     for key, node in (cfg.get("judge") or {}).items():
         judges.append((str(key), registry.get("judges", str(node.name))(node)))
     return judges
 
 
-def _reference_model(cfg: DictConfig, registry):
+def reference_model_of(cfg: DictConfig, registry):
     """The captioning model of ``reference.source=llm`` (a model config from conf/model/)."""
     if str(cfg.reference.source) != "llm":
         return None
@@ -311,8 +339,8 @@ def run_experiment(cfg: DictConfig) -> dict:
     registry = get_registry()
     pm = get_plugin_manager()
     model = registry.get("models", cfg.model.name)(cfg.model)
-    judges = _build_judges(cfg, registry)
-    reference_model = _reference_model(cfg, registry)
+    judges = build_judges(cfg, registry)
+    reference_model = reference_model_of(cfg, registry)
     _check_ready(cfg, model, judges, reference_model)  # a missing key: one line, no work done
     root = Path(cfg.paths.root).resolve()
     data_dir, runs_dir = Path(cfg.paths.data_dir).resolve(), Path(cfg.paths.runs_dir).resolve()
@@ -432,7 +460,7 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
     manifest = _manifest(ctx)
     if restored:
         manifest["resumed_rows"] = len(restored)
-    _write_json(run_dir / "manifest.json", manifest)
+    write_json(run_dir / "manifest.json", manifest)
     ctx.results.extend(restored)
     done = {r.scene_id for r in restored}
     pending = [s for s in scenes if s.scene_id not in done]
@@ -444,11 +472,12 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
             pm.hook.visphy_run_start(run=ctx)
             if ctx.extra.get("mlflow"):  # so a resumed run can close this one if it is killed
                 manifest["tracking"] = {"mlflow": ctx.extra["mlflow"]}
-                _write_json(run_dir / "manifest.json", manifest)
-            with scene_progress(len(pending), enabled=bool(cfg.run.progress)) as advance, \
+                write_json(run_dir / "manifest.json", manifest)
+            with stage_progress(len(pending), run_stages(services),
+                                enabled=bool(cfg.run.progress)) as progress, \
                     rows_path.open("a") as rows:
+                services.progress = progress
                 for position, scene in enumerate(pending):
-                    advance(scene.scene_id)
                     prefetch.advance(position)
                     try:
                         result = process_scene(scene, services,
@@ -456,6 +485,7 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
                     except CostCapReached as exc:
                         cost_stop = exc
                         break
+                    progress.scene_finished(scene.scene_id)
                     # The row on disk and the row in memory go together: a signal between
                     # them would leave a summary that misses a row results.jsonl holds.
                     with _deferred_signals() as held:
@@ -509,18 +539,20 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
             summary["interrupted_by"] = signal.Signals(raised.signum).name
         elif status == FAILED:
             summary["error"] = f"{type(raised).__name__}: {raised}"
-        _write_json(run_dir / "summary.json", summary)
+        write_json(run_dir / "summary.json", summary)
         manifest.update(status=status, ended=dt.datetime.now().isoformat(timespec="seconds"))
-        _write_json(run_dir / "manifest.json", manifest)
+        write_json(run_dir / "manifest.json", manifest)
         try:
             pm.hook.visphy_run_end(run=ctx, summary=summary)
         except Exception as exc:  # noqa: BLE001
             if raised is None:
                 raise
             log.warning("visphy_run_end failed while closing a %s run: %s", status, exc)
-        _write_json(run_dir / "summary.json", summary)
+        write_json(run_dir / "summary.json", summary)
     if status in (FINISHED, COST_CAP):
         print_summary(summary, ctx.results)
+        print_where_to_look(write_report(run_dir), (summary.get("mlflow") or {}).get(
+            "tracking_uri"))
     if status == COST_CAP:
         print(f"stopped: {summary['cost_cap']['message']}", file=sys.stderr)
     elif status != FINISHED:

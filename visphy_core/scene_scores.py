@@ -1,0 +1,236 @@
+"""Scoring one scene's outputs: metrics, judges, the spec track and variance normalisation.
+
+Shared by the pipeline (right after a scene's clip is made) and by re-scoring
+(`visphy_core.rescore`: a finished run directory scored again with other metrics or judges), so
+both write the same columns, the same per-scene files and hit the same cache entries.
+
+The only step that differs is where the trusted reference program's clips come from (S replayed
+for the spec track, the ground truth's twin for normalisation): a run renders them with its
+engine, re-scoring reads them back from the run directory and never renders. `ReferenceClips`
+is that seam.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+from visphy_core.cache import Cache, content_key
+from visphy_core.console import StageEvents
+from visphy_core.engine import RenderContract
+from visphy_core.judge import JudgeInput
+from visphy_core.judging import JudgeCaller
+from visphy_core.metrics import SCENE, Metric
+from visphy_core.normalisation import norm_column, normalised, perturbation
+from visphy_core.references import ReferenceWriter
+from visphy_core.scene import Scene
+from visphy_core.scoring import (SPEC_PREFIX, ScoringProtocol, clip_digest, score_columns,
+                                 score_scene)
+from visphy_core.secrets import redact
+from visphy_core.video import decode_video, encode_video
+
+if TYPE_CHECKING:
+    from visphy_core.engine import Program
+    from visphy_core.pipeline import SceneResult
+
+
+def one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def write_artifact(path: Path, content: str | bytes) -> None:
+    """Atomic write; text passes through `redact` first (no secret value reaches the run dir)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_bytes(redact(content).encode() if isinstance(content, str) else content)
+    tmp.replace(path)
+
+
+def frozen_clip(scene: Scene, contract: RenderContract, path: Path) -> np.ndarray:
+    """The first key frame held for the whole clip, through the run's video codec (written to
+    ``path``): the fallback clip and the normalisation floor."""
+    frames = np.repeat(scene.key_frame(1)[None], contract.n_frames, axis=0)
+    encode_video(frames, path, contract.fps)
+    return decode_video(path)[0]
+
+
+class ReferenceClipUnavailable(Exception):
+    """The reference program's clip could not be had; the message says why (one line)."""
+
+
+class ReferenceClips(Protocol):
+    """Clips of visphy's trusted reference program for one scene."""
+
+    def spec_replay(self, scene: Scene, spec: dict, contract: RenderContract,
+                    scene_dir: Path) -> np.ndarray:
+        """S simulated and replayed (``spec_video.mp4``); raises `ReferenceClipUnavailable`."""
+
+    def twin(self, scene: Scene, contract: RenderContract, scene_dir: Path) -> np.ndarray:
+        """The ground truth's twin (``twin_video.mp4``); raises `ReferenceClipUnavailable`."""
+
+
+@dataclass
+class ScoringServices:
+    """What scoring a scene needs: metrics, protocol, cache, judges, the reference writer, where
+    reference-program clips come from, and the progress listener."""
+
+    metrics: list[Metric]
+    cache: Cache
+    protocol: ScoringProtocol
+    clips: ReferenceClips
+    judges: JudgeCaller | None = None
+    references: ReferenceWriter | None = None
+    progress: StageEvents = field(default_factory=StageEvents)
+
+
+def score_columns_of(services: ScoringServices) -> list[str]:
+    """Every score column a row gets (the same for every row of a run), judges last."""
+    columns = [name for name, _ in score_columns(services.metrics, services.protocol)]
+    if services.judges is not None:
+        columns += [services.judges.column(k) for k, _ in services.judges.judges]
+    return columns
+
+
+def score_outputs(scene: Scene, reference: np.ndarray, generated: np.ndarray | None,
+                  analysis: str | None, spec: dict | None, services: ScoringServices,
+                  scene_dir: Path, result: "SceneResult", contract: RenderContract,
+                  program: "Program | None" = None, spec_track: bool = True) -> None:
+    """Score a scene's clip (when there is one) and judge it, then the spec track (when
+    ``spec_track``: a program-writing model) and normalisation, as the protocol asks."""
+    if generated is not None:
+        _score_and_judge(scene, reference, generated, analysis, spec, services, scene_dir,
+                         result, program)
+    services.progress.begin("score", scene.scene_id)
+    if services.protocol.spec_track and spec_track:
+        _spec_track(scene, reference, spec, result.spec_valid, services, scene_dir, result,
+                    contract)
+    if services.protocol.variance_norm:
+        _normalise(scene, reference, services, scene_dir, result, contract)
+    services.progress.end("score", scene.scene_id)
+
+
+def _spec_track(scene: Scene, reference: np.ndarray, spec: dict | None,
+                spec_valid: bool | None, services: ScoringServices, scene_dir: Path,
+                result: "SceneResult", contract: RenderContract) -> None:
+    """Score S apart from the program: simulated by visphy, replayed by the engine's reference
+    program, scored under the same protocol with ``spec.``-prefixed columns."""
+    if spec is None or spec_valid is None:
+        result.spec_track = "no_spec"
+        return
+    if not spec_valid:
+        result.spec_track = "invalid_spec"
+        return
+    try:
+        frames = services.clips.spec_replay(scene, spec, contract, scene_dir)
+    except ReferenceClipUnavailable as exc:
+        result.spec_track, result.spec_track_error = "failed", str(exc)
+        return
+    metrics = [m for m in services.metrics if m.kind != SCENE]
+    scores, unavailable = score_scene(scene, reference, frames, metrics, None, None,
+                                      services.cache,
+                                      protocol=replace(services.protocol, spec_track=False))
+    result.spec_track = "rendered"
+    result.scores.update({f"{SPEC_PREFIX}{k}": v for k, v in scores.items()})
+    result.unavailable.update({f"{SPEC_PREFIX}{k}": v for k, v in unavailable.items()})
+
+
+def _normalise(scene: Scene, reference: np.ndarray, services: ScoringServices, scene_dir: Path,
+               result: "SceneResult", contract: RenderContract) -> None:
+    """``norm.`` columns: each frame/sequence metric between the frozen clip (0) and the
+    ground truth's twin (1), visphy_core.normalisation; the anchors in normalisation.json."""
+    metrics = [m for m in services.metrics if m.kind != SCENE]
+    targets = [c for c in (m.name for m in metrics) if c in result.scores] + [
+        SPEC_PREFIX + m.name for m in metrics if SPEC_PREFIX + m.name in result.scores]
+    if not targets:
+        return
+    direction = {m.name: m.direction for m in metrics}
+
+    def unavailable(why: str) -> None:
+        for col in targets:
+            result.scores[norm_column(col)] = None
+            result.unavailable[norm_column(col)] = why
+
+    try:
+        twin = services.clips.twin(scene, contract, scene_dir)
+    except ReferenceClipUnavailable as exc:
+        unavailable(str(exc))
+        return
+    with tempfile.TemporaryDirectory(prefix="visphy-frozen-") as tmp:
+        frozen = frozen_clip(scene, contract, Path(tmp) / "frozen.mp4")
+    plain = ScoringProtocol(unaligned=True, aligned=False, paper=False)
+    ceiling, why_c = score_scene(scene, reference, twin, metrics, None, None,
+                                 services.cache, protocol=plain)
+    floor, why_f = score_scene(scene, reference, frozen, metrics, None, None, services.cache,
+                               protocol=plain)
+    anchors = {}
+    for col in targets:
+        base = col[len(SPEC_PREFIX):] if col.startswith(SPEC_PREFIX) else col
+        why = why_c.get(base) or why_f.get(base)
+        if why:
+            result.scores[norm_column(col)] = None
+            result.unavailable[norm_column(col)] = why
+            continue
+        value, reason = normalised(result.scores.get(col), floor.get(base), ceiling.get(base),
+                                   direction[base])
+        result.scores[norm_column(col)] = value
+        anchors[base] = {"floor": floor.get(base), "ceiling": ceiling.get(base)}
+        if reason and not col.startswith(SPEC_PREFIX):
+            anchors[base]["undefined"] = reason
+    write_artifact(scene_dir / "normalisation.json", json.dumps(
+        {"perturbation": perturbation(), "twin_video": "twin_video.mp4",
+         "floor": "the first key frame held (the fallback clip)",
+         "pairing": "visphy (unaligned)", "anchors": anchors}, indent=1))
+
+
+def _score_and_judge(scene: Scene, reference: np.ndarray, generated: np.ndarray,
+                     analysis: str | None, spec: dict | None, services: ScoringServices,
+                     scene_dir: Path, result: "SceneResult", program: "Program | None" = None
+                     ) -> None:
+    progress = services.progress
+    progress.begin("score", scene.scene_id)
+    reference_text = None
+    if services.references is not None:
+        reference_text, result.reference_source = services.references.describe(scene)
+        write_artifact(scene_dir / "reference.txt", reference_text)
+    details: dict = {}
+    scores, unavailable = score_scene(scene, reference, generated, services.metrics, analysis,
+                                      spec, services.cache, reference_text=reference_text,
+                                      protocol=services.protocol,
+                                      program=program.source if program else None,
+                                      language=program.language if program else None,
+                                      details=details)
+    if details:
+        write_artifact(scene_dir / "metric_details.json",
+                       json.dumps(details, indent=1, default=str))
+    result.scores.update(scores)
+    result.unavailable.update(unavailable)
+    progress.end("score", scene.scene_id)
+    if services.judges is None:
+        return
+    progress.begin("judge", scene.scene_id)
+    inp = JudgeInput(scene_id=scene.scene_id, dim=scene.dim, reference_video=scene.video_path,
+                     generated_video=scene_dir / "video.mp4", fps=scene.clip.fps,
+                     n_frames=scene.clip.n_frames)
+    verdicts = services.judges.judge_scene(inp, content_key(clip_digest(reference),
+                                                            clip_digest(generated)))
+    for key, verdict in verdicts.items():
+        column = services.judges.column(key)
+        result.scores[column] = verdict.score if verdict.valid else None
+        if not verdict.valid:
+            result.judge_errors[key] = verdict.error or "invalid verdict"
+            result.unavailable[column] = verdict.error or "invalid verdict"
+    write_artifact(scene_dir / "verdicts.json", json.dumps(
+        {k: v.to_json() for k, v in verdicts.items()}, indent=1, default=str))
+    progress.end("judge", scene.scene_id)
+
+
+def write_scores(scene_dir: Path, result: "SceneResult") -> None:
+    """``scores.json``: the row's scores and why any is missing."""
+    write_artifact(scene_dir / "scores.json", json.dumps(
+        {"scores": result.scores, "unavailable": result.unavailable,
+         "fallback": result.fallback, "failure_class": result.failure_class}, indent=1))
