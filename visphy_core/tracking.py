@@ -139,9 +139,13 @@ def benchmark_version(run) -> str:
 
 
 def _run_tags(run) -> dict[str, str]:
+    rescored = run.extra.get("rescored_from") or {}  # `score`: the run this one re-scores
     return {"visphy.run_dir": str(run.run_dir), "visphy.model": run.model_name,
             "visphy.engine": run.engine_name, "visphy.benchmark_version": benchmark_version(run),
-            **source_tags()}
+            **source_tags(),
+            **({"visphy.rescored_from": rescored["run_dir"]} if rescored else {}),
+            **({"visphy.rescored_from_run_id": rescored["mlflow_run_id"]}
+               if rescored.get("mlflow_run_id") else {})}
 
 
 # ------------------------------------------------------------------------------ studies
