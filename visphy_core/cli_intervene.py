@@ -184,8 +184,9 @@ def _simulate_and_render(scene, spec: dict, name: str, engine, contract, cache, 
     arrays = {"body_ids": np.array(rollout.body_ids, dtype=str),
               "frame_poses": rollout.frame_poses, "frame_steps": rollout.frame_steps,
               "frame_times_s": rollout.frame_times_s, "dt_s": float(spec["world"]["dt_s"])}
-    if getattr(rollout, "step_poses", None) is not None:
-        arrays["step_poses"] = rollout.step_poses
+    for name_ in ("step_poses", "step_touching"):  # both simulators record them
+        if getattr(rollout, name_, None) is not None:
+            arrays[name_] = getattr(rollout, name_)
     np.savez_compressed(out / f"trajectory.{name}.npz", **arrays)
     return rollout, outcome.frames
 

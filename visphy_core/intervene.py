@@ -119,7 +119,7 @@ class Change:
 def _fmt(value: Any) -> str:
     if isinstance(value, (list, tuple)):
         return "(" + ", ".join(_fmt(v) for v in value) + ")"
-    return f"{float(value):.4g}"
+    return f"{float(value) + 0.0:.4g}"  # + 0.0: never "-0"
 
 
 # ------------------------------------------------------------------------------------ parsing
