@@ -1,0 +1,336 @@
+"""HTML reports (visphy_core.report): real runs, opened in headless Chromium from file:// with
+every non-file request aborted.
+
+Two runs are made once for the module: the oracle on two mini scenes (near-perfect; the
+session's mini build is lossless, so its ground-truth clips are the H.264 High 4:4:4 files
+Chromium shows with wrong colours), and a replay of hostile replies judged by a fake Gemini
+server: one reply renders but carries script injections in its analysis, program and the
+judge's justification; the other fails at runtime and is scored on the fallback clip.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from urllib.parse import unquote
+
+import numpy as np
+import pandas as pd
+import pytest
+from PIL import Image
+
+from conftest import REPO, run_cli
+from visphy_core.report import write_run_report, write_study_report
+from visphy_core.report.media import describe_clip
+from visphy_core.video import decode_video
+
+pytestmark = pytest.mark.browser
+
+INJECTION = '</script><script>window.__pwned=1</script><img src=x onerror="window.__pwned=2">'
+BROKEN = ("Broken on purpose.\n\n```html\n<html><body><canvas id='c'></canvas><script>"
+          "undefinedFunction();</script></body></html>\n```\n")
+SCENES = ("vpb3-s0-2d-t001-v00", "vpb3-s0-2d-t002-v00")
+
+
+@pytest.fixture(scope="module")
+def home(tmp_path_factory, mini_root) -> Path:
+    home = tmp_path_factory.mktemp("report") / "home"
+    shutil.copytree(mini_root, home / "data" / mini_root.name)
+    return home
+
+
+def _only_run(home: Path, model: str) -> Path:
+    (run_dir,) = [p for p in (home / "runs").iterdir() if f"_{model}_" in p.name]
+    return run_dir
+
+
+@pytest.fixture(scope="module")
+def oracle_run(home) -> Path:
+    run_cli("model=oracle", "dataset.limit=2", "tracking=none", "run.progress=false", home=home)
+    return _only_run(home, "oracle")
+
+
+@pytest.fixture(scope="module")
+def hostile_run(home, tmp_path_factory) -> Path:
+    from visphy_plugins.testing.fake_gemini import FakeGeminiServer
+    from visphy_plugins.testing.fake_server import ok
+    from visphy_plugins.testing.replies import ANALYSIS, HTML_PROGRAM, SPEC_2D
+
+    replies = tmp_path_factory.mktemp("replies")
+    program = HTML_PROGRAM.replace("<body", f"<!-- {INJECTION} --><body", 1)
+    (replies / f"{SCENES[0]}.txt").write_text(f"{ANALYSIS} {INJECTION}\n\n```json\n"
+                                              f"{json.dumps(SPEC_2D)}\n```\n\n```html\n"
+                                              f"{program}\n```\n")
+    (replies / f"{SCENES[1]}.txt").write_text(BROKEN)
+    verdict = json.dumps({"score": 3, "justification": f"partly right {INJECTION}"})
+    env = {k: v for k, v in os.environ.items() if not k.endswith("_API_KEY")}
+    env["GEMINI_API_KEY"] = "test-report-key"
+    with FakeGeminiServer(default=lambda req: ok(verdict)) as gemini:
+        run_cli("model=replay", f"model.source={replies}", "dataset.limit=2", "tracking=none",
+                "run.progress=false", "metrics.names=[psnr,ssim]", "metrics.variance_norm=false",
+                "judge=gemini", f"judge.gemini.base_url={gemini.url}", home=home, env=env)
+    return _only_run(home, "replay")
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from playwright.sync_api import sync_playwright
+
+    from visphy_core.sandbox.browser import find_chromium
+
+    with sync_playwright() as p:
+        chromium = p.chromium.launch(executable_path=find_chromium(),
+                                     args=["--autoplay-policy=no-user-gesture-required"])
+        yield chromium
+        chromium.close()
+
+
+class Opened:
+    """A report page, with every request the page made and every console message."""
+
+    def __init__(self, browser, index: Path):
+        self.requests: list[str] = []
+        self.aborted: list[str] = []
+        self.console: list[str] = []
+        self.page = browser.new_page(viewport={"width": 1280, "height": 1000})
+        self.page.on("request", lambda r: self.requests.append(r.url))
+        self.page.on("console", lambda m: self.console.append(m.text))
+
+        def route(r):
+            if r.request.url.startswith("file://"):
+                r.continue_()
+            else:
+                self.aborted.append(r.request.url)
+                r.abort()
+
+        self.page.route("**/*", route)
+        self.page.goto(index.resolve().as_uri())
+        self.page.wait_for_function("document.querySelectorAll('.sync:not([data-ready])')"
+                                    ".length === 0")
+
+    def eval(self, script: str, arg=None):
+        return self.page.evaluate(script, arg)
+
+    def close(self) -> None:
+        assert self.aborted == [], f"the report tried the network: {self.aborted}"
+        assert all(u.startswith("file://") for u in self.requests), self.requests
+        assert not [m for m in self.console if "Content Security Policy" in m], self.console
+        self.page.close()
+
+
+def _rows(run_dir: Path) -> pd.DataFrame:
+    return pd.read_parquet(run_dir / "results.parquet")
+
+
+def test_run_report_leaderboard_first_counts_match_results_one_section_per_scene(
+        oracle_run, hostile_run, browser, tmp_path):
+    for run_dir in (oracle_run, hostile_run):
+        index = write_run_report(run_dir)
+        assert index == run_dir / "report" / "index.html"
+        rows, summary = _rows(run_dir), json.loads((run_dir / "summary.json").read_text())
+        page = Opened(browser, index)
+        first = page.eval("document.querySelector('header.top').nextElementSibling.id")
+        assert first == "leaderboard"
+        board = page.eval("""Array.from(document.querySelectorAll(
+            '#leaderboard table.leaderboard tbody tr'))
+            .map(tr => Array.from(tr.cells).map(td => td.textContent))""")
+        by_metric = {r[0]: r for r in board}
+        psnr = summary["metrics"]["psnr"]
+        assert by_metric["psnr↑"][1] == f"{psnr['mean_model_success']:.4g} " \
+                                        f"(n={psnr['n_model_success']})"
+        assert by_metric["psnr↑"][2] == f"{psnr['mean_with_fallbacks']:.4g} " \
+                                        f"(n={psnr['n_with_fallbacks']})"
+        n, ok = len(rows), int(rows["model_success"].sum())
+        assert page.eval("document.querySelector('#count-model-success .v').textContent") \
+            .startswith(f"{ok}/{n} ")
+        assert page.eval("document.querySelector('#count-fallbacks .v').textContent") == \
+            str(int(rows["fallback"].sum()))
+        failures = page.eval("""Array.from(document.querySelectorAll('#failures tbody tr'))
+            .map(tr => [tr.cells[0].textContent, Number(tr.cells[2].textContent)])""")
+        expected = rows.loc[~rows["model_success"], "failure_class"].value_counts()
+        assert dict(failures) == {k: int(v) for k, v in expected.items()}
+        sections = page.eval("Array.from(document.querySelectorAll('section.scene'))"
+                             ".map(s => s.querySelector('h2 a').textContent)")
+        assert sections == list(rows["scene_id"])
+        page.page.screenshot(path=str(tmp_path / f"{run_dir.name}.png"))
+        page.close()
+        with Image.open(tmp_path / f"{run_dir.name}.png") as shot:
+            assert np.asarray(shot.convert("L")).std() > 10   # a page, not a blank
+    # the oracle's report as a person sees it (kept for a look: pytest's tmp_path)
+    assert (tmp_path / f"{oracle_run.name}.png").stat().st_size > 20_000
+
+
+def test_one_control_plays_scrubs_and_loops_every_clip_of_a_scene(hostile_run, browser):
+    page = Opened(browser, hostile_run / "report" / "index.html")
+    group = "document.querySelector('section.scene .sync')"
+    clips = page.eval(f"{group}.querySelectorAll('video').length")
+    assert clips == 3                                   # ground truth, generated, spec track
+    page.page.wait_for_function(f"Array.from({group}.querySelectorAll('video'))"
+                                ".every(v => v.readyState >= 2)")
+    page.page.locator("section.scene .sync [data-act=play]").first.click()
+    page.page.wait_for_timeout(900)
+    times = page.eval(f"Array.from({group}.querySelectorAll('video')).map(v => v.currentTime)")
+    assert min(times) > 0.3 and max(times) - min(times) < 0.25, times
+    page.page.locator("section.scene .sync [data-act=play]").first.click()   # pause
+    page.eval(f"""() => {{ const r = {group}.querySelector('input[type=range]');
+        r.value = '8'; r.dispatchEvent(new Event('input')); }}""")
+    page.page.wait_for_function(f"Array.from({group}.querySelectorAll('video'))"
+                                ".every(v => !v.seeking)")
+    times = page.eval(f"Array.from({group}.querySelectorAll('video')).map(v => v.currentTime)")
+    assert times == pytest.approx([8.5 / 5] * 3, abs=0.02)   # frame 9 of 17 at 5 fps
+    assert page.eval(f"{group}.querySelector('.frame-label').textContent").startswith("frame 9/17")
+    assert page.eval(f"Array.from({group}.querySelectorAll('video')).every(v => v.loop)")
+    page.close()
+
+
+def test_lossless_ground_truth_is_transcoded_and_shown_with_its_true_colours(
+        oracle_run, browser, mini_root):
+    gt = mini_root / "videos" / f"{SCENES[0]}.mp4"
+    assert describe_clip(gt)[0] is False                 # High 4:4:4 (gbrp): not as it is
+    copy = oracle_run / "report" / "media" / SCENES[0] / "ground_truth.mp4"
+    playable, what = describe_clip(copy)
+    assert playable and "yuv420p" in what
+    page = Opened(browser, oracle_run / "report" / "index.html")
+    video = page.page.locator("section.scene .sync video").first
+    assert "transcoded for the browser" in page.eval(
+        "document.querySelector('section.scene figure.clip').textContent")
+    page.page.wait_for_function("document.querySelector('section.scene video').readyState >= 2")
+    page.eval("""() => new Promise(done => {
+        const v = document.querySelector('section.scene video');
+        v.addEventListener('seeked', done, {once: true}); v.currentTime = 0.1; })""")
+    shot = np.asarray(Image.open(io.BytesIO(video.screenshot())).convert("RGB"))
+    box = page.eval("(() => { const r = document.querySelector('section.scene video')"
+                    ".getBoundingClientRect(); return [r.width, r.height]; })()")
+    frames, _ = decode_video(gt)
+    truth = np.asarray(Image.fromarray(frames[0]).resize((shot.shape[1], shot.shape[0]),
+                                                          Image.BILINEAR)).astype(float)
+    assert shot.shape[1] == round(box[0])
+    assert np.abs(shot.astype(float) - truth).mean() < 6   # wrong planes: ≈ 40 off
+    page.close()
+
+
+def test_replies_programs_and_verdicts_render_as_text_never_as_markup(hostile_run, browser):
+    html = (hostile_run / "report" / "index.html").read_text()
+    assert INJECTION not in html
+    page = Opened(browser, hostile_run / "report" / "index.html")
+    assert page.eval("window.__pwned") is None
+    assert page.eval("document.querySelectorAll('script').length") == 1
+    assert page.eval("document.querySelectorAll('[onerror]').length") == 0
+    assert page.eval("document.querySelectorAll('img[src=x]').length") == 0
+    analysis = page.eval("document.querySelector('section.scene p.analysis').textContent")
+    assert analysis.endswith(INJECTION)
+    verdict = page.eval("document.querySelector('section.scene .verdict p.text').textContent")
+    assert verdict == f"partly right {INJECTION}"
+    program = page.eval("document.querySelector('section.scene pre.program').textContent")
+    assert f"<!-- {INJECTION} -->" in program and "setupRecording(cv, 3400);" in program
+    page.close()
+
+
+def test_a_failed_scene_shows_its_class_detail_fallback_and_the_filters_find_it(
+        hostile_run, browser):
+    page = Opened(browser, hostile_run / "report" / "index.html")
+    failed = f"document.getElementById('scene-{SCENES[1]}')"
+    assert page.eval(f"{failed}.dataset.outcome") == "runtime_error"
+    text = page.eval(f"{failed}.textContent")
+    assert "fallback clip" in text and "undefinedFunction is not defined" in text
+    assert page.eval(f"{failed}.querySelectorAll('figcaption')[1].textContent") == \
+        "generated (fallback clip)"
+    first = f"document.getElementById('scene-{SCENES[0]}')"
+    assert page.eval(f"{first}.querySelectorAll('table.spec-diff td.chg').length") >= 4
+    assert "gemini 3/10" in page.eval(f"{first}.querySelector('.verdict').textContent")
+    page.page.select_option("#filter-outcome", "runtime_error")
+    visible = page.eval("Array.from(document.querySelectorAll('section.scene'))"
+                        ".filter(s => !s.hidden).map(s => s.id)")
+    assert visible == [f"scene-{SCENES[1]}"]
+    assert page.eval("document.getElementById('filter-count').textContent") == "1 of 2 scenes"
+    page.close()
+
+
+def test_an_interrupted_run_without_its_dataset_still_renders(oracle_run, browser, tmp_path):
+    run_dir = tmp_path / "runs" / oracle_run.name
+    shutil.copytree(oracle_run, run_dir, ignore=shutil.ignore_patterns("report"))
+    (run_dir / "summary.json").unlink()
+    (run_dir / "results.parquet").unlink()
+    first, _ = (oracle_run / "results.jsonl").read_text().splitlines()[:2]
+    (run_dir / "results.jsonl").write_text(first + "\n" + first[:40])   # killed mid-line
+    manifest = json.loads((run_dir / "manifest.json").read_text())
+    (run_dir / "manifest.json").write_text(json.dumps(manifest | {"status": "running"}))
+    config = (run_dir / "config.yaml").read_text()
+    gone = tmp_path / "deleted-data"
+    (run_dir / "config.yaml").write_text(config.replace(str(oracle_run.parents[1] / "data"),
+                                                        str(gone)))
+    page = Opened(browser, write_run_report(run_dir))
+    assert page.eval("document.getElementById('run-status').textContent") == "running"
+    assert "recomputed from results.jsonl" in page.eval("document.querySelector('header')"
+                                                        ".textContent")
+    psnr = json.loads(first)["score_psnr"]
+    board = page.eval("document.querySelector('#leaderboard tbody tr').textContent")
+    assert board.startswith(f"psnr↑{psnr:.4g} (n=1)")
+    sections = page.eval("Array.from(document.querySelectorAll('section.scene'))"
+                         ".map(s => [s.id, s.dataset.outcome, s.textContent])")
+    assert [s[:2] for s in sections] == [[f"scene-{SCENES[0]}", "success"],
+                                         [f"scene-{SCENES[1]}", "not_run"]]
+    assert all("ground truth not found: no videos/" in s[2] for s in sections)
+    page.close()
+
+
+def test_rewriting_a_report_copies_nothing_again(oracle_run):
+    index = write_run_report(oracle_run)
+    media = sorted((oracle_run / "report" / "media").rglob("*.*"))
+    stamps = {p: p.stat().st_mtime_ns for p in media}
+    before = index.read_text()
+    start = time.perf_counter()
+    assert write_run_report(oracle_run) == index
+    assert time.perf_counter() - start < 2.0
+    assert index.read_text() == before
+    assert {p: p.stat().st_mtime_ns for p in media} == stamps
+
+
+def test_study_report_leaderboard_tables_figures_and_run_links(
+        oracle_run, hostile_run, browser, tmp_path):
+    figure = tmp_path / "box.png"
+    Image.new("RGB", (40, 30), (10, 120, 200)).save(figure)
+    extra = pd.DataFrame({"model": ["oracle", "replay"], "psnr": [41.8, 14.6]})
+    out = tmp_path / "study"
+    index = write_study_report([oracle_run, hostile_run], out, "Study <b>one</b>",
+                               tables={"by difficulty": extra}, figures={"boxplots": [figure]},
+                               markdown="# Notes\n\nsee <script>window.__pwned=3</script>")
+    page = Opened(browser, index)
+    assert page.eval("document.querySelector('header.top').nextElementSibling.id") == \
+        "leaderboard"
+    assert page.eval("document.querySelector('h1').textContent") == "Study <b>one</b>"
+    rows = page.eval("""Array.from(document.querySelectorAll('#leaderboard-table tbody tr'))
+        .map(tr => [tr.cells[0].textContent, tr.cells[5].textContent])""")
+    assert rows == [[oracle_run.name, "2/2 (100.0%)"], [hostile_run.name, "1/2 (50.0%)"]]
+    links = page.eval("Array.from(document.querySelectorAll('#runs a')).map(a => a.href)")
+    assert [Path(unquote(h[len("file://"):])) for h in links] \
+        == [oracle_run / "report" / "index.html", hostile_run / "report" / "index.html"]
+    assert page.eval("document.querySelector('#figures img').naturalWidth") == 40
+    assert page.eval("window.__pwned") is None
+    assert "<script>" in page.eval("document.getElementById('notes').textContent")
+    page.close()
+    given = pd.DataFrame({"run": ["a"], "psnr": [12.3456789]})
+    index = write_study_report([oracle_run], out, "given", tables={"leaderboard": given})
+    assert "12.35" in index.read_text()
+
+
+def test_report_command_writes_run_and_study_reports_and_refuses_a_non_run(
+        oracle_run, hostile_run, tmp_path):
+    def report(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "visphy_core", "report", *args], cwd=REPO,
+                              capture_output=True, text=True, timeout=120)
+
+    proc = report(str(oracle_run), str(hostile_run), "-o", str(tmp_path / "s"), "--title", "T")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == f"report: {tmp_path / 's' / 'index.html'}"
+    proc = report(str(tmp_path))
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == (f"error: {tmp_path} is not a visphy run directory (none of "
+                                   "manifest.json, config.yaml, results.jsonl, summary.json); "
+                                   "pass a folder under <VISPHY_HOME>/runs/")

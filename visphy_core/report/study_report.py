@@ -1,0 +1,167 @@
+"""`write_study_report`: several runs on one page, the leaderboard first.
+
+The page shows the study's leaderboard (``tables["leaderboard"]`` when the analysis made one,
+else one row per run from its ``summary.json``), then the analysis' markdown, other tables and
+figures (copied into the folder), then a link to each run's own report in its run directory
+(``<run_dir>/report/index.html``, written when missing or older than the run's results). Links
+are relative: move the output folder together with the runs it points at.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from visphy_core.report.columns import PRIMARY, direction_of, grouped, label
+from visphy_core.report.markup import arrow, attr, esc, fmt, page, rate, table, url
+from visphy_core.report.run_data import RunData, is_run_dir, load_run
+from visphy_core.report.run_report import write_run_report
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+#: Figure files shown inline; other files are linked.
+IMAGE_SUFFIXES = {".png", ".svg", ".jpg", ".jpeg", ".gif", ".webp"}
+
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]", "_", name) or "item"
+
+
+def run_report_of(run_dir: Path) -> Path:
+    """``<run_dir>/report/index.html``, written when missing or older than the run's results."""
+    index = run_dir / "report" / "index.html"
+    newest = max((p.stat().st_mtime for p in (run_dir / "results.jsonl",
+                                              run_dir / "summary.json") if p.is_file()),
+                  default=0.0)
+    if not index.is_file() or index.stat().st_mtime < newest:
+        index = write_run_report(run_dir)
+    return index
+
+
+def frame_table(frame: "pd.DataFrame", ident: str = "") -> str:
+    """A DataFrame as an escaped HTML table (numbers to 4 significant figures)."""
+    import pandas as pd
+
+    keep_index = not (isinstance(frame.index, pd.RangeIndex) and frame.index.name is None)
+    html = frame.to_html(escape=True, na_rep="—", border=0, index=keep_index,
+                         float_format=lambda v: fmt(float(v)), classes="table")
+    if ident:
+        html = html.replace("<table ", f"<table id={attr(ident)} ", 1)
+    return html
+
+
+def built_leaderboard(runs: list[RunData], links: dict[str, str]) -> str:
+    """One row per run: success, fallbacks and the plain pairing's means (model successes;
+    the means with fallbacks in a second table)."""
+    columns: list[str] = []
+    for run in runs:
+        metrics = list((run.summary.get("metrics") or {}))
+        columns += [c for key, members in grouped(metrics) if key in PRIMARY
+                    for c in members if c not in columns]
+    summary = next((r.summary for r in runs if r.summary.get("metrics")), {})
+    heads = ["run", "model", "engine", "dataset", "status", "model success", "fallbacks"] + [
+        f"{esc(label(c))}{arrow(direction_of(c, summary))}" for c in columns]
+
+    def rows(view: str) -> list[list[str]]:
+        out = []
+        for run in runs:
+            s, metrics = run.summary, run.summary.get("metrics") or {}
+            link = links.get(str(run.run_dir))
+            name = (f"<a href={attr(link)}>{esc(run.name)}</a>" if link else esc(run.name))
+            cells = [name, esc(s.get("model") or run.cfg("model.name")),
+                     esc(s.get("engine") or run.cfg("engine.name")),
+                     esc(s.get("dataset") or run.cfg("dataset.name")), esc(run.status),
+                     esc(rate(s.get("model_success"), s.get("n_scenes"))),
+                     esc(s.get("fallbacks", 0))]
+            for c in columns:
+                info = metrics.get(c) or {}
+                mean, n = info.get(f"mean_{view}"), info.get(f"n_{view}") or 0
+                if mean is None and info.get("unavailable"):
+                    cells.append(f'<span class="unavailable">unavailable: '
+                                 f'{esc(info["unavailable"])}</span>')
+                else:
+                    cells.append(f'{esc(fmt(mean))} <span class="note">(n={int(n)})</span>'
+                                 if mean is not None else "—")
+            out.append(cells)
+        return out
+
+    return (table(heads, rows("model_success"), cls="leaderboard",
+                  attrs=' id="leaderboard-table"')
+            + '<p class="note">means over each run\'s model successes; with the fallback clips '
+              "scored:</p>"
+            + table(heads, rows("with_fallbacks"), cls="leaderboard"))
+
+
+def _markdown(text: str) -> str:
+    from markdown_it import MarkdownIt
+
+    # html=False: raw HTML in the text is shown as text; unsafe link schemes are refused
+    return MarkdownIt("commonmark", {"html": False}).enable("table").render(text)
+
+
+def _figures(figures: dict[str, list[Path]], out_dir: Path) -> str:
+    parts = []
+    for name, paths in figures.items():
+        items = []
+        for i, src in enumerate(Path(p) for p in paths):
+            if not src.is_file():
+                items.append(f'<p class="note warn">missing figure: {esc(src)}</p>')
+                continue
+            rel = f"figures/{_safe(name)}/{i:02d}_{_safe(src.name)}"
+            (out_dir / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(src, out_dir / rel)
+            if src.suffix.lower() in IMAGE_SUFFIXES:
+                items.append(f"<img alt={attr(f'{name}: {src.name}')} src={attr(url(rel))}>")
+            else:
+                items.append(f"<p><a href={attr(url(rel))}>{esc(src.name)}</a></p>")
+        parts.append(f'<h3>{esc(name)}</h3><div class="figures">{"".join(items)}</div>')
+    return f'<section id="figures"><h2>Figures</h2>{"".join(parts)}</section>' if parts else ""
+
+
+def write_study_report(run_dirs: list[Path], out_dir: Path, title: str,
+                       tables: "dict[str, pd.DataFrame] | None" = None,
+                       figures: dict[str, list[Path]] | None = None,
+                       markdown: str | None = None) -> Path:
+    """Write the study page into ``out_dir``; returns the path of its ``index.html``."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tables = dict(tables or {})
+    dirs = [Path(d) for d in run_dirs]
+    runs = [load_run(d) for d in dirs if is_run_dir(d)]
+    not_runs = [d for d in dirs if not is_run_dir(d)]
+    links: dict[str, str] = {}
+    for run in runs:
+        index = run_report_of(run.run_dir)
+        links[str(run.run_dir)] = url(os.path.relpath(index, out_dir))
+    board = tables.pop("leaderboard", None)
+    body = [f'<header class="top"><h1>{esc(title)}</h1><div class="meta">'
+            f"<span>runs: <b>{len(runs)}</b></span></div></header>"]
+    board_html = frame_table(board, "leaderboard-table") if board is not None \
+        else built_leaderboard(runs, links)
+    body.append(f'<section id="leaderboard"><h2>Leaderboard</h2>{board_html}</section>')
+    if markdown:
+        body.append(f'<section id="notes" class="markdown">{_markdown(markdown)}</section>')
+    if tables:
+        body.append('<section id="tables"><h2>Tables</h2>' + "".join(
+            f"<h3>{esc(name)}</h3>{frame_table(frame)}" for name, frame in tables.items())
+            + "</section>")
+    body.append(_figures(figures or {}, out_dir))
+    rows = [[f"<a href={attr(links[str(r.run_dir)])}>{esc(r.name)}</a>",
+             esc(r.summary.get("model") or r.cfg("model.name")),
+             esc(r.summary.get("engine") or r.cfg("engine.name")), esc(r.status),
+             esc(rate(r.summary.get("model_success"), r.summary.get("n_scenes")))]
+            for r in runs]
+    rows += [[esc(d), "", "", '<span class="bad">not a run directory</span>', ""]
+             for d in not_runs]
+    body.append('<section id="runs"><h2>Runs</h2>'
+                + table(["run report", "model", "engine", "status", "model success"], rows)
+                + "</section>")
+    index = out_dir / "index.html"
+    tmp = out_dir / f".index.html.{os.getpid()}.tmp"
+    tmp.write_text(page(title, "".join(body)), encoding="utf-8")
+    os.replace(tmp, index)
+    return index
