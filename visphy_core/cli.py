@@ -14,6 +14,8 @@ Subcommands:
                  score RUN_DIR [metrics.names=[...] | judge=... | ...] [--in-place]
   analyse        tables and figures from finished runs (leaderboard, bootstrap CIs, Spearman):
                  analyse PATH... [-o OUT] [--study NAME] [--metrics a,b]
+  report         HTML report that opens from disk: report RUN_DIR (a run) or
+                 report RUN_DIR RUN_DIR... [-o OUT] [--title T] (a study)
 Anything else is a Hydra run: ``python -m visphy_core engine=threejs model=oracle dataset=mini``.
 
 Bad input (a config value, a missing dataset, a plugin that does not load, Chromium missing) is
@@ -264,10 +266,16 @@ def cmd_analyse(argv: list[str]) -> int:
     return analyse(argv)
 
 
+def cmd_report(argv: list[str]) -> int:
+    from visphy_core.cli_report import main as report_command
+
+    return report_command(argv)
+
+
 SUBCOMMANDS = {"plugins": cmd_plugins, "setup": cmd_setup, "build-dataset": cmd_build_dataset,
                "normalise": cmd_normalise, "render": cmd_render, "metrics": cmd_metrics,
                "intervene": cmd_intervene, "rate": cmd_rate, "score": cmd_score,
-               "analyse": cmd_analyse}
+               "analyse": cmd_analyse, "report": cmd_report}
 
 
 def run_hydra(argv: list[str]) -> int:
