@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import run_cli
+from visphy_core.cli_intervene import intervene_command
 from visphy_core.errors import UserError
 from visphy_core.intervene import intervened_spec
 from visphy_core.spec_track import simulate
@@ -191,3 +192,24 @@ def test_gravity_and_restitution_3d(mini_root):
     assert len(_red_contacts(flat, "gray_container")) == 1
     unchanged = simulate(intervened_spec(spec, ["friction=x1", "restitution.red_ball=x1"])[0])
     assert np.array_equal(unchanged.step_poses, base.step_poses)
+
+
+@pytest.mark.browser
+def test_from_a_runs_spec(home, doubled_gravity, monkeypatch):
+    """``--run``: the oracle's S is the ground truth, so the intervention on it is the one on
+    the ground truth, trajectory for trajectory; a scene without S is a one-line error."""
+    run_cli("model=oracle", "dataset.limit=1", "tracking=none", home=home)
+    (run_dir,) = (home / "runs").iterdir()
+    out = home / "from_run"
+    run_cli("intervene", "--scene", SCENE_2D, "--run", str(run_dir), "--set", "gravity=x2",
+            "-o", str(out), home=home)
+    changes = json.loads((out / "changes.json").read_text())
+    assert changes["source"] == "the model's S" and changes["engine"] == "threejs"
+    for name in ("original", "intervened"):
+        ours = np.load(out / f"trajectory.{name}.npz")
+        gt = np.load(doubled_gravity[0] / f"trajectory.{name}.npz")
+        assert np.array_equal(ours["step_poses"], gt["step_poses"])
+    (run_dir / "scenes" / SCENE_2D / "spec.json").unlink()
+    monkeypatch.setenv("VISPHY_HOME", str(home))
+    with pytest.raises(UserError, match="the model wrote no scene spec S"):
+        intervene_command(["--scene", SCENE_2D, "--run", str(run_dir), "--set", "gravity=x2"])

@@ -162,9 +162,7 @@ class RatingHandler(BaseHTTPRequestHandler):
             return
         path = urlsplit(self.path).path
         if path in ("/", "/index.html"):
-            self._send(200, PAGE.read_bytes(), "text/html; charset=utf-8", {
-                "Content-Security-Policy": "default-src 'self'; script-src 'self' "
-                                           "'unsafe-inline'; style-src 'self' 'unsafe-inline'"})
+            self._send(200, PAGE.read_bytes(), "text/html; charset=utf-8")
         elif path == "/api/state":
             self._json(200, self.server.session.state())
         elif path.startswith("/video/"):
