@@ -53,8 +53,9 @@ def read_ratings(run_dir: Path) -> list[dict]:
             row = json.loads(line)
         except ValueError:
             continue
-        if isinstance(row, dict) and isinstance(row.get("scene_id"), str) \
-                and isinstance(row.get("rater"), str) and row.get("rating") in RATINGS:
+        rating = row.get("rating") if isinstance(row, dict) else None
+        if isinstance(rating, int) and not isinstance(rating, bool) and rating in RATINGS \
+                and isinstance(row.get("scene_id"), str) and isinstance(row.get("rater"), str):
             out.append(row)
     return out
 
