@@ -410,7 +410,7 @@ def _write_run(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, chang
     calls = ", ".join(f"{n} {stage}" for stage, n in made.items()) or "none"
     note = f"re-scored {len(results)} row(s) of {src} · calls made now: {calls}"
     if status != FINISHED:
-        note += f" (a {status} run: its finished rows only)"
+        note += f" (the run was {status}: its finished rows only)"
     print(note + ("; backup of what changed in " + str(backup) if backup else ""))
     print_where_to_look(write_report(out), (summary.get("mlflow") or {}).get("tracking_uri"))
     return Rescored(run_dir=out, summary=summary, results=results)
