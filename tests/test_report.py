@@ -300,7 +300,8 @@ def test_study_report_leaderboard_tables_figures_and_run_links(
     out = tmp_path / "study"
     index = write_study_report([oracle_run, hostile_run], out, "Study <b>one</b>",
                                tables={"by difficulty": extra}, figures={"boxplots": [figure]},
-                               markdown="# Notes\n\nsee <script>window.__pwned=3</script>")
+                               markdown="# Notes\n\nsee <script>window.__pwned=3</script>\n\n"
+                                        "![boxes](box.png) ![gone](elsewhere/gone.png)")
     page = Opened(browser, index)
     assert page.eval("document.querySelector('header.top').nextElementSibling.id") == \
         "leaderboard"
@@ -314,6 +315,12 @@ def test_study_report_leaderboard_tables_figures_and_run_links(
     assert page.eval("document.querySelector('#figures img').naturalWidth") == 40
     assert page.eval("window.__pwned") is None
     assert "<script>" in page.eval("document.getElementById('notes').textContent")
+    # the write-up's figure points at its copy; an image nowhere to be found becomes text
+    assert page.eval("Array.from(document.querySelectorAll('#notes img'))"
+                     ".map(i => [i.getAttribute('src'), i.naturalWidth])") == \
+        [["figures/boxplots/box.png", 40]]
+    assert "[figure elsewhere/gone.png]" in page.eval("document.getElementById('notes')"
+                                                      ".textContent")
     page.close()
     given = pd.DataFrame({"run": ["a"], "psnr": [12.3456789]})
     index = write_study_report([oracle_run], out, "given", tables={"leaderboard": given})

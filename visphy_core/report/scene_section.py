@@ -151,6 +151,9 @@ def clips(view: SceneView, media: MediaStore) -> str:
     if (d / "spec_video.mp4").is_file():
         figures.append(_clip("spec track (S simulated)",
                              media.video(d / "spec_video.mp4", f"{base}/spec_track.mp4"), ""))
+    if (d / "reply.mp4").is_file():
+        figures.append(_clip("the model's own video (as returned, before normalisation)",
+                             media.video(d / "reply.mp4", f"{base}/reply.mp4"), ""))
     for partial in sorted(d.glob("partial*.mp4")):
         figures.append(_clip(f"partial clip of the failed attempt {_attempt_of(partial)}",
                              media.video(partial, f"{base}/{partial.name}"), ""))
@@ -276,8 +279,12 @@ def spec_section(view: SceneView) -> str:
                    + (f" ({esc(r.spec_track_error)})" if r.spec_track_error else "") + "</p>")
     if model is not None and truth is not None:
         diff, changed = diff_table(model, truth)
-        out.append(f'<p class="note">{changed} differing line(s); numbers to 4 significant '
-                   "figures, keys sorted, bodies by id</p>" + diff)
+        if changed:
+            out.append(f'<p class="note">{changed} differing line(s); numbers to 4 significant '
+                       "figures, keys sorted, bodies by id</p>" + diff)
+        else:
+            out.append('<p class="note good">S matches the ground truth on every key it has '
+                       "(numbers to 4 significant figures)</p>")
     elif truth is None:
         out.append(f'<p class="note">no ground-truth spec to compare with '
                    f'({esc(view.truth.missing or "the dataset has none")})</p>')

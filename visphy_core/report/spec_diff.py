@@ -110,4 +110,5 @@ def diff_table(model: Any, truth: Any) -> tuple[str, int]:
             rows.append(f'<tr><td class="{cls_a}">{esc(a or "")}</td>'
                         f'<td class="{cls_b}">{esc(b or "")}</td></tr>')
     head = ("<thead><tr><th>the model's S</th><th>ground truth (keys S has)</th></tr></thead>")
-    return f'<table class="spec-diff">{head}<tbody>{"".join(rows)}</tbody></table>', changed
+    return (f'<div class="scroll"><table class="spec-diff">{head}<tbody>{"".join(rows)}</tbody>'
+            "</table></div>", changed)

@@ -16,15 +16,17 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from visphy_core.report.columns import PRIMARY, direction_of, grouped, label
-from visphy_core.report.markup import arrow, attr, esc, fmt, page, rate, table, url
+from visphy_core.report.markup import arrow, attr, details, esc, fmt, page, rate, table, url
 from visphy_core.report.run_data import RunData, is_run_dir, load_run
 from visphy_core.report.run_report import write_run_report
 
 if TYPE_CHECKING:
     import pandas as pd
 
-#: Figure files shown inline; other files are linked.
-IMAGE_SUFFIXES = {".png", ".svg", ".jpg", ".jpeg", ".gif", ".webp"}
+#: Markdown notes up to this length are shown unfolded.
+MARKDOWN_OPEN = 2000
+#: Figure files shown inline, most preferred first; other files are linked.
+IMAGE_PREFERENCE = {".svg": 0, ".png": 1, ".webp": 2, ".jpg": 3, ".jpeg": 3, ".gif": 4}
 
 
 def _safe(name: str) -> str:
@@ -51,7 +53,7 @@ def frame_table(frame: "pd.DataFrame", ident: str = "") -> str:
                          float_format=lambda v: fmt(float(v)), classes="table")
     if ident:
         html = html.replace("<table ", f"<table id={attr(ident)} ", 1)
-    return html
+    return f'<div class="scroll">{html}</div>'
 
 
 def built_leaderboard(runs: list[RunData], links: dict[str, str]) -> str:
@@ -89,35 +91,63 @@ def built_leaderboard(runs: list[RunData], links: dict[str, str]) -> str:
             out.append(cells)
         return out
 
-    return (table(heads, rows("model_success"), cls="leaderboard",
-                  attrs=' id="leaderboard-table"')
-            + '<p class="note">means over each run\'s model successes; with the fallback clips '
-              "scored:</p>"
-            + table(heads, rows("with_fallbacks"), cls="leaderboard"))
+    return ('<p class="note">means over each run\'s model successes (the scenes where its own '
+            "program made a clip):</p>"
+            + '<div class="scroll">' + table(heads, rows("model_success"), cls="leaderboard",
+                                             attrs=' id="leaderboard-table"') + "</div>"
+            + '<p class="note">means over every scene with a clip, the fallback clips scored:</p>'
+            + '<div class="scroll">' + table(heads, rows("with_fallbacks"), cls="leaderboard")
+            + "</div>")
 
 
-def _markdown(text: str) -> str:
+def _markdown(text: str, copied: dict[str, str]) -> str:
+    """``text`` as HTML. Raw HTML in it is shown as text and unsafe link schemes are refused
+    (markdown-it's ``html=False``); an image that names a figure file (the analysis writes
+    ``![](boxplot_psnr.png)`` beside its figures) points at the copy in this folder, and any
+    other image that is not a web address is dropped for its alt text (nothing to load)."""
     from markdown_it import MarkdownIt
+    from markdown_it.token import Token
 
-    # html=False: raw HTML in the text is shown as text; unsafe link schemes are refused
-    return MarkdownIt("commonmark", {"html": False}).enable("table").render(text)
+    md = MarkdownIt("commonmark", {"html": False}).enable("table")
+    tokens = md.parse(text)
+    for block in tokens:
+        children = block.children or []
+        for i, token in enumerate(children):
+            if token.type != "image":
+                continue
+            src = str(token.attrGet("src") or "")
+            name = Path(src).name
+            if name in copied:
+                token.attrSet("src", url(copied[name]))
+            else:
+                alt = Token("text", "", 0)
+                alt.content = f"[figure {src}]"
+                children[i] = alt
+    return md.renderer.render(tokens, md.options, {})
 
 
-def _figures(figures: dict[str, list[Path]], out_dir: Path) -> str:
+def _figures(figures: dict[str, list[Path]], out_dir: Path, copied: dict[str, str]) -> str:
+    """Each figure copied in (``copied``: file name -> its path in the folder); one image per
+    plot (a plot saved as both SVG and PNG is shown once, as SVG; the others are linked)."""
     parts = []
     for name, paths in figures.items():
-        items = []
-        for i, src in enumerate(Path(p) for p in paths):
+        items, shown = [], set()
+        files = sorted((Path(p) for p in paths),
+                       key=lambda p: IMAGE_PREFERENCE.get(p.suffix.lower(), len(IMAGE_PREFERENCE)))
+        for src in files:
             if not src.is_file():
                 items.append(f'<p class="note warn">missing figure: {esc(src)}</p>')
                 continue
-            rel = f"figures/{_safe(name)}/{i:02d}_{_safe(src.name)}"
+            rel = f"figures/{_safe(name)}/{_safe(src.name)}"
             (out_dir / rel).parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(src, out_dir / rel)
-            if src.suffix.lower() in IMAGE_SUFFIXES:
+            copied.setdefault(src.name, rel)
+            if src.suffix.lower() in IMAGE_PREFERENCE and src.stem not in shown:
+                shown.add(src.stem)
                 items.append(f"<img alt={attr(f'{name}: {src.name}')} src={attr(url(rel))}>")
             else:
-                items.append(f"<p><a href={attr(url(rel))}>{esc(src.name)}</a></p>")
+                items.append(f'<p class="note">also as <a href={attr(url(rel))}>'
+                             f"{esc(src.name)}</a></p>")
         parts.append(f'<h3>{esc(name)}</h3><div class="figures">{"".join(items)}</div>')
     return f'<section id="figures"><h2>Figures</h2>{"".join(parts)}</section>' if parts else ""
 
@@ -143,13 +173,19 @@ def write_study_report(run_dirs: list[Path], out_dir: Path, title: str,
     board_html = frame_table(board, "leaderboard-table") if board is not None \
         else built_leaderboard(runs, links)
     body.append(f'<section id="leaderboard"><h2>Leaderboard</h2>{board_html}</section>')
+    copied: dict[str, str] = {}
+    figure_html = _figures(figures or {}, out_dir, copied)
     if markdown:
-        body.append(f'<section id="notes" class="markdown">{_markdown(markdown)}</section>')
+        # the analysis' own write-up repeats its tables and figures: folded when that long
+        notes = _markdown(markdown, copied)
+        body.append('<section id="notes" class="markdown"><h2>Analysis notes</h2>' + details(
+            "the write-up (markdown)", notes, open_=len(markdown) <= MARKDOWN_OPEN)
+            + "</section>")
     if tables:
         body.append('<section id="tables"><h2>Tables</h2>' + "".join(
             f"<h3>{esc(name)}</h3>{frame_table(frame)}" for name, frame in tables.items())
             + "</section>")
-    body.append(_figures(figures or {}, out_dir))
+    body.append(figure_html)
     rows = [[f"<a href={attr(links[str(r.run_dir)])}>{esc(r.name)}</a>",
              esc(r.summary.get("model") or r.cfg("model.name")),
              esc(r.summary.get("engine") or r.cfg("engine.name")), esc(r.status),
