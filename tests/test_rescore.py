@@ -209,3 +209,25 @@ def test_an_interrupted_run_is_rescored_over_its_finished_rows(finished, no_chro
     assert summary["status"] == "interrupted" and summary["n_scenes"] == 1
     assert "(the run was interrupted: its finished rows only)" in proc.stdout
     assert (run / "results.jsonl").read_text().endswith(second[:40])  # untouched
+
+
+def test_the_spec_track_and_twin_clips_are_read_back_not_rendered(visphy_home, no_chromium):
+    """A generated scene (it has a ground-truth spec): the run replayed S and rendered the
+    twin; re-scoring with one more metric scores both clips it finds, with no browser."""
+    from conftest import run_cli
+
+    run_cli("model=oracle", "dataset=mini", "dataset.limit=1", "metrics.names=[psnr]",
+            "tracking=none", "run.progress=false", home=visphy_home)
+    (run,) = (visphy_home / "runs").iterdir()
+    run_cli("score", str(run), "metrics.names=[psnr,ssim]", "tracking=none",
+            home=visphy_home, env=no_chromium)
+    (new,) = [p for p in (visphy_home / "runs").iterdir() if ".rescored-" in p.name]
+    (before,), (row,) = _rows(run), _rows(new)
+    assert row["spec_track"] == before["spec_track"] == "rendered"
+    for col in ("ssim", "spec.ssim", "norm.ssim", "spec.norm.ssim"):
+        assert isinstance(row[f"score_{col}"], float), col
+    for col in (c for c in before if c.startswith("score_")):
+        assert row[col] == before[col], col
+    for clip in ("spec_video.mp4", "twin_video.mp4"):
+        assert os.stat(new / "scenes" / row["scene_id"] / clip).st_ino == \
+            os.stat(run / "scenes" / row["scene_id"] / clip).st_ino
