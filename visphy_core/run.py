@@ -291,6 +291,7 @@ def _deferred_signals() -> Iterator[list[int]]:
 
 
 def build_judges(cfg: DictConfig, registry) -> list[tuple[str, Any]]:
+    """The selected judges as (selection key, Judge) pairs (a run and re-scoring alike)."""
     judges = []
     for key, node in (cfg.get("judge") or {}).items():
         judges.append((str(key), registry.get("judges", str(node.name))(node)))
