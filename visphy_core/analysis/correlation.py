@@ -113,9 +113,14 @@ def judge_agreement(runs: list[RunData], judge_columns: list[str],
 
     frames = []
     for run in runs:
-        df = pd.DataFrame({c: pd.to_numeric(run.results.get(f"score_{c}"), errors="coerce")
-                           for c in judge_columns})
-        df.index = run.results["scene_id"] if len(run.results) else df.index
+        results = run.results
+        if results.empty:
+            continue
+        df = pd.DataFrame(index=pd.Index(results["scene_id"].to_numpy(), name="scene_id"))
+        for c in judge_columns:
+            key = f"score_{c}"
+            df[c] = (pd.to_numeric(results[key], errors="coerce").to_numpy(np.float64)
+                     if key in results.columns else np.nan)
         if human and len(run.ratings):
             df["human"] = scene_means(run.ratings).reindex(df.index)
         frames.append(df.reset_index(drop=True))

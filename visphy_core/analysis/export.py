@@ -9,6 +9,7 @@ output needs no optional dependency and is identical everywhere.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -58,6 +59,15 @@ def to_markdown(df: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
+def latex_number(text: str) -> str:
+    """``3.692e-06`` as ``$3.692\\times10^{-6}$``; anything else unchanged."""
+    match = re.fullmatch(r"(-?[0-9.]+)e([+-])0*([0-9]+)", text)
+    if not match:
+        return text
+    mantissa, sign, exponent = match.groups()
+    return rf"${mantissa}\times10^{{{'-' if sign == '-' else ''}{exponent}}}$"
+
+
 def latex_escape(text: str) -> str:
     out = "".join(LATEX_SPECIAL.get(ch, ch) for ch in text)
     for symbol, tex in LATEX_SYMBOLS.items():
@@ -73,7 +83,7 @@ def to_latex(df: pd.DataFrame, caption: str | None = None) -> str:
     lines = [rf"\begin{{tabular}}{{{spec}}}", r"\toprule",
              " & ".join(latex_escape(str(c)) for c in df.columns) + r" \\", r"\midrule"]
     for row in df.itertuples(index=False):
-        lines.append(" & ".join(latex_escape(fmt(v)) for v in row) + r" \\")
+        lines.append(" & ".join(latex_number(latex_escape(fmt(v))) for v in row) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}"]
     if caption:
         lines = [r"\begin{table}[t]", r"\centering", *lines,

@@ -37,14 +37,18 @@ def safe_name(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_") or "x"
 
 
-def save(fig, out_dir: Path, name: str) -> list[Path]:
-    """``fig`` as ``<name>.png`` and ``<name>.svg`` under ``out_dir``."""
+def save(fig, out_dir: Path, name: str, tight_box: bool = False) -> list[Path]:
+    """``fig`` as ``<name>.png`` and ``<name>.svg`` under ``out_dir``. The layout is fitted
+    once (``tight_layout``; ``tight_box`` crops to every artist instead, for legends outside
+    the axes, at the cost of a second drawing per file)."""
     plt = _pyplot()
+    if not tight_box:
+        fig.tight_layout()
     paths = []
     for ext in FORMATS:
         path = out_dir / f"{safe_name(name)}.{ext}"
         meta = {"Date": None} if ext == "svg" else {"Software": None}
-        fig.savefig(path, dpi=150, bbox_inches="tight", metadata=meta)
+        fig.savefig(path, dpi=150, bbox_inches="tight" if tight_box else None, metadata=meta)
         paths.append(path)
     plt.close(fig)
     return paths
@@ -113,4 +117,4 @@ def radar(table: pd.DataFrame, out_dir: Path) -> list[Path]:
     ax.set_yticks([0.25, 0.5, 0.75, 1.0], ["", "", "", "best"], fontsize=7)
     ax.set_title("runs over the headline metrics (0 = worst, 1 = best run)", fontsize=10)
     ax.legend(loc="upper right", bbox_to_anchor=(1.35, 1.12), fontsize=7)
-    return save(fig, out_dir, "radar")
+    return save(fig, out_dir, "radar", tight_box=True)

@@ -6,7 +6,8 @@ the clip reveals), so the mean over scenes is the MAE; the count says how many s
 the parameter *and* got a usable value from the model. The paper's reference row (GPT-5 MAE on
 VisPhyBench: e 0.17, μ 0.10, mass 0.15, speed 2.07; gravity not reported) sits beside it. Note
 that visphy scores mass as the error of log mass *ratios* (scale-free), the paper as kilograms:
-that column of the reference row is not comparable and left empty.
+that column of the reference row is not comparable and left empty (`reference_table` shows the
+paper's numbers with that caveat).
 """
 
 from __future__ import annotations
@@ -25,12 +26,15 @@ PARAMETERS = {
     "param_mass_ratio_err": ("mass ratio", "|Δ ln|"),
     "param_speed_err": ("initial speed", "m/s"),
 }
-#: The paper's GPT-5 MAE per parameter (None: not reported or not comparable).
+#: The paper's GPT-5 MAE per parameter (None: not reported; mass in kg).
 PAPER_MAE = {"param_gravity_err": None, "param_restitution_err": 0.17,
-             "param_friction_err": 0.10, "param_mass_ratio_err": None, "param_speed_err": 2.07}
-#: The paper's ground-truth means over VisPhyBench (kg for mass).
-PAPER_GT_MEAN = {"gravity": 9.82, "restitution": 0.15, "friction": 0.40, "mass (kg)": 1.25,
-                 "initial speed": 2.59}
+             "param_friction_err": 0.10, "param_mass_ratio_err": 0.15, "param_speed_err": 2.07}
+#: visphy columns on another scale than the paper's (mass: log ratio vs kg).
+NOT_COMPARABLE = ("param_mass_ratio_err",)
+#: The paper's ground-truth means over VisPhyBench (mass in kg).
+PAPER_GT_MEAN = {"param_gravity_err": 9.82, "param_restitution_err": 0.15,
+                 "param_friction_err": 0.40, "param_mass_ratio_err": 1.25,
+                 "param_speed_err": 2.59}
 PAPER_LABEL = "paper: GPT-5 (reference)"
 
 
@@ -61,7 +65,20 @@ def param_table(runs: list[RunData], labels: list[str], columns: list[str],
         ref: dict = {"run": PAPER_LABEL}
         for col in cols:
             value = PAPER_MAE[col]
-            ref[_title(col)] = np.nan if value is None else value
+            ref[_title(col)] = np.nan if value is None or col in NOT_COMPARABLE else value
             ref[f"{PARAMETERS[col][0]} n"] = np.nan
         rows.append(ref)
+    return pd.DataFrame(rows)
+
+
+def reference_table() -> pd.DataFrame:
+    """The paper's parameter table beside visphy's columns: its ground-truth mean and GPT-5's
+    MAE per parameter, and whether visphy's error is on the same scale."""
+    rows = []
+    for col, (name, unit) in PARAMETERS.items():
+        same_scale = col not in NOT_COMPARABLE
+        rows.append({"parameter": name, "visphy column": col, "visphy unit": unit or "—",
+                     "paper GT mean": PAPER_GT_MEAN[col],
+                     "paper GPT-5 MAE": np.nan if PAPER_MAE[col] is None else PAPER_MAE[col],
+                     "comparable": "yes" if same_scale else "no (paper: kg; visphy: log ratio)"})
     return pd.DataFrame(rows)

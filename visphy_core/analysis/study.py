@@ -52,6 +52,7 @@ TITLES = {
     "judges": "Agreement between judges (and humans)",
     "human": "Human ratings",
     "param_recovery": "Parameter recovery (MAE)",
+    "param_reference": "The paper's parameter table beside visphy's parameter columns",
     "retry": "Success at the first attempt and after one retry",
     "radar": "Radar values (each metric scaled 0..1 across runs, 1 = best)",
 }
@@ -100,7 +101,8 @@ def _runs_table(runs: list[RunData], labels: list[str]) -> pd.DataFrame:
 
 def _human_table(runs: list[RunData], labels: list[str]) -> pd.DataFrame:
     rows = [{"run": label, **summarise_ratings(r.ratings)} for r, label in zip(runs, labels)]
-    pooled = [r.ratings.assign(item=r.run_dir.name + "/" + r.ratings["item"])
+    pooled = [r.ratings.assign(item=r.run_dir.name + "/" + r.ratings["item"],
+                               scene_id=r.run_dir.name + "/" + r.ratings["scene_id"])
               for r in runs if len(r.ratings)]
     if len(pooled) > 1:
         rows.append({"run": "all runs", **summarise_ratings(pd.concat(pooled))})
@@ -175,6 +177,7 @@ def analyse(runs: list[RunData], out_dir: Path, study: str | None = None,
             tables["judges"] = correlation.judge_agreement(runs, judges)
     if "params" in parts:
         tables["param_recovery"] = params.param_table(runs, labels, all_columns, view)
+        tables["param_reference"] = params.reference_table()
     if "retry" in parts:
         tables["retry"] = retry.retry_table(runs, labels)
 
@@ -212,6 +215,12 @@ def analyse(runs: list[RunData], out_dir: Path, study: str | None = None,
     return outputs
 
 
+def _transposed(table: pd.DataFrame) -> pd.DataFrame:
+    body = table.set_index("run").T.astype(object)
+    body.index.name = "column"
+    return body.reset_index()
+
+
 def _title(name: str) -> str:
     if name.startswith("spearman_") and name not in TITLES:
         return f"Scene-level Spearman ρ between runs: {name[len('spearman_'):]}"
@@ -223,8 +232,12 @@ def _markdown(study: str | None, view: str, tables: dict[str, pd.DataFrame],
     parts = [f"# Analysis: {study or 'all applicable tables'}", ""]
     parts += [f"- {n}" for n in notes] + [""]
     for name, table in tables.items():
-        parts += [f"## {_title(name)}", "", f"`{name}.csv` · `{name}.md` · `{name}.tex`", "",
-                  to_markdown(table)]
+        parts += [f"## {_title(name)}", "", f"`{name}.csv` · `{name}.md` · `{name}.tex`", ""]
+        if name == "leaderboard_all":   # hundreds of columns: one row per column reads better
+            parts += ["(transposed here: one row per column, one column per run)", "",
+                      to_markdown(_transposed(table))]
+        else:
+            parts.append(to_markdown(table))
     if figs:
         parts += ["## Figures", ""]
         for name, paths in figs.items():
