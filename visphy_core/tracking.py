@@ -267,13 +267,29 @@ def summary_metrics(summary: dict) -> dict[str, float]:
     return out
 
 
+def run_report(run_dir: Path) -> Path | None:
+    """The run's HTML report folder, written now (`visphy_core.report.write_run_report`) so the
+    MLflow run gets the report of the run as it ends; None when the report module is missing or
+    fails (a warning: tracking goes on)."""
+    try:
+        from visphy_core.report import write_run_report
+    except ImportError:
+        return None
+    try:
+        return Path(write_run_report(run_dir)).parent
+    except Exception as exc:  # noqa: BLE001 - a report is never worth a failed run
+        log.warning("the HTML report of %s for MLflow failed: %s: %s", run_dir,
+                    type(exc).__name__, exc)
+        return None
+
+
 def _log_run_files(client, run_id: str, run) -> None:
     for name in RUN_FILES:
         path = run.run_dir / name
         if path.is_file():
             client.log_artifact(run_id, str(path))
-    report = run.run_dir / "report"
-    if report.is_dir():
+    report = run_report(run.run_dir)
+    if report is not None:
         client.log_artifacts(run_id, str(report), "report")
     if run.cfg.tracking.get("log_videos"):
         for video in sorted(run.run_dir.glob("scenes/*/video.mp4")):

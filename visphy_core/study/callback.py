@@ -32,18 +32,19 @@ def study_name(config: DictConfig) -> str:
     return str(choice) if choice else "multirun"
 
 
-def swept_keys(config: DictConfig) -> list[str]:
-    """The keys a multirun sweeps: the experiment's ``hydra.sweeper.params`` and every
-    command-line override with several values (a command-line sweep replaces the file's)."""
+def effective_sweep(config: DictConfig) -> dict[str, str]:
+    """What a multirun sweeps, key -> values as written: the experiment's
+    ``hydra.sweeper.params``, with a command-line override of the same key in its place (Hydra's
+    basic sweeper lets the command line win) and every other command-line sweep added."""
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
     params = OmegaConf.select(config, "hydra.sweeper.params", default=None) or {}
-    keys = [str(k) for k in params]
-    parsed = OverridesParser.create().parse_overrides(list(config.hydra.overrides.task))
-    for ov in parsed:
-        if ov.is_sweep_override() and ov.get_key_element() not in keys:
-            keys.append(ov.get_key_element())
-    return keys
+    sweep = {str(k): str(v) for k, v in params.items()}
+    for ov in OverridesParser.create().parse_overrides(list(config.hydra.overrides.task)):
+        key = ov.get_key_element()
+        if ov.is_sweep_override() or key in sweep:
+            sweep[key] = ov.input_line.split("=", 1)[1]
+    return sweep
 
 
 def _multirun(config: DictConfig) -> bool:
@@ -67,7 +68,7 @@ class StudyCallback(Callback):
         sweep_dir.mkdir(parents=True, exist_ok=True)
         study = study_name(config)
         overrides = [str(o) for o in config.hydra.overrides.task]
-        params = OmegaConf.select(config, "hydra.sweeper.params", default=None) or {}
+        sweep = effective_sweep(config)
         parent = None
         if str(OmegaConf.select(config, "tracking.backend", default="none")) == "mlflow":
             from visphy_core.tracking import start_study_run
@@ -77,10 +78,10 @@ class StudyCallback(Callback):
                 tags={"visphy.sweep_dir": str(sweep_dir),
                       "visphy.dataset": str(OmegaConf.select(config, "dataset.name"))},
                 params={"study": study, "overrides": " ".join(overrides),
-                        **{f"sweep.{k}": v for k, v in params.items()}})
+                        **{f"sweep.{k}": v for k, v in sweep.items()}})
         records.write_json(records.study_file(sweep_dir), {
             "name": study, "sweep_dir": str(sweep_dir), "status": "running",
-            "started": _now(), "overrides": overrides, "swept_keys": swept_keys(config),
+            "started": _now(), "overrides": overrides, "sweep": sweep,
             "parent": parent})
         print(f"study {study}: {sweep_dir}", flush=True)
         atexit.register(_finish_at_exit, sweep_dir)
@@ -90,7 +91,7 @@ class StudyCallback(Callback):
             return
         sweep_dir = _sweep_dir(config)
         study = records.read_study(sweep_dir) or {}
-        keys = set(study.get("swept_keys") or [])
+        keys = set(study.get("sweep") or {})
         overrides = [str(o) for o in config.hydra.overrides.task]
         num = int(config.hydra.job.num)
         label = " ".join(o for o in overrides if o.split("=", 1)[0].lstrip("+~") in keys)

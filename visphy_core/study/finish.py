@@ -46,7 +46,11 @@ def analyse_runs(run_dirs: list[Path], study_dir: Path, study: str) -> dict[str,
         out["problems"].append(f"study analysis not available ({exc}): the jobs' runs are "
                                "listed in study_summary.json")
     else:
-        outputs = analyse(load_runs(run_dirs), study_dir / "analysis", study=study)
+        from visphy_core.analysis.printing import print_study
+
+        outputs = analyse(load_runs(run_dirs), study_dir / "analysis",
+                          study=None if study == "multirun" else study)
+        print_study(outputs, study_dir / "analysis")
         tables, figures = outputs.tables, outputs.figures
         markdown = outputs.markdown or ""
         out["analysis"] = str(study_dir / "analysis")
@@ -95,7 +99,8 @@ def finish_study(sweep_dir: Path, *, ended_early: bool = False) -> dict[str, Any
             outputs["problems"].append(f"study analysis failed: {type(exc).__name__}: {exc}")
             status = "FAILED"
     summary = {"study": name, "status": status, "sweep_dir": str(sweep_dir),
-               "overrides": study.get("overrides"), "parent": study.get("parent"),
+               "overrides": study.get("overrides"), "sweep": study.get("sweep"),
+               "parent": study.get("parent"),
                "n_jobs": len(jobs), "n_completed": len(run_dirs),
                "jobs": [{k: j.get(k) for k in ("num", "label", "status", "run_dir",
                                                 "run_status", "mlflow_run_id", "error")}
