@@ -285,6 +285,14 @@ def test_find_and_load_runs(tmp_path):
     assert find_runs(found[0], tmp_path / "sweep") == found       # each once
     runs = load_runs([tmp_path / "sweep"])
     assert [r.label for r in runs] == ["m/threejs", "static/threejs"]
+    # a study's sweep folder: its job records point at runs kept elsewhere (paths.runs_dir)
+    from visphy_core.study.records import write_job
+
+    elsewhere = make_run(tmp_path / "runs", "run_c", rows, model="flow").run_dir
+    write_job(tmp_path / "study" / "jobs" / "0", num=0, status="completed",
+              run_dir=str(elsewhere))
+    write_job(tmp_path / "study" / "jobs" / "1", num=1, status="failed", run_dir=None)
+    assert find_runs(tmp_path / "study") == [elsewhere]
     (tmp_path / "empty").mkdir()
     with pytest.raises(UserError, match="no run directory here"):
         find_runs(tmp_path / "empty")

@@ -3,7 +3,8 @@
 A run directory (written by `visphy_core.run`) holds ``summary.json``, ``results.parquet`` and/or
 ``results.jsonl`` (one row per scene), ``config.yaml`` and ``manifest.json``; the human-rating
 page may add ``human_ratings.jsonl``. `find_runs` accepts run directories and any folder above
-them (a Hydra multirun sweep, ``visphy-out/runs``), so a study is analysed by pointing at its
+them (``visphy-out/runs``, a Hydra multirun sweep), and follows a study's job records
+(``jobs/<n>/visphy_job.json``) to the runs they made, so a study is analysed by pointing at its
 folder. Labels say ``model/engine`` and, when two runs compared share that, what sets them apart
 (``oracle/threejs prompt.detection=false``): tables and figures need names a reader can tell apart.
 """
@@ -83,7 +84,8 @@ def is_run_dir(path: Path) -> bool:
 
 
 def find_runs(*paths: str | Path) -> list[Path]:
-    """Every run directory at or below ``paths`` (sorted, each once).
+    """Every run directory at or below ``paths``, or named by a study's job records under them
+    (sorted per path, each once).
 
     Raises `UserError` for a path that does not exist or holds no run directory.
     """
@@ -100,12 +102,26 @@ def find_runs(*paths: str | Path) -> list[Path]:
             found[path.resolve()] = None
             continue
         under = sorted(p.parent for p in path.rglob(SUMMARY) if is_run_dir(p.parent))
+        under += _study_runs(path)
         if not under:
             raise UserError(f"{path}: no run directory here (a run directory holds {SUMMARY} and "
                             f"{' or '.join(RESULTS)}); point at a run or a folder of runs")
         for p in under:
             found[p.resolve()] = None
     return list(found)
+
+
+def _study_runs(folder: Path) -> list[Path]:
+    """The run directories a study's job records under ``folder`` point at (a study's runs live
+    in ``paths.runs_dir``, not in its sweep folder), in job order."""
+    from visphy_core.study.records import read_jobs
+
+    out = []
+    for job in read_jobs(folder):
+        run_dir = job.get("run_dir")
+        if run_dir and is_run_dir(Path(run_dir)):
+            out.append(Path(run_dir))
+    return out
 
 
 def _read_json(path: Path, required: bool) -> dict:
