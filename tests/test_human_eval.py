@@ -168,6 +168,7 @@ def test_rating_in_chromium_blind_resumable(oracle_run, tmp_path):
             assert name not in text
 
 
+@pytest.mark.browser  # the oracle run renders its clips
 def test_cli_prints_the_url_and_stops_cleanly(oracle_run):
     home, run_dir = oracle_run
     env = dict(os.environ, VISPHY_HOME=str(home))
@@ -188,6 +189,7 @@ def test_cli_prints_the_url_and_stops_cleanly(oracle_run):
     assert proc.returncode == 0 and "stopped: 0 rating(s) saved" in err
 
 
+@pytest.mark.browser  # the oracle run renders its clips
 def test_order_is_seeded_by_the_rater(oracle_run):
     home, _ = oracle_run
     items = collect_items(find_run_dirs([home]))
