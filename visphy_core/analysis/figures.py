@@ -11,6 +11,7 @@ figure can be checked and re-drawn. SVG output is deterministic (no date, fixed 
 from __future__ import annotations
 
 import re
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -54,8 +55,10 @@ def save(fig, out_dir: Path, name: str, tight_box: bool = False) -> list[Path]:
     return paths
 
 
-def _short(label: str, width: int = 28) -> str:
-    return label if len(label) <= width else label[:width - 1] + "…"
+def _wrapped(label: str, width: int = 18) -> str:
+    """A run label on lines of about ``width`` characters, broken at spaces (never cut: the
+    end of a label is what tells two runs apart)."""
+    return textwrap.fill(label, width, break_long_words=False, break_on_hyphens=False)
 
 
 def boxplot(runs: list[RunData], labels: list[str], column: str, out_dir: Path,
@@ -66,12 +69,10 @@ def boxplot(runs: list[RunData], labels: list[str], column: str, out_dir: Path,
     if not any(len(d) for d in data):
         return []
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(max(4.0, 1.2 * len(runs) + 1.5), 3.6))
+    fig, ax = plt.subplots(figsize=(max(4.0, 1.3 * len(runs) + 1.5), 3.8))
     ax.boxplot([d if len(d) else [np.nan] for d in data], showmeans=True)
     ax.set_xticks(range(1, len(runs) + 1),
-                  [f"{_short(lab)}\nn={len(d)}" for lab, d in zip(labels, data)],
-                  rotation=20 if len(runs) > 3 else 0, ha="right" if len(runs) > 3 else "center",
-                  fontsize=8)
+                  [f"{_wrapped(lab)}\nn={len(d)}" for lab, d in zip(labels, data)], fontsize=7)
     ax.set_ylabel(header(runs, column))
     ax.set_title(f"{header(runs, column)} per scene ({view.replace('_', ' ')})", fontsize=10)
     ax.grid(axis="y", alpha=0.3)
@@ -110,7 +111,7 @@ def radar(table: pd.DataFrame, out_dir: Path) -> list[Path]:
     for _, row in table.iterrows():
         values = row[metrics].to_numpy(np.float64)
         ax.plot(closed, np.concatenate([values, values[:1]]), linewidth=1.5,
-                label=_short(str(row["run"]), 40))
+                label=str(row["run"]))
         ax.fill(closed, np.concatenate([values, values[:1]]), alpha=0.08)
     ax.set_xticks(angles, metrics, fontsize=8)
     ax.set_ylim(0, 1.05)
