@@ -15,6 +15,7 @@ import os
 import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -33,6 +34,16 @@ def fresh_oracle_run(home: Path) -> Path:
     return Path(match.group(1).strip())
 
 
+def wait_until(page, condition: str, timeout_s: float = 30.0) -> None:
+    """Poll a JS condition (the report's Content Security Policy refuses the eval that
+    Playwright's wait_for_function polls with)."""
+    deadline = time.monotonic() + timeout_s
+    while not page.evaluate(condition):
+        if time.monotonic() > deadline:
+            sys.exit(f"timed out waiting for {condition}")
+        page.wait_for_timeout(50)
+
+
 def screenshot(index: Path, out: Path, width: int = 1280, height: int = 2300) -> None:
     from playwright.sync_api import sync_playwright
 
@@ -44,13 +55,12 @@ def screenshot(index: Path, out: Path, width: int = 1280, height: int = 2300) ->
         page.route("**/*", lambda r: r.continue_() if r.request.url.startswith("file://")
                    else r.abort())
         page.goto(index.resolve().as_uri())
-        page.wait_for_function("Array.from(document.querySelectorAll('section.scene video'))"
-                               ".slice(0, 3).every(v => v.readyState >= 2)")
+        first = "Array.from(document.querySelector('section.scene').querySelectorAll('video'))"
+        wait_until(page, f"{first}.every(v => v.readyState >= 2)")
         page.evaluate("""() => { const r = document.querySelector('section.scene .sync '
             + 'input[type=range]'); r.value = String(Math.floor(r.max / 2));
             r.dispatchEvent(new Event('input')); }""")
-        page.wait_for_function("Array.from(document.querySelectorAll('section.scene video'))"
-                               ".every(v => !v.seeking)")
+        wait_until(page, f"{first}.every(v => !v.seeking)")
         page.wait_for_timeout(300)
         out.parent.mkdir(parents=True, exist_ok=True)
         page.screenshot(path=str(out))

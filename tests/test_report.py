@@ -111,11 +111,18 @@ class Opened:
 
         self.page.route("**/*", route)
         self.page.goto(index.resolve().as_uri())
-        self.page.wait_for_function("document.querySelectorAll('.sync:not([data-ready])')"
-                                    ".length === 0")
+        self.wait("document.querySelectorAll('.sync:not([data-ready])').length === 0")
 
     def eval(self, script: str, arg=None):
         return self.page.evaluate(script, arg)
+
+    def wait(self, condition: str, timeout_s: float = 20.0) -> None:
+        """Poll a JS condition (Playwright's wait_for_function evaluates its predicate with
+        eval, which the report's Content Security Policy refuses, as it should)."""
+        deadline = time.monotonic() + timeout_s
+        while not self.page.evaluate(condition):
+            assert time.monotonic() < deadline, f"timed out waiting for: {condition}"
+            self.page.wait_for_timeout(50)
 
     def close(self) -> None:
         assert self.aborted == [], f"the report tried the network: {self.aborted}"
@@ -171,8 +178,7 @@ def test_one_control_plays_scrubs_and_loops_every_clip_of_a_scene(hostile_run, b
     group = "document.querySelector('section.scene .sync')"
     clips = page.eval(f"{group}.querySelectorAll('video').length")
     assert clips == 3                                   # ground truth, generated, spec track
-    page.page.wait_for_function(f"Array.from({group}.querySelectorAll('video'))"
-                                ".every(v => v.readyState >= 2)")
+    page.wait(f"Array.from({group}.querySelectorAll('video')).every(v => v.readyState >= 2)")
     page.page.locator("section.scene .sync [data-act=play]").first.click()
     page.page.wait_for_timeout(900)
     times = page.eval(f"Array.from({group}.querySelectorAll('video')).map(v => v.currentTime)")
@@ -180,8 +186,7 @@ def test_one_control_plays_scrubs_and_loops_every_clip_of_a_scene(hostile_run, b
     page.page.locator("section.scene .sync [data-act=play]").first.click()   # pause
     page.eval(f"""() => {{ const r = {group}.querySelector('input[type=range]');
         r.value = '8'; r.dispatchEvent(new Event('input')); }}""")
-    page.page.wait_for_function(f"Array.from({group}.querySelectorAll('video'))"
-                                ".every(v => !v.seeking)")
+    page.wait(f"Array.from({group}.querySelectorAll('video')).every(v => !v.seeking)")
     times = page.eval(f"Array.from({group}.querySelectorAll('video')).map(v => v.currentTime)")
     assert times == pytest.approx([8.5 / 5] * 3, abs=0.02)   # frame 9 of 17 at 5 fps
     assert page.eval(f"{group}.querySelector('.frame-label').textContent").startswith("frame 9/17")
@@ -200,7 +205,7 @@ def test_lossless_ground_truth_is_transcoded_and_shown_with_its_true_colours(
     video = page.page.locator("section.scene .sync video").first
     assert "transcoded for the browser" in page.eval(
         "document.querySelector('section.scene figure.clip').textContent")
-    page.page.wait_for_function("document.querySelector('section.scene video').readyState >= 2")
+    page.wait("document.querySelector('section.scene video').readyState >= 2")
     page.eval("""() => new Promise(done => {
         const v = document.querySelector('section.scene video');
         v.addEventListener('seeked', done, {once: true}); v.currentTime = 0.1; })""")

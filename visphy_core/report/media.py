@@ -57,6 +57,18 @@ def describe_clip(path: Path) -> tuple[bool, str]:
     return codec in PLAYABLE_CODECS and pix_fmt in PLAYABLE_PIX_FMTS, what
 
 
+def clip_timing(path: Path) -> tuple[float, int]:
+    """fps and frame count of a clip from its header (0, 0 when unreadable)."""
+    import av
+
+    try:
+        with av.open(str(path)) as container:
+            stream = container.streams.video[0]
+            return float(stream.average_rate or 0), int(stream.frames or 0)
+    except (av.error.FFmpegError, IndexError, OSError):  # type: ignore[attr-defined]
+        return 0.0, 0
+
+
 def _even(frames: np.ndarray) -> np.ndarray:
     """Edge-pad odd heights/widths by one pixel (4:2:0 needs even sizes)."""
     pad_h, pad_w = frames.shape[1] % 2, frames.shape[2] % 2

@@ -12,6 +12,10 @@ from visphy_core.report.run_data import RunData, load_run
 from visphy_core.report.run_page import counts, header, leaderboard, scene_list
 from visphy_core.report.scene_section import SceneView, scene_section
 
+#: Up to this many scenes every clip is loaded with the page; longer reports load a clip when
+#: it is played or scrubbed (hundreds of clips loading at once stall the page).
+EAGER_SCENES = 30
+
 
 def _scene_ids(run: RunData) -> list[str]:
     """Scenes with a row, then selected scenes without one, then scene folders neither names
@@ -29,9 +33,10 @@ def build_run_page(run: RunData, out_dir: Path) -> str:
     truths = locate_ground_truth(run, ids)
     results = {r.scene_id: r for r in run.results}
     media = MediaStore(out_dir)
+    preload = "metadata" if len(ids) > EAGER_SCENES else "auto"
     views = [SceneView(scene_id=sid, result=results.get(sid),
                        scene_dir=run.run_dir / "scenes" / sid, truth=truths[sid],
-                       summary=run.summary) for sid in ids]
+                       summary=run.summary, preload=preload) for sid in ids]
     sections = "".join(scene_section(v, media) for v in views)
     media.close()
     body = (header(run) + leaderboard(run) + counts(run) + scene_list(run, views)

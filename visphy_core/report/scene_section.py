@@ -18,7 +18,7 @@ from visphy_core.pipeline import NOT_EVALUABLE, SceneResult
 from visphy_core.report.columns import HEADINGS, PRIMARY, direction_of, grouped, label
 from visphy_core.report.ground_truth import GroundTruth
 from visphy_core.report.markup import arrow, attr, details, esc, fmt, pre, table, url
-from visphy_core.report.media import MediaStore, Placed
+from visphy_core.report.media import MediaStore, Placed, clip_timing
 from visphy_core.report.spec_diff import diff_table
 
 #: Untrusted texts longer than this are cut in the page (the file keeps everything).
@@ -34,6 +34,9 @@ class SceneView:
     scene_dir: Path
     truth: GroundTruth
     summary: dict
+    #: ``preload`` of the scene's clips: ``metadata`` in long reports (each clip loads when
+    #: played or scrubbed), ``auto`` otherwise.
+    preload: str = "auto"
 
 
 def safe_name(scene_id: str) -> str:
@@ -121,42 +124,50 @@ def _outcome_text(r: SceneResult | None) -> str:
 # ------------------------------------------------------------------ clips
 
 
-def _clip(title: str, placed: Placed, missing: str) -> str:
+def _clip(title: str, placed: Placed, missing: str, preload: str) -> str:
     if placed.rel is None:
         body = f'<div class="missing-clip">{esc(placed.error or missing)}</div>'
     else:
-        body = (f'<video muted loop playsinline preload="auto" src={attr(url(placed.rel))}>'
-                "</video>")
+        body = (f"<video muted loop playsinline preload={attr(preload)} "
+                f"src={attr(url(placed.rel))}></video>")
     note = f'<p class="note">{esc(placed.note)}</p>' if placed.note else ""
     return f'<figure class="clip"><figcaption>{esc(title)}</figcaption>{body}{note}</figure>'
 
 
 def _clip_contract(view: SceneView) -> tuple[float, int]:
+    """fps and frame count the scrubber steps through: the scored clip's, else the ground
+    truth's (a scene that never made a clip)."""
     meta = _json(view.scene_dir / "frames_meta.json") or {}
     try:
-        return float(meta.get("fps") or 0), int(meta.get("n_frames") or 0)
+        fps, frames = float(meta.get("fps") or 0), int(meta.get("n_frames") or 0)
     except (TypeError, ValueError):
-        return 0.0, 0
+        fps, frames = 0.0, 0
+    if (not fps or not frames) and view.truth.video is not None:
+        fps, frames = clip_timing(view.truth.video)
+    return fps, frames
 
 
 def clips(view: SceneView, media: MediaStore) -> str:
     base = f"media/{safe_name(view.scene_id)}"
     d, r = view.scene_dir, view.result
     figures = [_clip("ground truth", media.video(view.truth.video, f"{base}/ground_truth.mp4"),
-                     view.truth.missing or "no ground-truth clip")]
+                     view.truth.missing or "no ground-truth clip", view.preload)]
     generated_title = "generated (fallback clip)" if r is not None and r.fallback else "generated"
     figures.append(_clip(generated_title, media.video(d / "video.mp4", f"{base}/generated.mp4"),
                          "no generated clip (the program produced none and no fallback was "
-                         "rendered)"))
+                         "rendered)", view.preload))
     if (d / "spec_video.mp4").is_file():
         figures.append(_clip("spec track (S simulated)",
-                             media.video(d / "spec_video.mp4", f"{base}/spec_track.mp4"), ""))
+                             media.video(d / "spec_video.mp4", f"{base}/spec_track.mp4"), "",
+                             view.preload))
     if (d / "reply.mp4").is_file():
         figures.append(_clip("the model's own video (as returned, before normalisation)",
-                             media.video(d / "reply.mp4", f"{base}/reply.mp4"), ""))
+                             media.video(d / "reply.mp4", f"{base}/reply.mp4"), "",
+                             view.preload))
     for partial in sorted(d.glob("partial*.mp4")):
         figures.append(_clip(f"partial clip of the failed attempt {_attempt_of(partial)}",
-                             media.video(partial, f"{base}/{partial.name}"), ""))
+                             media.video(partial, f"{base}/{partial.name}"), "",
+                             view.preload))
     fps, frames = _clip_contract(view)
     last = max(frames - 1, 0)
     controls = (

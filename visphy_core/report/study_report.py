@@ -164,8 +164,13 @@ def write_study_report(run_dirs: list[Path], out_dir: Path, title: str,
     runs = [load_run(d) for d in dirs if is_run_dir(d)]
     not_runs = [d for d in dirs if not is_run_dir(d)]
     links: dict[str, str] = {}
+    failed: dict[str, str] = {}
     for run in runs:
-        index = run_report_of(run.run_dir)
+        try:
+            index = run_report_of(run.run_dir)
+        except Exception as exc:  # noqa: BLE001 - one broken run must not sink the study page
+            failed[str(run.run_dir)] = f"{type(exc).__name__}: {exc}"
+            continue
         links[str(run.run_dir)] = url(os.path.relpath(index, out_dir))
     board = tables.pop("leaderboard", None)
     body = [f'<header class="top"><h1>{esc(title)}</h1><div class="meta">'
@@ -186,7 +191,13 @@ def write_study_report(run_dirs: list[Path], out_dir: Path, title: str,
             f"<h3>{esc(name)}</h3>{frame_table(frame)}" for name, frame in tables.items())
             + "</section>")
     body.append(figure_html)
-    rows = [[f"<a href={attr(links[str(r.run_dir)])}>{esc(r.name)}</a>",
+    def run_link(r: RunData) -> str:
+        if str(r.run_dir) in links:
+            return f"<a href={attr(links[str(r.run_dir)])}>{esc(r.name)}</a>"
+        return (f'{esc(r.name)} <span class="bad">(report failed: '
+                f"{esc(failed.get(str(r.run_dir)))})</span>")
+
+    rows = [[run_link(r),
              esc(r.summary.get("model") or r.cfg("model.name")),
              esc(r.summary.get("engine") or r.cfg("engine.name")), esc(r.status),
              esc(rate(r.summary.get("model_success"), r.summary.get("n_scenes")))]

@@ -17,11 +17,6 @@
 
     function live() { return videos.filter(function (v) { return !v.error; }); }
     function master() { return live()[0] || videos[0]; }
-    function duration() {
-      if (fps && frames) { return frames / fps; }
-      var m = master();
-      return isFinite(m.duration) ? m.duration : 0;
-    }
     function frameAt(t) {
       if (!fps) { return 0; }
       return Math.max(0, Math.min(frames - 1, Math.floor(t * fps + 1e-6)));
@@ -102,7 +97,6 @@
     });
     show(0);
     group.setAttribute('data-ready', '1');
-    group.syncDuration = duration;
   }
 
   function filters() {
