@@ -93,10 +93,11 @@ def study(mini_root, tmp_path_factory):
         (replies / f"{ids[1]}.txt").write_text(NO_CODE)                    # falls back
         shutil.copy(oracle / "scenes" / ids[2] / "response.txt", replies / f"{ids[2]}.txt")
         with ThreadPoolExecutor(2) as pool:
-            for retry in ("true", "false"):
-                pool.submit(run_cli, "model=replay", f"model.source={replies}",
-                            f"run.retry={retry}", *COMMON, METRICS, home=home)
-            pool.shutdown(wait=True)
+            replays = [pool.submit(run_cli, "model=replay", f"model.source={replies}",
+                                   f"run.retry={retry}", *COMMON, METRICS, home=home)
+                       for retry in ("true", "false")]
+            for job in replays:
+                job.result()
 
     with FakeGeminiServer(default=_verdict) as gem, FakeOpenAIServer(default=_verdict) as oai:
         with ThreadPoolExecutor(3) as pool:
