@@ -309,6 +309,9 @@ def test_find_and_load_runs(tmp_path):
         + '{"scene_id": "s1", "sco')
     df = load_run(run_dir).results
     assert list(df["scene_id"]) == ["s0"] and df["score_psnr"].tolist() == [3.0]
+    assert df["fallback"].tolist() == [False] and df["first_failure_class"].isna().all()
+    assert analyse([load_run(run_dir)], tmp_path / "old").tables["leaderboard"].loc[
+        0, "psnr ↑"] == 3.0
 
 
 # ----------------------------------------------------------------------------- export, figures

@@ -22,6 +22,10 @@ from visphy_core.analysis.human import read_ratings
 from visphy_core.errors import UserError
 
 SUMMARY = "summary.json"
+#: The scene-row fields the analysis reads, with the value a row without the field means.
+ROW_DEFAULTS = {"scene_id": None, "dim": None, "difficulty": None, "model_success": False,
+                "system_success": False, "fallback": False, "attempts": 0,
+                "failure_class": None, "first_failure_class": None}
 RESULTS = ("results.parquet", "results.jsonl")
 
 #: Config keys that never tell two configurations apart (where files go, how the run is tracked
@@ -175,6 +179,9 @@ def _read_results(run_dir: Path) -> pd.DataFrame:
         raise UserError(f"{run_dir}: results have no scene_id column")
     if len(df):
         df = df.drop_duplicates("scene_id", keep="last").reset_index(drop=True)
+    for column, default in ROW_DEFAULTS.items():   # rows of older versions lack some fields
+        if column not in df.columns:
+            df[column] = default
     return df
 
 
