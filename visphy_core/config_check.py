@@ -408,6 +408,9 @@ def check_values(cfg: DictConfig) -> None:
     check_names(cfg)
     check_tracking(cfg)
     check_protocol(cfg)
+    from visphy_core.dataset.shard import parse_shard
+
+    parse_shard(OmegaConf.select(cfg, "dataset.shard", default=None))  # "i/n", 0 <= i < n
 
 
 PROTOCOLS = ("visphy", "paper")

@@ -91,6 +91,7 @@ class DatasetConfig:
     split: Optional[str] = None
     scenes: Optional[list[str]] = None  # explicit scene ids
     limit: Optional[int] = field(default=None, metadata={"min": 1})  # first N scenes
+    shard: Optional[str] = None        # "i/n": shard i (0-based) of n disjoint parts (merge)
 
 
 @dataclass

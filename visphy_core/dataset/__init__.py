@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from visphy_core.dataset.shard import parse_shard, select_shard
 from visphy_core.scene import Scene
 
 
@@ -33,8 +34,12 @@ def load_dataset(cfg, data_dir: Path, progress: bool = True) -> list[Scene]:
             raise ValueError(f"dataset {cfg.name!r} has no scene(s) {', '.join(missing)}")
     if cfg.limit is not None:
         scenes = scenes[: int(cfg.limit)]
+    shard = parse_shard(cfg.get("shard"))
+    if shard is not None:  # after the limit: the shards together are the unsharded selection
+        scenes = select_shard(scenes, *shard)
     if not scenes:
-        raise ValueError(f"dataset {cfg.name!r} selected no scenes (split={cfg.split!r})")
+        raise ValueError(f"dataset {cfg.name!r} selected no scenes (split={cfg.split!r}"
+                         f"{f', shard={cfg.shard}' if shard else ''})")
     return scenes
 
 
