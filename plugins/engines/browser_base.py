@@ -384,6 +384,9 @@ class BrowserEngine(Engine):
     #: Whether the engine's instructions ask for ``setupRecording(canvas, durationMs)``: a page
     #: that never calls it is flagged ``no_recording_call``.
     expects_recording_call: bool = True
+    #: The browser pool pages run in: None for the process' shared pool (`shared_pool`); a
+    #: caller may set its own (e.g. a pool with ``readback="png"`` to compare render paths).
+    pool: BrowserPool | None = None
 
     def extract(self, text: str) -> Program:
         source = extract_code(text, ("html", "htm", "xml"), html_fallback=True)
@@ -467,15 +470,23 @@ class BrowserEngine(Engine):
                 + "</body></html>"), unique
 
     def render(self, program: Program, contract: RenderContract) -> RenderResult:
-        html, notes = self.canonicalise_noted(program.source, contract.dim)
-        capture = shared_pool().render_page(
-            html, self.assets, contract.frame_times_ms(), width=contract.width,
-            height=contract.height, timeout_s=contract.timeout_s, seed=contract.seed,
-            tick_ms=tick_ms_for(contract.fps), capture=self.capture)
+        capture, html, notes = self.capture_page(program, contract)
         result = classify_capture(capture, contract,
                                   expects_recording_call=self.expects_recording_call)
         self.note_libraries(result, notes, capture, html)
         return result
+
+    def capture_page(self, program: Program, contract: RenderContract
+                     ) -> tuple[PageCapture, str, list[Substitution]]:
+        """Run the program's page (`render` without classifying): what the page did, the
+        canonical HTML and its library notes. Benchmarks time the two halves apart."""
+        html, notes = self.canonicalise_noted(program.source, contract.dim)
+        capture = (self.pool or shared_pool()).render_page(
+            html, self.assets, contract.frame_times_ms(), width=contract.width,
+            height=contract.height, timeout_s=contract.timeout_s, seed=contract.seed,
+            tick_ms=tick_ms_for(contract.fps), capture=self.capture,
+            warm=[f"vendor/{name}" for name in self.preload])
+        return capture, html, notes
 
     def note_libraries(self, result: RenderResult, notes: list[Substitution],
                        cap: PageCapture, html: str) -> None:

@@ -25,10 +25,16 @@ Isolation, in layers (the first is the one that holds; the others make attempts 
 * **Environment**: Chromium starts from an allow-listed environment (no secrets) with a private
   ``HOME``.
 
-Capture modes: ``"canvas"`` reads the page's main canvas back as PNG (``toDataURL``) at each
-virtual time; ``"screenshot"`` advances virtual time, seeks the document's animations (SMIL, CSS,
-Web Animations) to it, and screenshots the viewport clipped to width×height (pages without a
-canvas: SVG, DOM).
+Capture modes: ``"canvas"`` reads the page's main canvas back at each virtual time: as raw
+pixels where that is exact (`visphy_core.sandbox.readback`; ``readback="png"`` keeps the PNG-only
+path of ``toDataURL``); ``"screenshot"`` advances virtual time, seeks the document's animations
+(SMIL, CSS, Web Animations) to it, and screenshots the viewport clipped to width×height (pages
+without a canvas: SVG, DOM).
+
+Set-up is paid ahead (`visphy_core.sandbox.prepared`): after each page the pool prepares the
+next one, a fresh context whose blank page has already loaded the libraries the last page named
+(``warm``), and closes the finished context in the background. Every `PageCapture` records how
+long each phase took (``timings``).
 """
 
 from __future__ import annotations
@@ -36,9 +42,7 @@ from __future__ import annotations
 import asyncio
 import base64
 import json
-import mimetypes
 import os
-import re
 import shutil
 import tempfile
 import threading
@@ -46,22 +50,27 @@ import time
 import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Union
-from urllib.parse import urlparse
+from typing import Mapping, Sequence
 
 import numpy as np
 
-from visphy_core.png import decode_png
 from visphy_core.sandbox.chromium import (CHROMIUM_UID, ChromiumProcess, bwrap_for_chromium,
                                           bwrap_launcher, chromium_env, kill_all, netns_prefix,
                                           rss_bytes, sh_quote)
 from visphy_core.sandbox.policy import (ALLOW_UNISOLATED_ENV, set_allow_unisolated,
                                         unisolated_allowed)
+from visphy_core.sandbox.prepared import PreparedPage, discard, open_page
+from visphy_core.sandbox.readback import frame_from_capture, png_bytes_to_rgb
+from visphy_core.sandbox.routing import (ORIGIN, ORIGIN_HOST, Asset, close_quietly,  # noqa: F401
+                                         on_console, on_popup)
 
-ORIGIN_HOST = "visphy.invalid"
-ORIGIN = f"https://{ORIGIN_HOST}"
 VIRTUAL_TIME_JS = (Path(__file__).with_name("virtual_time.js")).read_text()
 CAPTURE_MODES = ("canvas", "screenshot")
+#: How canvas frames are read: raw pixels where exact (else PNG), several frames per call from
+#: the host; or always PNG, one frame per call (the path it replaced).
+READBACK_MODES = ("raw", "png")
+#: Payload characters one call may bring back before the host takes the frames (bounds memory).
+BATCH_CHARS = 16 << 20
 #: Real seconds a page may take, after its load event, to become ready (e.g. p5's preload()).
 READY_WAIT_S = 10.0
 #: Per-page memory cap (MB): resident memory of the page's renderer (and of the GPU process).
@@ -74,9 +83,6 @@ ISOLATION_NETNS = "chromium:netns,no-egress"
 ISOLATION_BWRAP = "chromium:bwrap,uid65534,netns,pidns,ipcns,utsns,mountns,no-egress"
 #: Isolation level recorded when the user opted out and no namespace could be had.
 ISOLATION_NONE = "none"
-
-#: What the fake origin serves for a path: a file, or the content itself (generated wrappers).
-Asset = Union[Path, bytes, str]
 
 CHROMIUM_ARGS = [
     "--use-angle=swiftshader",
@@ -179,19 +185,16 @@ class PageCapture:
     navigations: list[str] = field(default_factory=list)
     isolation: str | None = None
     wall_s: float = 0.0
+    #: Seconds per phase: ``page`` (a context and page, prepared or made now), ``load``
+    #: (navigation to the load event), ``ready``, ``frames`` (stepping and readback), ``decode``
+    #: (host-side frame decoding, part of ``frames``), ``state``, ``close``.
+    timings: dict = field(default_factory=dict)
+    #: Canvas frames read as raw pixels (the others were PNG: translucent, other formats...).
+    raw_frames: int = 0
 
     def block(self, entry: str) -> None:
         if len(self.blocked_requests) < 200 and entry not in self.blocked_requests[-20:]:
             self.blocked_requests.append(entry)
-
-
-def _png_to_rgb(data_url: str) -> np.ndarray:
-    # Transparent canvas pixels are shown as the white page behind them.
-    return decode_png(base64.b64decode(data_url.split(",", 1)[1]), background=(255, 255, 255))
-
-
-def _png_bytes_to_rgb(png: bytes) -> np.ndarray:
-    return decode_png(png)
 
 
 class BrowserPool:
@@ -200,11 +203,20 @@ class BrowserPool:
     ``memory_mb`` caps each page (default: `configure`'s value, else `DEFAULT_MEMORY_MB`): the
     JavaScript heap gets three quarters of it, and a watchdog kills the page's renderer (or the
     GPU process) when its resident memory goes above it. ``untrusted=False`` is for visphy's own
-    pages (reference clips): they run without a namespace when none can be had."""
+    pages (reference clips): they run without a namespace when none can be had.
+
+    ``readback``: ``"raw"`` (canvas pixels read raw where exact, else PNG) or ``"png"`` (always
+    ``toDataURL``). ``prepare_pages``: make each next context and page ahead of use (and close
+    finished ones in the background); off, every page is made and closed on demand. Both give
+    the same frames; the defaults are the fast path, the others the path they replaced."""
 
     def __init__(self, size: int = 1, extra_args: list[str] | None = None,
                  restart_every: int = 200, memory_mb: int | None = None,
-                 untrusted: bool = True):
+                 untrusted: bool = True, readback: str = "raw", prepare_pages: bool = True):
+        if readback not in READBACK_MODES:
+            raise ValueError(f"readback must be one of {READBACK_MODES}, not {readback!r}")
+        self.readback = readback
+        self.prepare_pages = prepare_pages
         self.size = size
         self.extra_args = extra_args or []
         self.restart_every = restart_every
@@ -222,6 +234,11 @@ class BrowserPool:
         self._home: Path | None = None
         self.isolation: str | None = None
         self.restarts = 0
+        #: id(browser process) -> the preparation of its next page.
+        self._prepared: dict[int, asyncio.Task] = {}
+        #: Contexts being closed in the background.
+        self._closing: set[asyncio.Task] = set()
+        self._restart_due = False
 
     # ---------------------------------------------------------------- lifecycle
 
@@ -300,7 +317,16 @@ class BrowserPool:
                 pid = None
             self._browsers.append(ChromiumProcess(browser, pid, stderr))
 
+    async def _drop_prepared(self) -> None:
+        prepared, self._prepared = self._prepared, {}
+        for task in prepared.values():
+            await discard(task)
+
     async def _close_browsers(self) -> None:
+        await self._drop_prepared()
+        closing, self._closing = self._closing, set()
+        if closing:
+            await asyncio.wait(closing, timeout=10)
         browsers, self._browsers = self._browsers, []
         for proc in browsers:
             try:
@@ -358,12 +384,14 @@ class BrowserPool:
     def render_page(self, html: str, assets: Mapping[str, Asset], times_ms: list[float], *,
                     width: int, height: int, timeout_s: float, seed: int = 0,
                     tick_ms: float = 1000 / 60, capture: str = "canvas",
-                    inject_fault: str | None = None) -> PageCapture:
+                    inject_fault: str | None = None, warm: Sequence[str] = ()) -> PageCapture:
         """Load ``html`` at the fake origin and capture a frame at each virtual time.
 
         ``assets`` maps URL paths (``vendor/...``) to files or to their content (bytes/str).
         ``capture``: ``"canvas"`` reads back the main canvas; ``"screenshot"`` screenshots the
         viewport (0, 0, width, height) after seeking document animations to the virtual time.
+        ``warm``: paths of ``assets`` (the libraries the engine's template loads) that the next
+        prepared page loads ahead, before its program is known.
         ``inject_fault`` (tests only): ``"crash"`` crashes the renderer after the first frame;
         ``"real-webrtc"`` leaves the page the browser's own ``RTCPeerConnection`` (to show that
         the network namespace and Chromium's WebRTC policy hold on their own).
@@ -372,29 +400,82 @@ class BrowserPool:
         if capture not in CAPTURE_MODES:
             raise ValueError(f"capture must be one of {CAPTURE_MODES}, not {capture!r}")
         return self._run(self._render(html, assets, times_ms, width, height,
-                                      timeout_s, seed, tick_ms, capture, inject_fault))
+                                      timeout_s, seed, tick_ms, capture, inject_fault,
+                                      tuple(warm)))
 
-    async def _render(self, html, assets, times_ms, width, height, timeout_s, seed, tick_ms,
-                      capture="canvas", inject_fault=None):
-        from playwright.async_api import TimeoutError as PlaywrightTimeout
-
-        if not self._browsers or self._uses >= self.restart_every:
-            if self._uses >= self.restart_every:
-                await self._restart()
-                self._uses = 0
-            else:
-                await self._start()
+    async def _browser_for_page(self) -> ChromiumProcess:
+        """The browser the next page runs in (started or restarted as needed)."""
+        if self._restart_due or self._uses >= self.restart_every:
+            self._restart_due = False
+            await self._restart()
+            self._uses = 0
+        elif not self._browsers:
+            await self._start()
         proc = self._browsers[self._next % len(self._browsers)]
         self._next += 1
         if not proc.browser.is_connected():
             await self._restart()
             proc = self._browsers[0]
-        browser = proc.browser
         self._uses += 1
+        return proc
+
+    async def _page_for(self, proc: ChromiumProcess, width: int, height: int,
+                        assets: Mapping[str, Asset]) -> PreparedPage:
+        """The page prepared for ``proc`` when it fits, else a new one (made now, no warm-up)."""
+        task = self._prepared.pop(id(proc), None)
+        if task is not None:
+            try:
+                prepared = await task
+            except Exception:
+                prepared = None
+            if prepared is not None and prepared.usable(proc, (width, height)):
+                return prepared
+            if prepared is not None:
+                self._close_later(prepared.context)
+        return await open_page(proc, width, height, assets=assets, cap_factory=PageCapture)
+
+    def _prepare_next(self, proc: ChromiumProcess, width: int, height: int,
+                      warm: tuple[str, ...], assets: Mapping[str, Asset]) -> None:
+        """Start preparing ``proc``'s next page (same size, ``warm`` libraries loaded)."""
+        if not self.prepare_pages or self._restart_due or id(proc) in self._prepared:
+            return
+        if proc not in self._browsers or not proc.browser.is_connected():
+            return
+        self._prepared[id(proc)] = asyncio.ensure_future(asyncio.wait_for(
+            open_page(proc, width, height, warm=warm, assets=assets, cap_factory=PageCapture),
+            60))
+
+    def _close_later(self, context) -> None:
+        """Close a finished context in the background; a context that will not close gets the
+        pool restarted before the next page."""
+        async def close():
+            try:
+                await asyncio.wait_for(context.close(), 5)
+            except Exception:
+                self._restart_due = True
+
+        task = asyncio.ensure_future(close())
+        self._closing.add(task)
+        task.add_done_callback(self._closing.discard)
+
+    async def _render(self, html, assets, times_ms, width, height, timeout_s, seed, tick_ms,
+                      capture="canvas", inject_fault=None, warm=()):
+        from playwright.async_api import TimeoutError as PlaywrightTimeout
+
+        proc = await self._browser_for_page()
+        browser = proc.browser
         # The page's clock starts once a browser is up (starting one is ours, not the page's).
         start = time.perf_counter()
         deadline = start + timeout_s
         cap = PageCapture(isolation=self.isolation)
+        timings = cap.timings
+        mark = [start]
+
+        def lap(phase: str) -> None:
+            now = time.perf_counter()
+            timings[phase] = timings.get(phase, 0.0) + now - mark[0]
+            mark[0] = now
+
         context = None
         crashed: list[bool] = []
         killed: list[str] = []
@@ -416,39 +497,54 @@ class BrowserPool:
             return left() * 1000
 
         try:
-            context = await asyncio.wait_for(browser.new_context(
-                viewport={"width": width, "height": height}, device_scale_factor=1,
-                service_workers="block", accept_downloads=False), left())
+            prepared = await asyncio.wait_for(self._page_for(proc, width, height, assets), left())
+            context, page, crashed = prepared.context, prepared.page, prepared.crashed
+            prepared.slot.load(html, assets, cap)
             context.set_default_timeout(left_ms())
             context.set_default_navigation_timeout(left_ms())
-            await asyncio.wait_for(context.route("**/*", self._router(html, assets, cap)), left())
-            await asyncio.wait_for(context.route_web_socket("**/*", self._ws_router(cap)), left())
             config = {"tickMs": tick_ms, "seed": seed, "capture": capture, "origin": ORIGIN,
                       "realWebRTC": inject_fault == "real-webrtc"}
             await asyncio.wait_for(context.add_init_script(
                 f"window.__VISPHY_CONFIG__ = {json.dumps(config)};\n{VIRTUAL_TIME_JS}"), left())
-            page = await asyncio.wait_for(context.new_page(), left())
-            page.on("crash", lambda _page: crashed.append(True))
-            page.on("popup", lambda popup: self._on_popup(popup, cap))
-            page.on("console", lambda msg: self._on_console(msg, cap))
+            page.on("popup", lambda popup: on_popup(popup, cap))
+            page.on("console", lambda msg: on_console(msg, cap))
+            lap("page")
 
             await asyncio.wait_for(page.goto(f"{ORIGIN}/index.html", wait_until="load",
                                              timeout=left_ms()), left())
+            lap("load")
             await asyncio.wait_for(self._wait_ready(
                 page, cap, min(READY_WAIT_S, deadline - time.perf_counter())), left())
-            for i, t in enumerate(times_ms):
+            lap("ready")
+            batched = self.readback == "raw" and inject_fault != "crash"
+            i = 0
+            while i < len(times_ms):
+                t = times_ms[i]
                 if cap.navigations:
                     break  # the page tried to leave: what is left of it is not the program's
                 if i == 1 and inject_fault == "crash":
                     await self._crash_renderer(context, page, crashed)
                 if capture == "canvas":
-                    shot = await asyncio.wait_for(
-                        page.evaluate("t => window.__visphy.captureAt(t)", t), left())
-                    png = shot.get("png") if isinstance(shot, dict) else None
-                    if not isinstance(png, str) or not png.startswith("data:image/png"):
-                        cap.no_canvas = True
+                    if batched:
+                        shots = await asyncio.wait_for(page.evaluate(
+                            "([ts, n]) => window.__visphy.captureRawMany(ts, n)",
+                            [list(times_ms[i:]), BATCH_CHARS]), left())
+                    else:
+                        shots = [await asyncio.wait_for(page.evaluate(
+                            "t => window.__visphy.captureAt(t)", t), left())]
+                    lap("frames")
+                    for shot in (shots if isinstance(shots, list) and shots else [None]):
+                        frame = frame_from_capture(shot)
+                        if frame is None:
+                            cap.no_canvas = True
+                            break
+                        cap.frames.append(frame)
+                        cap.raw_frames += "png" not in shot
+                        i += 1
+                    lap("decode")
+                    if cap.no_canvas:
                         break
-                    cap.frames.append(_png_to_rgb(png))
+                    continue
                 else:
                     info = await asyncio.wait_for(
                         page.evaluate("t => window.__visphy.prepareScreenshot(t)", t), left())
@@ -458,14 +554,20 @@ class BrowserPool:
                     if cdp is None:
                         cdp = await asyncio.wait_for(context.new_cdp_session(page), left())
                     # CDP directly: Playwright's page.screenshot adds round trips (fonts, caret).
+                    # optimizeForSpeed: a faster zlib setting; the PNG is as lossless as before.
                     shot = await asyncio.wait_for(cdp.send("Page.captureScreenshot", {
                         "format": "png", "fromSurface": True,
+                        "optimizeForSpeed": self.readback == "raw",
                         "clip": {"x": 0, "y": 0, "width": width, "height": height, "scale": 1}}),
                         left())
-                    cap.frames.append(_png_bytes_to_rgb(base64.b64decode(shot["data"])))
+                    lap("frames")
+                    cap.frames.append(png_bytes_to_rgb(base64.b64decode(shot["data"])))
+                    lap("decode")
+                    i += 1
             state = await asyncio.wait_for(page.evaluate(
                 "() => [window.__visphy.errors(), window.__visphy.logs(),"
                 " window.__visphy.attempts()]"), left())
+            lap("state")
             if isinstance(state, list) and len(state) == 3:
                 cap.errors.extend(str(e)[:2000] for e in list(state[0])[:200])
                 cap.console.extend(str(e)[:600] for e in list(state[1])[:600])
@@ -486,17 +588,23 @@ class BrowserPool:
             watchdog.cancel()
             died = bool(crashed or killed)
             if cap.timed_out:
-                # A renderer stuck in a loop may not let its context close: end it first.
+                # A renderer stuck in a loop may not let its context close: end it first (and
+                # the page prepared next to it, which went with it).
+                await self._drop_prepared()
                 kill_all(proc.processes(("renderer",)))
             if died and not cap.infra_error:
                 await asyncio.sleep(0.05)  # let the renderer's last words reach the log
                 self._classify_crash(cap, proc, stderr_at, killed)
             restart = False
-            if context is not None:
+            clean = not (cap.timed_out or died or cap.infra_error)
+            if context is not None and clean and self.prepare_pages:
+                self._close_later(context)
+            elif context is not None:
                 try:
                     await asyncio.wait_for(context.close(), 3)
                 except Exception:
                     # e.g. an endless loop in an unload handler: end the renderer, try again
+                    await self._drop_prepared()
                     kill_all(proc.processes(("renderer",)))
                     try:
                         await asyncio.wait_for(context.close(), 3)
@@ -507,6 +615,9 @@ class BrowserPool:
                 restart = True
             if restart:
                 await self._restart()
+            else:
+                self._prepare_next(proc, width, height, warm, assets)
+            lap("close")
         cap.wall_s = time.perf_counter() - start
         return cap
 
@@ -546,26 +657,6 @@ class BrowserPool:
             return
 
     @staticmethod
-    def _on_popup(popup, cap: PageCapture) -> None:
-        cap.navigations.append(f"popup {popup.url[:300]}")
-        cap.block(f"popup {popup.url[:300]}")
-        asyncio.ensure_future(_close_quietly(popup))
-
-    @staticmethod
-    def _on_console(msg, cap: PageCapture) -> None:
-        """Chromium's own console messages about refused loads (``file://`` and the like),
-        which no request handler sees."""
-        try:
-            if msg.type != "error":
-                return
-            text = msg.text
-        except Exception:
-            return
-        m = re.search(r"Not allowed to load local resource: (\S+)", text)
-        if m:
-            cap.block(f"file {m.group(1)[:300]}")
-
-    @staticmethod
     async def _crash_renderer(context, page, crashed: list) -> None:
         """Fault injection for tests: crash the page's renderer (CDP Page.crash), as an
         out-of-memory renderer would. The command never answers: wait for the crash event."""
@@ -596,64 +687,3 @@ class BrowserPool:
                 cap.console.append(f"[visphy] page not ready after {budget_s:.1f} s; capturing")
                 return
             await asyncio.sleep(0.01)
-
-    @staticmethod
-    def _ws_router(cap: PageCapture):
-        def handle(ws):
-            cap.block(f"websocket {ws.url[:300]}")
-            asyncio.ensure_future(_close_quietly(ws, code=1008, reason="blocked by visphy"))
-
-        return handle
-
-    @staticmethod
-    def _router(html: str, assets: Mapping[str, Asset], cap: PageCapture):
-        served = []
-
-        async def handle(route):
-            request = route.request
-            url = request.url
-            try:
-                navigation = request.is_navigation_request()
-                main = navigation and request.frame.parent_frame is None
-            except Exception:
-                navigation = main = False
-            parsed = urlparse(url)
-            if main and served:
-                # The main document was served once: anything else is the page leaving.
-                cap.navigations.append(f"navigation {url[:300]}")
-                cap.block(f"navigation {url[:300]}")
-                await route.abort("blockedbyclient")
-                return
-            if parsed.hostname == ORIGIN_HOST and parsed.scheme == "https":
-                path = parsed.path.lstrip("/")
-                if path == "index.html" and main:
-                    served.append(url)
-                    await route.fulfill(status=200, body=html.encode(),
-                                        content_type="text/html; charset=utf-8")
-                    return
-                if path in assets:
-                    item = assets[path]
-                    name = Path(path).name
-                    ctype = mimetypes.guess_type(name)[0] or "application/octet-stream"
-                    if Path(name).suffix in (".js", ".mjs", ".cjs"):
-                        ctype = "text/javascript"
-                    if isinstance(item, Path):
-                        body = item.read_bytes()
-                    else:
-                        body = item.encode() if isinstance(item, str) else bytes(item)
-                    await route.fulfill(status=200, body=body, content_type=ctype)
-                    return
-                cap.block(f"{request.resource_type} {url[:300]}")
-                await route.fulfill(status=404, body=b"not vendored", content_type="text/plain")
-                return
-            cap.block(f"{request.resource_type} {url[:300]}")
-            await route.abort("blockedbyclient")
-
-        return handle
-
-
-async def _close_quietly(obj, **kwargs) -> None:
-    try:
-        await asyncio.wait_for(obj.close(**kwargs), 5)
-    except Exception:
-        pass

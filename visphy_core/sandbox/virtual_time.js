@@ -246,14 +246,196 @@
   }
 
   // WebGL canvases keep their drawing buffer so a capture always sees the last rendered frame.
+  // The context each canvas hands out is remembered for the raw readback below.
   const realGetContext = HTMLCanvasElement.prototype.getContext;
   const realToDataURL = HTMLCanvasElement.prototype.toDataURL;
+  const contexts = new WeakMap();  // canvas -> its first context
   HTMLCanvasElement.prototype.getContext = function (type, attrs) {
     if (typeof type === 'string' && type.startsWith('webgl')) {
       attrs = Object.assign({}, attrs || {}, { preserveDrawingBuffer: true });
     }
-    return realGetContext.call(this, type, attrs);
+    const ctx = realGetContext.call(this, type, attrs);
+    try { if (ctx && !contexts.has(this)) contexts.set(this, ctx); } catch (e) { /* ignore */ }
+    return ctx;
   };
+
+  // Raw readback: the captured canvas' pixels without a PNG round trip (toDataURL encodes a PNG
+  // on the page's thread, the host decodes it again). WebGL: readPixels of the drawing buffer,
+  // with the program's framebuffer and pixel-pack state put back as they were; 2D: a copy into a
+  // private OffscreenCanvas read with getImageData (the program's own context is never read,
+  // so nothing about it changes). The pixels go to the host run-length encoded (runs of one
+  // RGBA value; a flat-coloured 512x512 frame is a few kB) or, when that is no smaller, as they
+  // are. Only frames that are fully opaque, 8-bit sRGB and the canvas' own size take this path:
+  // there the pixels are exactly what toDataURL encodes. Anything else (translucent pixels,
+  // another colour space or format, a lost context, a bitmap or WebGPU context) is read with
+  // toDataURL as before. Every built-in used here is taken before the program runs.
+  const apply = Reflect.apply;
+  const construct = Reflect.construct;
+  const getPrototypeOf = Object.getPrototypeOf;
+  const fromCharCode = String.fromCharCode;
+  const realBtoa = window.btoa;
+  const U8 = Uint8Array, U32 = Uint32Array;
+  const subarray = U8.prototype.subarray;
+  const littleEndian = new U8(new U32([1]).buffer)[0] === 1;
+  function getter(proto, name) {
+    const d = proto && Object.getOwnPropertyDescriptor(proto, name);
+    return d ? d.get : undefined;
+  }
+  function setter(proto, name) {
+    const d = proto && Object.getOwnPropertyDescriptor(proto, name);
+    return d ? d.set : undefined;
+  }
+  const glKinds = [];
+  for (const [name, webgl2] of [['WebGLRenderingContext', false], ['WebGL2RenderingContext', true]]) {
+    const C = window[name];
+    if (typeof C !== 'function') continue;
+    const p = C.prototype;
+    glKinds.push({
+      proto: p, webgl2, readPixels: p.readPixels, getParameter: p.getParameter,
+      bindFramebuffer: p.bindFramebuffer, pixelStorei: p.pixelStorei, bindBuffer: p.bindBuffer,
+      isContextLost: p.isContextLost, getContextAttributes: p.getContextAttributes,
+      width: getter(p, 'drawingBufferWidth'), height: getter(p, 'drawingBufferHeight'),
+      colorSpace: getter(p, 'drawingBufferColorSpace'), format: getter(p, 'drawingBufferFormat'),
+    });
+  }
+  const C2D = window.CanvasRenderingContext2D && CanvasRenderingContext2D.prototype;
+  const c2dAttributes = C2D && C2D.getContextAttributes;
+  const Offscreen = window.OffscreenCanvas;
+  const O2D = window.OffscreenCanvasRenderingContext2D && OffscreenCanvasRenderingContext2D.prototype;
+  const offscreenGetContext = Offscreen && Offscreen.prototype.getContext;
+  const o2d = O2D && { drawImage: O2D.drawImage, getImageData: O2D.getImageData,
+    setComposite: setter(O2D, 'globalCompositeOperation'), data: getter(ImageData.prototype, 'data') };
+  const GL = { FRAMEBUFFER: 0x8D40, FRAMEBUFFER_BINDING: 0x8CA6, READ_FRAMEBUFFER: 0x8CA8,
+    READ_FRAMEBUFFER_BINDING: 0x8CAA, READ_BUFFER: 0x0C02, BACK: 0x0405, PACK_ALIGNMENT: 0x0D05,
+    PACK_ROW_LENGTH: 0x0D02, PACK_SKIP_ROWS: 0x0D03, PACK_SKIP_PIXELS: 0x0D04,
+    PIXEL_PACK_BUFFER: 0x88EB, PIXEL_PACK_BUFFER_BINDING: 0x88ED, RGBA: 0x1908,
+    UNSIGNED_BYTE: 0x1401, RGBA8: 0x8058, RGB8: 0x8051 };
+  let pixelBuffer = null;
+  function pixels(n) {
+    if (!pixelBuffer || pixelBuffer.length !== n) pixelBuffer = new U8(n);
+    return pixelBuffer;
+  }
+
+  // The drawing buffer of a WebGL context, bottom row first, or null when it cannot be read
+  // exactly as toDataURL would.
+  function readWebGL(c, ctx, kind) {
+    if (apply(kind.isContextLost, ctx, [])) return null;
+    const attrs = apply(kind.getContextAttributes, ctx, []);
+    if (!attrs || attrs.preserveDrawingBuffer !== true) return null;
+    const w = apply(kind.width, ctx, []), h = apply(kind.height, ctx, []);
+    if (w !== c.width || h !== c.height || w * h === 0) return null;
+    if (kind.colorSpace && apply(kind.colorSpace, ctx, []) !== 'srgb') return null;
+    if (kind.format) {
+      const f = apply(kind.format, ctx, []);
+      if (f !== GL.RGBA8 && f !== GL.RGB8) return null;
+    }
+    const get = (pname) => apply(kind.getParameter, ctx, [pname]);
+    const set = (pname, v) => apply(kind.pixelStorei, ctx, [pname, v]);
+    const target = kind.webgl2 ? GL.READ_FRAMEBUFFER : GL.FRAMEBUFFER;
+    const bound = get(kind.webgl2 ? GL.READ_FRAMEBUFFER_BINDING : GL.FRAMEBUFFER_BINDING);
+    const pack = {};
+    const packNames = kind.webgl2 ? ['PACK_ALIGNMENT', 'PACK_ROW_LENGTH', 'PACK_SKIP_ROWS',
+      'PACK_SKIP_PIXELS'] : ['PACK_ALIGNMENT'];
+    for (const name of packNames) pack[name] = get(GL[name]);
+    const packBuffer = kind.webgl2 ? get(GL.PIXEL_PACK_BUFFER_BINDING) : null;
+    const want = (name) => (name === 'PACK_ALIGNMENT' ? 4 : 0);
+    if (bound) apply(kind.bindFramebuffer, ctx, [target, null]);
+    let out = null, changed = false;
+    try {
+      if (!kind.webgl2 || get(GL.READ_BUFFER) === GL.BACK) {
+        changed = true;
+        if (packBuffer) apply(kind.bindBuffer, ctx, [GL.PIXEL_PACK_BUFFER, null]);
+        for (const name of packNames) if (pack[name] !== want(name)) set(GL[name], want(name));
+        out = pixels(w * h * 4);
+        apply(kind.readPixels, ctx, [0, 0, w, h, GL.RGBA, GL.UNSIGNED_BYTE, out]);
+      }
+    } finally {
+      if (changed) {
+        for (const name of packNames) if (pack[name] !== want(name)) set(GL[name], pack[name]);
+        if (packBuffer) apply(kind.bindBuffer, ctx, [GL.PIXEL_PACK_BUFFER, packBuffer]);
+      }
+      if (bound) apply(kind.bindFramebuffer, ctx, [target, bound]);
+    }
+    return out && { data: out, width: w, height: h, flipY: true };
+  }
+
+  let scratch = null;  // the private OffscreenCanvas 2D copies go through
+  function read2D(c, ctx) {
+    if (!o2d || !c2dAttributes) return null;
+    const attrs = apply(c2dAttributes, ctx, []);
+    if (!attrs || (attrs.colorSpace !== undefined && attrs.colorSpace !== 'srgb')) return null;
+    if (attrs.colorType !== undefined && attrs.colorType !== 'unorm8') return null;
+    if (attrs.pixelFormat !== undefined && attrs.pixelFormat !== 'uint8') return null;
+    const w = c.width, h = c.height;
+    if (w * h === 0) return null;
+    if (!scratch || scratch.canvas.width !== w || scratch.canvas.height !== h) {
+      const canvas = construct(Offscreen, [w, h]);
+      scratch = { canvas, ctx: apply(offscreenGetContext, canvas, ['2d', { willReadFrequently: true }]) };
+    }
+    apply(o2d.setComposite, scratch.ctx, ['copy']);
+    apply(o2d.drawImage, scratch.ctx, [c, 0, 0]);
+    const image = apply(o2d.getImageData, scratch.ctx, [0, 0, w, h]);
+    const data = apply(o2d.data, image, []);
+    return { data: new U8(data.buffer, data.byteOffset, data.byteLength), width: w,
+             height: h, flipY: false };
+  }
+
+  // Runs of equal pixels as (count, RGBA) pairs, or the pixels as they are when that is no
+  // smaller; null when a pixel is not fully opaque.
+  function encodeRuns(bytes) {
+    const px = new U32(bytes.buffer, bytes.byteOffset, bytes.byteLength >> 2);
+    const n = px.length;
+    const runs = new U32(2 * n);
+    let k = 0;
+    for (let i = 0; i < n;) {
+      const v = px[i];
+      if ((v >>> 24) !== 255) return null;
+      let j = i + 1;
+      while (j < n && px[j] === v) j++;
+      runs[k++] = j - i;
+      runs[k++] = v;
+      i = j;
+    }
+    if (k >= n) return { kind: 'raw', bytes };
+    return { kind: 'runs', bytes: new U8(runs.buffer, 0, k * 4) };
+  }
+
+  function base64(u8) {
+    let s = '';
+    for (let i = 0; i < u8.length; i += 0x8000) {
+      s += apply(fromCharCode, null, apply(subarray, u8, [i, i + 0x8000]));
+    }
+    return apply(realBtoa, window, [s]);
+  }
+
+  // A real task boundary: the microtasks and tasks the program queued run before the caller
+  // goes on, as between two calls from the host.
+  const RealPromise = Promise;
+  const RealMessageChannel = MessageChannel;
+  const portPost = MessagePort.prototype.postMessage;
+  const setOnMessage = setter(MessagePort.prototype, 'onmessage');
+  function nextTask() {
+    return new RealPromise((resolve) => {
+      const channel = new RealMessageChannel();
+      apply(setOnMessage, channel.port1, [() => resolve()]);
+      apply(portPost, channel.port2, [0]);
+    });
+  }
+
+  function readRaw(c) {
+    if (!littleEndian) return null;
+    const ctx = contexts.get(c);
+    if (!ctx) return null;
+    const proto = getPrototypeOf(ctx);
+    let read = null;
+    for (const kind of glKinds) if (kind.proto === proto) read = readWebGL(c, ctx, kind);
+    if (C2D && proto === C2D) read = read2D(c, ctx);
+    if (!read) return null;
+    const enc = encodeRuns(read.data);
+    if (!enc) return null;
+    return { [enc.kind]: base64(enc.bytes), width: read.width, height: read.height,
+             flipY: read.flipY };
+  }
 
   for (const level of ['log', 'info', 'warn', 'error']) {
     console[level] = (...args) => {
@@ -299,6 +481,31 @@
       const c = pickCanvas();
       if (!c) return { png: null, width: 0, height: 0 };
       return { png: realToDataURL.call(c, 'image/png'), width: c.width, height: c.height };
+    },
+    // The same frame, read raw (`runs` or `raw`, base64) where that is exact, else as `png`.
+    captureRawAt(t) {
+      advanceTo(t);
+      const c = pickCanvas();
+      if (!c) return { png: null, width: 0, height: 0 };
+      let out = null;
+      try { out = readRaw(c); } catch (e) { out = null; }
+      return out || { png: realToDataURL.call(c, 'image/png'), width: c.width, height: c.height };
+    },
+    // captureRawAt for each of `times` in turn, in one call from the host, with a task boundary
+    // between two frames (so the program sees the same sequence of tasks and microtasks as with
+    // one call per frame). Returns the frames of a prefix of `times`: it stops after a frame
+    // without canvas, and once the frames hold `maxChars` characters of payload.
+    async captureRawMany(times, maxChars) {
+      const out = [];
+      let chars = 0;
+      for (let i = 0; i < times.length; i++) {
+        if (i > 0) await nextTask();
+        const shot = api.captureRawAt(times[i]);
+        out.push(shot);
+        chars += (shot.runs || shot.raw || shot.png || '').length;
+        if (shot.png === null || chars >= maxChars) break;
+      }
+      return out;
     },
   };
   // The host's handle cannot be replaced or deleted by the page.

@@ -1,0 +1,70 @@
+"""Frames as the page hands them back: raw pixels (run-length encoded or as they are) or PNG.
+
+Why not PNG only: ``canvas.toDataURL`` encodes a PNG on the page's main thread (tens of ms for a
+512² frame in SwiftShader) and the host decodes it again; reading the pixels and sending runs of
+equal RGBA values costs a few ms and a few kB for the flat-coloured clips of the benchmark. The
+page sends raw pixels only where they are exactly what the PNG would hold (fully opaque, 8-bit
+sRGB, the canvas' own size; see ``virtual_time.js``), and a PNG otherwise, so both paths give
+the same frames byte for byte.
+"""
+
+from __future__ import annotations
+
+import base64
+
+import numpy as np
+
+from visphy_core.png import decode_png
+
+
+class ReadbackError(ValueError):
+    """A frame payload from the page that does not describe a whole frame."""
+
+
+def png_data_url_to_rgb(data_url: str) -> np.ndarray:
+    """RGB of a ``data:image/png;base64,...`` URL; transparent canvas pixels are shown as the
+    white page behind them."""
+    return decode_png(base64.b64decode(data_url.split(",", 1)[1]), background=(255, 255, 255))
+
+
+def png_bytes_to_rgb(png: bytes) -> np.ndarray:
+    """RGB of a PNG screenshot (always opaque)."""
+    return decode_png(png)
+
+
+def raw_to_rgb(payload: dict) -> np.ndarray:
+    """RGB (H×W×3 uint8) of a raw payload: ``runs`` (base64 of little-endian uint32 pairs
+    count, RGBA) or ``raw`` (base64 of RGBA bytes), ``width``, ``height``, ``flipY`` (rows
+    bottom first, as WebGL reads them)."""
+    width, height = int(payload["width"]), int(payload["height"])
+    n = width * height
+    if "runs" in payload:
+        runs = np.frombuffer(base64.b64decode(payload["runs"]), dtype="<u4")
+        if runs.size % 2:
+            raise ReadbackError("run-length payload has an odd number of words")
+        counts, values = runs[0::2], runs[1::2]
+        if int(counts.sum(dtype=np.int64)) != n:
+            raise ReadbackError(f"runs cover {int(counts.sum(dtype=np.int64))} pixels, "
+                                f"not {width}x{height}")
+        rgba = np.repeat(values, counts).view(np.uint8)
+    else:
+        rgba = np.frombuffer(base64.b64decode(payload["raw"]), dtype=np.uint8)
+        if rgba.size != 4 * n:
+            raise ReadbackError(f"raw payload has {rgba.size} bytes, not {4 * n}")
+    rgba = rgba.reshape(height, width, 4)
+    if payload.get("flipY"):
+        rgba = rgba[::-1]
+    return np.ascontiguousarray(rgba[..., :3])
+
+
+def frame_from_capture(shot) -> np.ndarray | None:
+    """The frame of one ``captureAt``/``captureRawAt`` answer, or None when the page had no
+    canvas to read."""
+    if not isinstance(shot, dict):
+        return None
+    if "runs" in shot or "raw" in shot:
+        return raw_to_rgb(shot)
+    png = shot.get("png")
+    if not isinstance(png, str) or not png.startswith("data:image/png"):
+        return None
+    return png_data_url_to_rgb(png)
