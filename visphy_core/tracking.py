@@ -192,6 +192,10 @@ def _study_parent(uri: str) -> tuple[dict, dict] | None:
         return None
     job, study = found
     parent = study.get("parent")
+    if parent and parent.get("tracking_uri") != uri:  # e.g. a node resolved another VISPHY_HOME
+        log.warning("study %s tracks to %s but this job to %s: its MLflow run is not a child of "
+                    "the study's run (give every job the same tracking.uri or VISPHY_HOME)",
+                    study.get("name", ""), parent.get("tracking_uri"), uri)
     if not parent or parent.get("tracking_uri") != uri:
         return None
     return job, dict(parent, study=study.get("name", ""))
