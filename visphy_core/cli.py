@@ -16,6 +16,8 @@ Subcommands:
                  analyse PATH... [-o OUT] [--study NAME] [--metrics a,b]
   report         HTML report that opens from disk: report RUN_DIR (a run) or
                  report RUN_DIR RUN_DIR... [-o OUT] [--title T] (a study)
+  merge          one run from its shards (dataset.shard=i/n), one MLflow parent run:
+                 merge SHARD_RUN_DIR... -o MERGED_RUN_DIR [--partial]
 Anything else is a Hydra run: ``python -m visphy_core engine=threejs model=oracle dataset=mini``.
 
 Bad input (a config value, a missing dataset, a plugin that does not load, Chromium missing) is
@@ -272,10 +274,16 @@ def cmd_report(argv: list[str]) -> int:
     return report_command(argv)
 
 
+def cmd_merge(argv: list[str]) -> int:
+    from visphy_core.cli_merge import cmd_merge as merge
+
+    return merge(argv)
+
+
 SUBCOMMANDS = {"plugins": cmd_plugins, "setup": cmd_setup, "build-dataset": cmd_build_dataset,
                "normalise": cmd_normalise, "render": cmd_render, "metrics": cmd_metrics,
                "intervene": cmd_intervene, "rate": cmd_rate, "score": cmd_score,
-               "analyse": cmd_analyse, "report": cmd_report}
+               "analyse": cmd_analyse, "report": cmd_report, "merge": cmd_merge}
 
 
 def run_hydra(argv: list[str]) -> int:
