@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import io
 import json
-import shutil
+import os
+import signal
 import socket
 import subprocess
 import sys
@@ -30,14 +31,14 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _get(base: str, path: str, **query) -> dict:
-    url = f"{base}{path}?{urllib.parse.urlencode(query)}" if query else f"{base}{path}"
+def _get(base: str, endpoint: str, **query) -> dict:
+    url = f"{base}{endpoint}?{urllib.parse.urlencode(query)}" if query else f"{base}{endpoint}"
     with urllib.request.urlopen(url, timeout=30) as resp:
         return json.loads(resp.read())
 
 
-def _post(base: str, path: str, body: dict) -> dict:
-    req = urllib.request.Request(f"{base}{path}", data=json.dumps(body).encode(),
+def _post(base: str, endpoint: str, body: dict) -> dict:
+    req = urllib.request.Request(f"{base}{endpoint}", data=json.dumps(body).encode(),
                                  headers={"Content-Type": "application/json"})
     with urllib.request.urlopen(req, timeout=30) as resp:
         return json.loads(resp.read())
@@ -61,7 +62,8 @@ def server(tmp_path_factory):
         [str(mlflow), "server", "--host", "127.0.0.1", "--port", str(port), "--workers", "1",
          "--backend-store-uri", f"sqlite:///{root / 'mlflow.db'}",
          "--artifacts-destination", str(root / "artifacts")],
-        stdout=(root / "server.log").open("w"), stderr=subprocess.STDOUT)
+        stdout=(root / "server.log").open("w"), stderr=subprocess.STDOUT,
+        start_new_session=True)  # its own process group: the server and its uvicorn worker
     base = f"http://127.0.0.1:{port}"
     try:
         deadline = time.monotonic() + 180
@@ -77,17 +79,21 @@ def server(tmp_path_factory):
             time.sleep(0.3)
         yield base
     finally:
-        proc.terminate()
-        proc.wait(timeout=30)
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:  # uvicorn drains open connections first
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=10)
 
 
 @pytest.fixture(scope="module")
-def study(server, tmp_path_factory, mini_root):
-    """The baselines study (two pixel-space baselines, one mini scene) tracked on the server;
-    (base URL, the experiment's runs by role, the study folder)."""
+def study(server, tmp_path_factory):
+    """The baselines study (two pixel-space baselines, one scene of the tiny fixture dataset)
+    tracked on the server; (base URL, the experiment's runs by role, the study folder, the
+    finished process)."""
     home = tmp_path_factory.mktemp("home")
-    shutil.copytree(mini_root, home / "data" / mini_root.name)
-    proc = run_cli("-m", "experiment=baselines", f"model={','.join(MODELS)}", "dataset=mini",
+    proc = run_cli("-m", "experiment=baselines", f"model={','.join(MODELS)}", "dataset=tiny",
                    "dataset.limit=1", f"tracking.uri={server}", "tracking.log_videos=true",
                    "run.progress=false", home=home)
     [folder] = sorted((home / "studies").glob("baselines-*"))
@@ -129,14 +135,15 @@ def test_one_parent_run_and_a_child_per_job(study):
 
 def test_children_carry_params_metrics_and_system_tags(study):
     _, runs, _, _ = study
-    commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
-                            text=True).stdout.strip()
     assert {c["tags"]["visphy.model"] for c in runs["child"]} == set(MODELS)
     for child in runs["child"]:
         tags, params, metrics = child["tags"], child["params"], child["metrics"]
         assert tags["visphy.engine"] == "threejs" and tags["visphy.study"] == "baselines"
-        assert tags["visphy.benchmark_version"] == "mini:visphybench-v3-seed0"
-        assert tags["mlflow.source.git.commit"] == tags["visphy.git_commit"] == commit
+        assert tags["visphy.benchmark_version"] == "tiny:visphybench/sub"
+        commit = tags["mlflow.source.git.commit"]
+        assert commit == tags["visphy.git_commit"] and len(commit) == 40
+        assert subprocess.run(["git", "-C", str(REPO), "merge-base", "--is-ancestor", commit,
+                               "HEAD"]).returncode == 0  # this checkout's commit (or HEAD's past)
         assert tags["visphy.prompt_version"]
         assert tags["mlflow.runName"] == f"model={tags['visphy.model']} engine=threejs"
         assert params["model.name"] == tags["visphy.model"] and params["dataset.limit"] == "1"

@@ -27,7 +27,7 @@ from visphy_core.study import records
 
 
 def _status(jobs: list[dict], ended_early: bool) -> str:
-    if any(j.get("status") == records.RUNNING for j in jobs):
+    if any(j.get("status") in (records.RUNNING, records.ABORTED) for j in jobs):
         return "KILLED"
     if ended_early or any(j.get("status") == records.FAILED for j in jobs):
         return "FAILED"
@@ -88,6 +88,11 @@ def finish_study(sweep_dir: Path, *, ended_early: bool = False) -> dict[str, Any
     name = study.get("name", "multirun")
     jobs = records.read_jobs(sweep_dir)
     status = _status(jobs, ended_early)
+    for job in jobs:
+        if job.get("status") == records.RUNNING:  # the sweep is over: it never returned
+            job.update(records.write_job(Path(job["job_dir"]), status=records.ABORTED,
+                                         error="the sweep ended while this job ran "
+                                               "(interrupted, or an error stopped the sweep)"))
     run_dirs = [Path(j["run_dir"]) for j in jobs
                 if j.get("status") == records.COMPLETED and j.get("run_dir")]
     outputs: dict[str, Any] = {"problems": []}

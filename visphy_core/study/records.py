@@ -19,8 +19,9 @@ JOB_FILE = "visphy_job.json"
 #: Set in a job's process while the job runs: its Hydra job dir.
 JOB_ENV = "VISPHY_STUDY_JOB"
 
-#: Job record statuses: a job that never leaves "running" died with its process.
-RUNNING, COMPLETED, FAILED = "running", "completed", "failed"
+#: Job record statuses. A job still "running" when the sweep ends died with its process (an
+#: interrupt, a bad input that stops the whole sweep): the study marks it "aborted".
+RUNNING, COMPLETED, FAILED, ABORTED = "running", "completed", "failed", "aborted"
 
 
 def write_json(path: Path, data: dict[str, Any]) -> None:
