@@ -1,8 +1,9 @@
-"""Hydra launchers beyond one process: submitit's local executor (the SLURM launcher's code path
-without a cluster) and visphy's Ray launcher on a local Ray cluster each run a small multirun
-(one mini scene × threejs, p5) end to end, in processes other than the launching one; every
-job's rows equal those of the same jobs under Hydra's basic launcher (frame digests, scores),
-and the study's MLflow parent run has the jobs' runs as its children."""
+"""Hydra launchers beyond one process: submitit's local executor (``hydra/launcher=slurm_local``,
+the SLURM launcher's code path without a cluster) and visphy's Ray launcher on a local Ray
+cluster (``hydra/launcher=ray_local``) each run a small multirun (one mini scene × threejs, p5)
+end to end, in processes other than the launching one; every job's rows equal those of the same
+jobs under Hydra's basic launcher (frame digests, scores), and the study's MLflow parent run has
+the jobs' runs as its children."""
 
 from __future__ import annotations
 
@@ -101,9 +102,9 @@ def test_basic_launcher_runs_both_jobs_in_the_launching_process(basic):
     assert len(_job_pids(basic)) == 1  # the reference really is in-process
 
 
-def test_submitit_local_runs_the_sweep_in_other_processes(basic, new_home):
+def test_slurm_local_runs_the_sweep_in_submitit_processes(basic, new_home):
     home = new_home("submitit")
-    study, _ = _multirun(home, "hydra/launcher=submitit_local")
+    study, _ = _multirun(home, "hydra/launcher=slurm_local")
     _check_study(study, basic, home)
     assert len(_job_pids(study)) == 2  # one process per job
     logs = sorted(Path(study["sweep_dir"]).glob(".submitit/*/*_log.out"))

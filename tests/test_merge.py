@@ -194,3 +194,27 @@ def test_partial_merges_the_shards_named(shards, home):
 
     [one] = check_shards([read_shard(shards[1])], partial=True)
     assert one.index == (1, 2) and len(one.rows) == 1
+
+
+def test_merge_study_merges_the_run_its_shards_belong_to(study, full, merged, tmp_path):
+    """``--study``: the study's shards grouped by config (the unsharded job is no shard) and
+    merged into OUT/<model>_<engine>_<hash8>; the newest merge adopts the shards' runs."""
+    import io
+    from contextlib import redirect_stdout
+
+    from mlflow.tracking import MlflowClient
+
+    from visphy_core.cli import main
+
+    printed = io.StringIO()
+    with redirect_stdout(printed):
+        assert main(["merge", "--study", study["sweep_dir"], "-o", str(tmp_path / "all")]) == 0
+    [out] = (tmp_path / "all").iterdir()
+    chash = _json(full / "manifest.json")["config_hash"]
+    assert out.name == f"static_threejs_{chash[:8]}"
+    assert _rows(out) == _rows(full)
+    info = _json(out / "summary.json")["mlflow"]
+    client = MlflowClient(tracking_uri=info["tracking_uri"])
+    adopted = client.search_runs([info["experiment_id"]], filter_string=(
+        f"tags.`mlflow.parentRunId` = '{info['run_id']}'"))
+    assert len(adopted) == 2

@@ -156,6 +156,33 @@ def check_shards(shards: list[Shard], partial: bool = False) -> list[Shard]:
     return [seen[i] for i in sorted(seen)]
 
 
+def study_groups(sweep_dir: Path) -> list[list[Path]]:
+    """The run directories of a study's completed jobs that are shards, one list per run they
+    are shards of (their config without ``dataset.shard``), in job order."""
+    from visphy_core.study.records import COMPLETED, read_jobs
+
+    jobs = read_jobs(Path(sweep_dir))
+    if not jobs:
+        raise UserError(f"merge: {sweep_dir} holds no study jobs (visphy_job.json): name the "
+                        "sweep folder a multirun printed ('study …: FOLDER')")
+    groups: dict[str, list[Path]] = {}
+    for job in jobs:
+        run_dir = Path(job.get("run_dir") or "")
+        if job.get("status") != COMPLETED or not (run_dir / "config.yaml").is_file():
+            continue
+        config = OmegaConf.load(run_dir / "config.yaml")
+        if OmegaConf.select(config, "dataset.shard", default=None) is None:
+            continue
+        groups.setdefault(config_hash(_unsharded(config)), []).append(run_dir)
+    return list(groups.values())
+
+
+def merged_name(shard: Shard) -> str:
+    """``<model>_<engine>_<hash8>``: the folder name of a merged run under ``--study``."""
+    cfg = _unsharded(shard.config)
+    return f"{cfg.model.name}_{cfg.engine.name}_{config_hash(cfg)[:8]}"
+
+
 def _link_or_copy(src: str, dst: str) -> None:
     try:
         os.link(src, dst)
