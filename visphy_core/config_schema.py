@@ -59,6 +59,9 @@ class RunConfig:
     cost_cap_usd: Optional[float] = field(default=None, metadata={"min": 0})
     # Model calls started ahead of the scene being rendered (they overlap with rendering).
     prefetch: int = field(default=8, metadata={"min": 0, "max": 1024})
+    # Scenes rendered or scored at once (visphy_core.scheduler): auto (the usable cores, as
+    # many as the available memory holds) or a whole number ≥ 1. Rows do not depend on it.
+    workers: str = "auto"
 
 
 class ReferenceSource(StrEnum):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import shlex
 import sys
+import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -27,7 +28,9 @@ STAGES = ("generate", "render", "score", "judge")
 
 class StageEvents:
     """What the pipeline reports while a scene goes through its stages. This base class
-    ignores everything (no progress wanted); `StageProgress` shows it."""
+    ignores everything (no progress wanted); `StageProgress` shows it. The scheduler's gates
+    (`visphy_core.scheduler.StageGates`) hold a scene at a stage's entrance until the stage's
+    resources are free, so the pipeline enters every stage through `stage`."""
 
     def begin(self, stage: str, scene_id: str) -> None:
         """``scene_id`` entered ``stage`` (again, for a repair: the time adds up)."""
@@ -36,15 +39,29 @@ class StageEvents:
         """``scene_id`` left ``stage``; the first end counts the scene as done there."""
 
     def scene_finished(self, scene_id: str) -> None:
-        """The scene's row is written: stages it never reached count as skipped."""
+        """The scene is finished: stages it never reached count as skipped."""
+
+    def check(self) -> None:
+        """Between two steps of a stage: raises when the run is closing (the scheduler's
+        gates); here, nothing."""
+
+    @contextmanager
+    def stage(self, stage: str, scene_id: str) -> Iterator[None]:
+        """``begin`` … ``end`` around the block (no ``end`` when the block raises: the scene's
+        `scene_finished` closes what it left open)."""
+        self.begin(stage, scene_id)
+        yield
+        self.end(stage, scene_id)
 
 
 class StageProgress(StageEvents):
-    """One line per stage: scenes done / total, the scene in that stage now, the seconds spent
-    in it and the time since the run started.
+    """One line per stage: scenes done / total, how many scenes are in that stage now (scenes
+    of a run with several workers go through the stages side by side), the seconds spent in it
+    (summed over scenes) and the time since the run started.
 
     Drawn live (rich, on stderr) when ``live``; either way `final_line` sums it up (counts,
     skipped scenes and seconds per stage), printed at the end when nothing was drawn.
+    Thread-safe: every scene's worker reports here.
     """
 
     def __init__(self, total: int, stages: tuple[str, ...] | list[str], live: bool,
@@ -55,52 +72,75 @@ class StageProgress(StageEvents):
         self.done: dict[str, set[str]] = {s: set() for s in self.stages}
         self.skipped = dict.fromkeys(self.stages, 0)
         self.spent = dict.fromkeys(self.stages, 0.0)
-        self._since: dict[str, float] = {}
+        #: (stage, scene id) -> when the scene entered the stage
+        self._since: dict[tuple[str, str], float] = {}
+        #: the most scenes that were in each stage at once
+        self.most_in_flight = dict.fromkeys(self.stages, 0)
+        self._lock = threading.RLock()
         self.started = time.monotonic()
         self.progress = None
         self.tasks: dict[str, int] = {}
         if live:
             self.progress = Progress(
                 TextColumn("[bold]{task.fields[stage]:<8}"), BarColumn(bar_width=24),
-                MofNCompleteColumn(), TextColumn("{task.fields[spent]:>7}"),
-                TimeElapsedColumn(), TextColumn("{task.description}"),
+                MofNCompleteColumn(), TextColumn("{task.fields[in_flight]:>11}"),
+                TextColumn("{task.fields[spent]:>7}"), TimeElapsedColumn(),
+                TextColumn("{task.description}"),
                 console=out or Console(file=sys.stderr), transient=False)
             for stage in self.stages:
                 self.tasks[stage] = self.progress.add_task("", total=total, stage=stage,
-                                                           spent="0.0s")
+                                                           spent="0.0s", in_flight="")
+
+    def in_flight(self, stage: str) -> list[str]:
+        """The scenes in ``stage`` now, in the order they entered it."""
+        with self._lock:
+            return [sid for (st, sid) in self._since if st == stage]
 
     def begin(self, stage: str, scene_id: str) -> None:
         if stage not in self.done:
             return
-        self._since[stage] = time.monotonic()
-        if self.progress is not None:
-            self.progress.update(self.tasks[stage], description=scene_id)
+        with self._lock:
+            self._since[(stage, scene_id)] = time.monotonic()
+            now = self.in_flight(stage)
+            self.most_in_flight[stage] = max(self.most_in_flight[stage], len(now))
+            self._show(stage)
 
     def end(self, stage: str, scene_id: str) -> None:
         if stage not in self.done:
             return
-        since = self._since.pop(stage, None)
-        if since is not None:
-            self.spent[stage] += time.monotonic() - since
-        self._count(stage, scene_id)
+        with self._lock:
+            since = self._since.pop((stage, scene_id), None)
+            if since is not None:
+                self.spent[stage] += time.monotonic() - since
+            self._count(stage, scene_id)
 
     def scene_finished(self, scene_id: str) -> None:
-        for stage in self.stages:
-            self._since.pop(stage, None)
-            if scene_id not in self.done[stage]:
-                self.skipped[stage] += 1
-                self._count(stage, scene_id)
+        with self._lock:
+            for stage in self.stages:
+                self._since.pop((stage, scene_id), None)
+                if scene_id not in self.done[stage]:
+                    self.skipped[stage] += 1
+                    self._count(stage, scene_id)
+                else:
+                    self._show(stage)
+
+    def _show(self, stage: str, advance: int = 0) -> None:
+        """Redraw ``stage``'s line: in flight now, seconds, the scene(s) in it."""
+        if self.progress is None:
+            return
+        now = self.in_flight(stage)
+        finished = len(self.done[stage]) >= self.total and not now
+        description = ("done" if finished else
+                       now[0] + (f" +{len(now) - 1}" if len(now) > 1 else "") if now else "")
+        self.progress.update(self.tasks[stage], advance=advance,
+                             spent=f"{self.spent[stage]:.1f}s",
+                             in_flight=f"{len(now)} in flight" if now else "",
+                             description=description)
 
     def _count(self, stage: str, scene_id: str) -> None:
         first = scene_id not in self.done[stage]
         self.done[stage].add(scene_id)
-        if self.progress is None:
-            return
-        task = self.tasks[stage]
-        finished = len(self.done[stage]) >= self.total
-        self.progress.update(task, advance=1 if first else 0,
-                             spent=f"{self.spent[stage]:.1f}s",
-                             **({"description": "done"} if finished else {}))
+        self._show(stage, advance=1 if first else 0)
 
     def final_line(self) -> str:
         parts = []

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -207,8 +208,9 @@ def render_cached(engine: Engine, program: Program, contract: RenderContract,
                              wall_s=result.wall_s, isolation=result.isolation,
                              flags=meta["flags"])
     files: dict = {"meta.json": json.dumps(meta, indent=1)}
-    tmp_video = cache.root / "tmp" / f"{key}.{os.getpid()}.mp4"
-    tmp_partial = cache.root / "tmp" / f"{key}.{os.getpid()}.partial.mp4"
+    here = f"{os.getpid()}-{threading.get_ident()}"  # scenes render on several threads
+    tmp_video = cache.root / "tmp" / f"{key}.{here}.mp4"
+    tmp_partial = cache.root / "tmp" / f"{key}.{here}.partial.mp4"
     if ok:
         encode_video(result.frames, tmp_video, contract.fps)
         files["video.mp4"] = tmp_video
@@ -277,18 +279,26 @@ class SceneServices:
         """The scoring half (`visphy_core.scene_scores`): reference-program clips rendered by
         this run's engine."""
         return ScoringServices(metrics=self.metrics, cache=self.cache, protocol=self.protocol,
-                               clips=EngineReferenceClips(self.engine, self.cache),
+                               clips=EngineReferenceClips(self.engine, self.cache,
+                                                          self.progress),
                                judges=self.judges, references=self.references,
                                progress=self.progress)
 
 
 class EngineReferenceClips:
     """`visphy_core.scene_scores.ReferenceClips` of a run: the engine's trusted reference
-    program renders S and the twin (through the render cache) into the scene's folder."""
+    program renders S and the twin (through the render cache) into the scene's folder. Each
+    render goes through the ``render`` stage (the run's render lane)."""
 
-    def __init__(self, engine: Engine, cache: Cache):
+    def __init__(self, engine: Engine, cache: Cache, progress: StageEvents | None = None):
         self.engine = engine
         self.cache = cache
+        self.progress = progress or StageEvents()
+
+    def _render(self, scene: Scene, program: Program, contract: RenderContract
+                ) -> RenderOutcome:
+        with self.progress.stage("render", scene.scene_id):
+            return render_cached(self.engine, program, contract, self.cache)
 
     def spec_replay(self, scene: Scene, spec: dict, contract: RenderContract,
                     scene_dir: Path) -> np.ndarray:
@@ -296,7 +306,7 @@ class EngineReferenceClips:
             program = self.engine.program_from_spec(spec_scene(scene, spec))
         except (SpecTrackError, ValueError, NotImplementedError) as exc:
             raise ReferenceClipUnavailable(_one_line(str(exc))) from None
-        outcome = render_cached(self.engine, program, contract, self.cache)
+        outcome = self._render(scene, program, contract)
         if outcome.failure is not None:
             raise ReferenceClipUnavailable(_one_line(
                 f"the reference program failed to replay S: {outcome.failure.value} "
@@ -310,7 +320,7 @@ class EngineReferenceClips:
         except (SpecTrackError, ValueError, NotImplementedError) as exc:
             raise ReferenceClipUnavailable(
                 f"normalisation: no twin of the ground truth: {_one_line(str(exc))}") from None
-        outcome = render_cached(self.engine, program, contract, self.cache)
+        outcome = self._render(scene, program, contract)
         if outcome.failure is not None:
             raise ReferenceClipUnavailable(
                 f"normalisation: the reference program failed to render the twin: "
@@ -444,9 +454,8 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
     attempts = (1, 2) if settings.retry and model.output_kind == "program" else (1,)
     for attempt in attempts:
         result.attempts = attempt
-        services.progress.begin("generate", scene.scene_id)
-        response, cached = services.caller.call(request)
-        services.progress.end("generate", scene.scene_id)
+        with services.progress.stage("generate", scene.scene_id):
+            response, cached = services.caller.call(request)
         result.response_cached = cached
         result.model_calls += 0 if cached else 1
         result.model_latency_s += response.latency_s
@@ -490,10 +499,10 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
                 _write(scene_dir / f"program{suffix}."
                                    f"{'html' if program.language == 'html' else 'py'}",
                        program.source)
-                services.progress.begin("render", scene.scene_id)
-                outcome = _render_with_infra_retry(engine, program, contract, services.cache,
-                                                   scene_dir, suffix, result)
-                services.progress.end("render", scene.scene_id)
+                with services.progress.stage("render", scene.scene_id):
+                    outcome = _render_with_infra_retry(engine, program, contract,
+                                                       services.cache, scene_dir, suffix,
+                                                       result, services.progress)
                 if outcome.failure is None:
                     break
                 failure, detail, failed_source, logs = (outcome.failure, outcome.error or "",
@@ -543,12 +552,15 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
 
 def _render_with_infra_retry(engine: Engine, program: Program, contract: RenderContract,
                              cache: Cache, scene_dir: Path, suffix: str,
-                             result: SceneResult) -> RenderOutcome:
+                             result: SceneResult,
+                             progress: StageEvents | None = None) -> RenderOutcome:
     outcome = render_cached(engine, program, contract, cache)
     log_lines = []
     if outcome.failure is FailureClass.INFRA_ERROR:
         # Our side failed, not the program: render once more (never cached, so this is a
-        # real second render), with no repair call to the model.
+        # real second render), with no repair call to the model. Not when the run is closing
+        # (its engine may be what failed).
+        (progress or StageEvents()).check()
         result.infra_retries += 1
         log_lines += [f"infra_error (retrying the render once): {outcome.error or ''}",
                       *outcome.logs, "--- retry ---"]

@@ -1,12 +1,15 @@
 """One run: a dataset split × model × engine × prompt mode × metric set, end to end.
 
-The run directory is written as the run goes (``results.jsonl`` grows one row per scene, flushed
-and fsynced), so a crash loses at most the scene in progress. Rerunning the same command resumes
-the newest unfinished run directory with the same config hash: its finished rows are kept (a
-truncated last line is dropped), only the remaining scenes are processed, and the cache answers
-every model call already made. SIGINT/SIGTERM close the run: results and a partial summary
-(``"status": "interrupted"``) are written, tracking is marked KILLED, and the process exits with
-128 + the signal number (130 / 143).
+Scenes go through the stages side by side (`visphy_core.scheduler`: ``run.workers`` of them
+render or score at once, more wait on their replies or verdicts) and come back in scene order.
+The run directory is written as the run goes (``results.jsonl`` grows one row per scene, in
+scene order, flushed and fsynced), so a crash loses at most the scenes in flight. Rerunning the
+same command resumes the newest unfinished run directory with the same config hash: its
+finished rows are kept (a truncated last line is dropped), only the remaining scenes are
+processed, and the cache answers every model call already made. SIGINT/SIGTERM close the run
+(the scenes in flight are abandoned): results and a partial summary (``"status":
+"interrupted"``) are written, tracking is marked KILLED, and the process exits with 128 + the
+signal number (130 / 143).
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import platform
 import signal
 import sys
 import threading
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator
@@ -44,6 +47,8 @@ from visphy_core.usage import CostCapReached, UsageLedger
 from visphy_core.run_dir import (COST_CAP, FAILED, FINISHED, INTERRUPTED, RUNNING, RunLock,
                                   config_hash, find_resumable, new_run_dir, read_rows)
 from visphy_core.scene import Scene
+from visphy_core.scheduler import (SceneScheduler, StageGates, pin_torch_threads,
+                                   resolve_workers)
 
 
 log = logging.getLogger("visphy.run")
@@ -113,6 +118,7 @@ def _manifest(ctx: RunContext) -> dict:
         "model": ctx.extra.get("model"),
         "judges": ctx.judges,
         "cost_cap_usd": ctx.cfg.run.get("cost_cap_usd"),
+        "workers": ctx.extra.get("workers"),
     }
 
 
@@ -337,6 +343,8 @@ def run_experiment(cfg: DictConfig) -> dict:
     Resumes the newest unfinished run of the same config (see the module docstring). Raises
     `RunInterrupted` (exit status 130/143) after closing the run on SIGINT/SIGTERM.
     """
+    workers = resolve_workers(cfg.run.get("workers", "auto"))  # a bad value: before any work
+    torch_threads = pin_torch_threads()
     registry = get_registry()
     pm = get_plugin_manager()
     model = registry.get("models", cfg.model.name)(cfg.model)
@@ -353,7 +361,8 @@ def run_experiment(cfg: DictConfig) -> dict:
     chash = config_hash(cfg)
     found = find_resumable(runs_dir, chash)
     extra: dict[str, Any] = {"config_hash": chash, "isolation": isolation,
-                             "model": model.describe()}
+                             "model": model.describe(),
+                             "workers": {"workers": workers, "torch_threads": torch_threads}}
     if found is not None:
         run_dir, lock = found
         restored = read_rows(run_dir / "results.jsonl", [s.scene_id for s in scenes])
@@ -390,10 +399,11 @@ def run_experiment(cfg: DictConfig) -> dict:
 
 
 class _Prefetch:
-    """Starts the first model call of the next ``window`` scenes while the current one renders.
+    """Starts the first model call of the next ``window`` scenes while earlier ones render.
 
-    A scene is prefetched only after its inputs check out (a ``data_error`` scene is never sent
-    to the model); the pipeline later asks for the same request and joins the call in flight.
+    A scene is prefetched only after its inputs check out (`_sendable`: a ``data_error`` scene
+    is never sent to the model); the pipeline later asks for the same request and joins the call
+    in flight. Called by the scheduler's workers as they take scenes (thread-safe).
     """
 
     def __init__(self, scenes: list[Scene], services: SceneServices, window: int):
@@ -401,19 +411,42 @@ class _Prefetch:
         self.services = services
         self.window = window
         self.next = 0
+        self._lock = threading.Lock()
 
     def advance(self, position: int) -> None:
         settings = self.services.settings
         frames = settings.prompt.frames[:1] if settings.prompt.forecast_only \
             else settings.prompt.frames
-        while self.next < min(len(self.scenes), position + 1 + self.window):
-            scene = self.scenes[self.next]
-            self.next += 1
+        while True:
+            with self._lock:
+                if self.next >= min(len(self.scenes), position + 1 + self.window):
+                    return
+                scene = self.scenes[self.next]
+                self.next += 1
             try:
-                scene.check_inputs(tuple(frames) or (1,))
-                self.services.caller.submit(first_call(scene, self.services).request)
+                if _sendable(scene, tuple(frames) or (1,)):
+                    self.services.caller.submit(first_call(scene, self.services).request)
             except Exception:  # noqa: BLE001 - the pipeline classifies this scene itself
                 continue
+
+
+def _sendable(scene: Scene, key_frames: tuple[int, ...]) -> bool:
+    """Whether a scene's inputs look sound enough to send it to the model ahead of its turn:
+    what `Scene.check_inputs` checks, with the ground-truth clip probed (frame count and size
+    from its header) instead of decoded, so each clip is decoded once, by its scene."""
+    import av
+
+    if scene.load_error:
+        return False
+    try:
+        scene.detection, scene.spec, scene.trajectory  # noqa: B018 - read (and kept) now
+        with av.open(str(scene.video_path)) as container:
+            stream = container.streams.video[0]
+            n, width, height = int(stream.frames), stream.width, stream.height
+    except Exception:  # noqa: BLE001 - check_inputs names the fault when the scene runs
+        return False
+    c = scene.clip
+    return (n == c.n_frames and n >= max(key_frames) and (width, height) == (c.width, c.height))
 
 
 def _wait_for_calls(caller: ModelCaller) -> None:
@@ -449,6 +482,36 @@ def _close_calls(services: SceneServices) -> None:
         services.judges.close()
 
 
+def _write_row(rows, result: SceneResult, ctx: RunContext) -> None:
+    """Append the scene's row to results.jsonl (flushed, fsynced) and to the run's results.
+    The row on disk and the row in memory go together: a signal between them would leave a
+    summary that misses a row results.jsonl holds."""
+    with _deferred_signals() as held:
+        rows.write(json.dumps(result.row(), default=str) + "\n")
+        rows.flush()
+        os.fsync(rows.fileno())
+        ctx.results.append(result)
+    if held:
+        raise RunInterrupted(held[0])
+
+
+#: Seconds the run waits for a render in flight before closing the engine under it.
+CLOSE_WAIT_S = 10.0
+
+
+def _close_engine(engine, cfg: DictConfig, gates: StageGates | None) -> None:
+    """Close the engine once no scene renders: the run holds the render lane while closing
+    (the scenes were cancelled, so none starts a render after); a render that does not end in
+    `CLOSE_WAIT_S` is closed under (it fails, and its scene is abandoned anyway)."""
+    lane = gates.render_lane(CLOSE_WAIT_S) if gates is not None else nullcontext(True)
+    with lane:
+        try:
+            engine.close()
+        except Exception as exc:  # noqa: BLE001
+            log.warning("closing engine %s failed: %s: %s", cfg.engine.name,
+                        type(exc).__name__, exc)
+
+
 def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledger) -> dict:
     import pandas as pd
 
@@ -468,6 +531,7 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
     prefetch = _Prefetch(pending, services, int(cfg.run.get("prefetch", 0)))
     status, raised, cost_stop = FINISHED, None, None
     rows_path = run_dir / "results.jsonl"
+    gates: StageGates | None = None
     try:
         with _signals_close_the_run():
             pm.hook.visphy_run_start(run=ctx)
@@ -477,26 +541,30 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
             with stage_progress(len(pending), run_stages(services),
                                 enabled=bool(cfg.run.progress)) as progress, \
                     rows_path.open("a") as rows:
-                services.progress = progress
-                for position, scene in enumerate(pending):
-                    prefetch.advance(position)
-                    try:
-                        result = process_scene(scene, services,
-                                               run_dir / "scenes" / scene.scene_id)
-                    except CostCapReached as exc:
-                        cost_stop = exc
-                        break
+                gates = StageGates(progress, int(extra["workers"]["workers"]),
+                                   serial_calls=prefetch.window == 0)
+                services.progress = gates
+
+                def process(scene: Scene) -> SceneResult:
+                    result = process_scene(scene, services, run_dir / "scenes" / scene.scene_id)
                     progress.scene_finished(scene.scene_id)
-                    # The row on disk and the row in memory go together: a signal between
-                    # them would leave a summary that misses a row results.jsonl holds.
-                    with _deferred_signals() as held:
-                        rows.write(json.dumps(result.row(), default=str) + "\n")
-                        rows.flush()
-                        os.fsync(rows.fileno())
-                        ctx.results.append(result)
-                    if held:
-                        raise RunInterrupted(held[0])
-                    pm.hook.visphy_scene_done(run=ctx, scene=scene, result=result)
+                    return result
+
+                scheduler = SceneScheduler(pending, key=lambda s: s.scene_id, process=process,
+                                           gates=gates, on_dispatch=prefetch.advance)
+                try:
+                    for scene, result in scheduler.results():
+                        if isinstance(result, CostCapReached):
+                            # no new scene; those in flight finish (or meet the cap too)
+                            cost_stop = cost_stop or result
+                            scheduler.drain()
+                            continue
+                        if isinstance(result, BaseException):
+                            raise result
+                        _write_row(rows, result, ctx)
+                        pm.hook.visphy_scene_done(run=ctx, scene=scene, result=result)
+                finally:
+                    scheduler.cancel()  # the scenes still in flight are abandoned
             if cost_stop is not None:
                 status = COST_CAP
     except RunInterrupted as exc:
@@ -510,11 +578,7 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
             _close_calls(services)
         except Exception as exc:  # noqa: BLE001
             log.warning("closing model calls failed: %s: %s", type(exc).__name__, exc)
-        try:
-            engine.close()
-        except Exception as exc:  # noqa: BLE001
-            log.warning("closing engine %s failed: %s: %s", cfg.engine.name,
-                        type(exc).__name__, exc)
+        _close_engine(engine, cfg, gates)
         order = {s.scene_id: i for i, s in enumerate(scenes)}
         ctx.results.sort(key=lambda r: order.get(r.scene_id, len(order)))
         pd.DataFrame([r.row() for r in ctx.results]).to_parquet(run_dir / "results.parquet",

@@ -100,25 +100,42 @@ def score_outputs(scene: Scene, reference: np.ndarray, generated: np.ndarray | N
                   analysis: str | None, spec: dict | None, services: ScoringServices,
                   scene_dir: Path, result: "SceneResult", contract: RenderContract,
                   program: "Program | None" = None, spec_track: bool = True) -> None:
-    """Score a scene's clip (when there is one) and judge it, then the spec track (when
-    ``spec_track``: a program-writing model) and normalisation, as the protocol asks."""
-    if generated is not None:
-        _score_and_judge(scene, reference, generated, analysis, spec, services, scene_dir,
+    """Score a scene's clip (when there is one), then the spec track (when ``spec_track``: a
+    program-writing model) and normalisation, as the protocol asks; then judge the clip.
+
+    The scoring is one ``score`` stage and the judges come last, in a ``judge`` stage of their
+    own: a run's worker gives its slot back while the judges answer."""
+    with services.progress.stage("score", scene.scene_id):
+        own: dict[str, float | None] = {}
+        if generated is not None:
+            own = _score(scene, reference, generated, analysis, spec, services, scene_dir,
                          result, program)
-    services.progress.begin("score", scene.scene_id)
-    if services.protocol.spec_track and spec_track:
-        _spec_track(scene, reference, spec, result.spec_valid, services, scene_dir, result,
-                    contract)
-    if services.protocol.variance_norm:
-        _normalise(scene, reference, services, scene_dir, result, contract)
-    services.progress.end("score", scene.scene_id)
+        if services.protocol.spec_track and spec_track:
+            _spec_track(scene, reference, spec, result.spec_valid, services, scene_dir,
+                        result, contract, generated, own)
+        if services.protocol.variance_norm:
+            _normalise(scene, reference, services, scene_dir, result, contract)
+    if generated is not None and services.judges is not None:
+        with services.progress.stage("judge", scene.scene_id):
+            _judge(scene, reference, generated, services, scene_dir, result)
+
+
+#: What a frame or sequence metric may read besides the two clips for `_spec_track` to reuse
+#: its value on the generated clip (anything else, e.g. the model's S, could change it).
+_CLIP_ONLY_NEEDS = frozenset({"frames", "scene_spec"})
 
 
 def _spec_track(scene: Scene, reference: np.ndarray, spec: dict | None,
                 spec_valid: bool | None, services: ScoringServices, scene_dir: Path,
-                result: "SceneResult", contract: RenderContract) -> None:
+                result: "SceneResult", contract: RenderContract,
+                generated: np.ndarray | None = None,
+                own: dict[str, float | None] | None = None) -> None:
     """Score S apart from the program: simulated by visphy, replayed by the engine's reference
-    program, scored under the same protocol with ``spec.``-prefixed columns."""
+    program, scored under the same protocol with ``spec.``-prefixed columns.
+
+    When S replayed gives exactly the model's own clip (a program that is the reference program
+    of its S, e.g. the oracle's), a metric that reads only the clips has the value it already
+    has on that clip: it is taken from ``own`` instead of being computed again."""
     if spec is None or spec_valid is None:
         result.spec_track = "no_spec"
         return
@@ -131,11 +148,25 @@ def _spec_track(scene: Scene, reference: np.ndarray, spec: dict | None,
         result.spec_track, result.spec_track_error = "failed", str(exc)
         return
     metrics = [m for m in services.metrics if m.kind != SCENE]
-    scores, unavailable = score_scene(scene, reference, frames, metrics, None, None,
-                                      services.cache,
-                                      protocol=replace(services.protocol, spec_track=False))
+    protocol = replace(services.protocol, spec_track=False)
+    scores: dict[str, float | None] = {}
+    unavailable: dict[str, str] = {}
+    same_clip = (own and generated is not None and frames.shape == generated.shape
+                 and np.array_equal(frames, generated))
+    reused = [m for m in metrics if same_clip and set(m.needs) <= _CLIP_ONLY_NEEDS]
+    if reused:
+        names = {name for name, _ in score_columns(reused, protocol)}
+        scores = {k: v for k, v in own.items() if k in names}
+        unavailable = {k: v for k, v in result.unavailable.items() if k in names}
+    rest = [m for m in metrics if m not in reused]
+    if rest or not reused:
+        more, why = score_scene(scene, reference, frames, rest, None, None, services.cache,
+                                protocol=protocol)
+        scores.update(more)
+        unavailable.update(why)
     result.spec_track = "rendered"
-    result.scores.update({f"{SPEC_PREFIX}{k}": v for k, v in scores.items()})
+    order = [name for name, _ in score_columns(metrics, protocol)]
+    result.scores.update({f"{SPEC_PREFIX}{k}": scores[k] for k in order if k in scores})
     result.unavailable.update({f"{SPEC_PREFIX}{k}": v for k, v in unavailable.items()})
 
 
@@ -187,12 +218,11 @@ def _normalise(scene: Scene, reference: np.ndarray, services: ScoringServices, s
          "pairing": "visphy (unaligned)", "anchors": anchors}, indent=1))
 
 
-def _score_and_judge(scene: Scene, reference: np.ndarray, generated: np.ndarray,
-                     analysis: str | None, spec: dict | None, services: ScoringServices,
-                     scene_dir: Path, result: "SceneResult", program: "Program | None" = None
-                     ) -> None:
-    progress = services.progress
-    progress.begin("score", scene.scene_id)
+def _score(scene: Scene, reference: np.ndarray, generated: np.ndarray,
+           analysis: str | None, spec: dict | None, services: ScoringServices,
+           scene_dir: Path, result: "SceneResult", program: "Program | None" = None
+           ) -> dict[str, float | None]:
+    """The metrics on the scene's own clip; returns their scores (also in ``result``)."""
     reference_text = None
     if services.references is not None:
         reference_text, result.reference_source = services.references.describe(scene)
@@ -209,10 +239,12 @@ def _score_and_judge(scene: Scene, reference: np.ndarray, generated: np.ndarray,
                        json.dumps(details, indent=1, default=str))
     result.scores.update(scores)
     result.unavailable.update(unavailable)
-    progress.end("score", scene.scene_id)
-    if services.judges is None:
-        return
-    progress.begin("judge", scene.scene_id)
+    return scores
+
+
+def _judge(scene: Scene, reference: np.ndarray, generated: np.ndarray,
+           services: ScoringServices, scene_dir: Path, result: "SceneResult") -> None:
+    """Every judge's verdict on the scene's clip against the ground truth."""
     inp = JudgeInput(scene_id=scene.scene_id, dim=scene.dim, reference_video=scene.video_path,
                      generated_video=scene_dir / "video.mp4", fps=scene.clip.fps,
                      n_frames=scene.clip.n_frames)
@@ -226,7 +258,6 @@ def _score_and_judge(scene: Scene, reference: np.ndarray, generated: np.ndarray,
             result.unavailable[column] = verdict.error or "invalid verdict"
     write_artifact(scene_dir / "verdicts.json", json.dumps(
         {k: v.to_json() for k, v in verdicts.items()}, indent=1, default=str))
-    progress.end("judge", scene.scene_id)
 
 
 def write_scores(scene_dir: Path, result: "SceneResult") -> None:
