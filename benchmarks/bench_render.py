@@ -75,7 +75,7 @@ class TreeCpu:
 
     def __init__(self) -> None:
         self._seen: dict[tuple[int, str], int] = {}
-        self.peak_rss_mib = 0.0
+        self.peak_pss_mib = 0.0
 
     def sample(self) -> float:
         from visphy_core.sandbox.chromium import descendants
@@ -88,7 +88,7 @@ class TreeCpu:
                 continue
             self._seen[(pid, fields[19])] = int(fields[11]) + int(fields[12])  # by start time
             rss += pss_bytes(pid)
-        self.peak_rss_mib = max(self.peak_rss_mib, rss / 2**20)
+        self.peak_pss_mib = max(self.peak_pss_mib, rss / 2**20)
         return sum(self._seen.values()) / _TICK
 
 
@@ -232,7 +232,7 @@ def main() -> None:
     for pool in paths.values():
         pool.close()
     report["machine_at_end"] = machine_info()
-    report["peak_pss_tree_mib"] = round(cpu.peak_rss_mib, 1)
+    report["peak_pss_tree_mib"] = round(cpu.peak_pss_mib, 1)
     report["peak_rss_python_mib"] = round(
         resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
     print(json.dumps(report, indent=1))

@@ -150,7 +150,7 @@ def main() -> None:
                "upstream_median_s": upstream,
                "speedup_vs_upstream": round(upstream / visphy, 2),
                "machine_at_start": start_info, "machine_at_end": machine_info(),
-               "peak_pss_tree_mib": round(cpu.peak_rss_mib, 1)}
+               "peak_pss_tree_mib": round(cpu.peak_pss_mib, 1)}
     print(json.dumps(summary))
     if args.json:
         Path(args.json).write_text(json.dumps({"scenes": report, **summary}, indent=1) + "\n")

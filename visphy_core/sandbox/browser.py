@@ -66,11 +66,11 @@ from visphy_core.sandbox.routing import (ORIGIN, ORIGIN_HOST, Asset, close_quiet
 
 VIRTUAL_TIME_JS = (Path(__file__).with_name("virtual_time.js")).read_text()
 CAPTURE_MODES = ("canvas", "screenshot")
-#: How canvas frames are read: raw pixels where exact (else PNG), several frames per call from
-#: the host; or always PNG, one frame per call (the path it replaced).
+#: How canvas frames are read: raw pixels where exact (else PNG), or always PNG (the old path).
+#: Either way one call per frame: between two calls the program's queued tasks run (e.g. its
+#: MessageChannel messages), and a program may depend on that; several frames per call would
+#: change what it sees.
 READBACK_MODES = ("raw", "png")
-#: Payload characters one call may bring back before the host takes the frames (bounds memory).
-BATCH_CHARS = 16 << 20
 #: Real seconds a page may take, after its load event, to become ready (e.g. p5's preload()).
 READY_WAIT_S = 10.0
 #: Per-page memory cap (MB): resident memory of the page's renderer (and of the GPU process).
@@ -191,6 +191,8 @@ class PageCapture:
     timings: dict = field(default_factory=dict)
     #: Canvas frames read as raw pixels (the others were PNG: translucent, other formats...).
     raw_frames: int = 0
+    #: Whether the page was prepared ahead of this program (else made on demand).
+    page_prepared: bool = False
 
     def block(self, entry: str) -> None:
         if len(self.blocked_requests) < 200 and entry not in self.blocked_requests[-20:]:
@@ -429,6 +431,7 @@ class BrowserPool:
             except Exception:
                 prepared = None
             if prepared is not None and prepared.usable(proc, (width, height)):
+                prepared.ahead = True
                 return prepared
             if prepared is not None:
                 self._close_later(prepared.context)
@@ -499,6 +502,7 @@ class BrowserPool:
         try:
             prepared = await asyncio.wait_for(self._page_for(proc, width, height, assets), left())
             context, page, crashed = prepared.context, prepared.page, prepared.crashed
+            cap.page_prepared = prepared.ahead
             prepared.slot.load(html, assets, cap)
             context.set_default_timeout(left_ms())
             context.set_default_navigation_timeout(left_ms())
@@ -516,35 +520,23 @@ class BrowserPool:
             await asyncio.wait_for(self._wait_ready(
                 page, cap, min(READY_WAIT_S, deadline - time.perf_counter())), left())
             lap("ready")
-            batched = self.readback == "raw" and inject_fault != "crash"
-            i = 0
-            while i < len(times_ms):
-                t = times_ms[i]
+            read = ("t => window.__visphy.captureRawAt(t)" if self.readback == "raw"
+                    else "t => window.__visphy.captureAt(t)")
+            for i, t in enumerate(times_ms):
                 if cap.navigations:
                     break  # the page tried to leave: what is left of it is not the program's
                 if i == 1 and inject_fault == "crash":
                     await self._crash_renderer(context, page, crashed)
                 if capture == "canvas":
-                    if batched:
-                        shots = await asyncio.wait_for(page.evaluate(
-                            "([ts, n]) => window.__visphy.captureRawMany(ts, n)",
-                            [list(times_ms[i:]), BATCH_CHARS]), left())
-                    else:
-                        shots = [await asyncio.wait_for(page.evaluate(
-                            "t => window.__visphy.captureAt(t)", t), left())]
+                    shot = await asyncio.wait_for(page.evaluate(read, t), left())
                     lap("frames")
-                    for shot in (shots if isinstance(shots, list) and shots else [None]):
-                        frame = frame_from_capture(shot)
-                        if frame is None:
-                            cap.no_canvas = True
-                            break
-                        cap.frames.append(frame)
-                        cap.raw_frames += "png" not in shot
-                        i += 1
+                    frame = frame_from_capture(shot)
                     lap("decode")
-                    if cap.no_canvas:
+                    if frame is None:
+                        cap.no_canvas = True
                         break
-                    continue
+                    cap.frames.append(frame)
+                    cap.raw_frames += "png" not in shot
                 else:
                     info = await asyncio.wait_for(
                         page.evaluate("t => window.__visphy.prepareScreenshot(t)", t), left())
@@ -563,7 +555,6 @@ class BrowserPool:
                     lap("frames")
                     cap.frames.append(png_bytes_to_rgb(base64.b64decode(shot["data"])))
                     lap("decode")
-                    i += 1
             state = await asyncio.wait_for(page.evaluate(
                 "() => [window.__visphy.errors(), window.__visphy.logs(),"
                 " window.__visphy.attempts()]"), left())

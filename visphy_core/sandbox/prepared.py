@@ -42,6 +42,8 @@ class PreparedPage:
     slot: PageSlot
     size: tuple[int, int]
     crashed: list = field(default_factory=list)
+    #: Set when a program takes it: it was made ahead of that program.
+    ahead: bool = False
 
     def usable(self, proc, size: tuple[int, int]) -> bool:
         """Whether this page can take a program for ``proc`` at ``size`` now."""

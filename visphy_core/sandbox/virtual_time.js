@@ -408,20 +408,6 @@
     return apply(realBtoa, window, [s]);
   }
 
-  // A real task boundary: the microtasks and tasks the program queued run before the caller
-  // goes on, as between two calls from the host.
-  const RealPromise = Promise;
-  const RealMessageChannel = MessageChannel;
-  const portPost = MessagePort.prototype.postMessage;
-  const setOnMessage = setter(MessagePort.prototype, 'onmessage');
-  function nextTask() {
-    return new RealPromise((resolve) => {
-      const channel = new RealMessageChannel();
-      apply(setOnMessage, channel.port1, [() => resolve()]);
-      apply(portPost, channel.port2, [0]);
-    });
-  }
-
   function readRaw(c) {
     if (!littleEndian) return null;
     const ctx = contexts.get(c);
@@ -490,22 +476,6 @@
       let out = null;
       try { out = readRaw(c); } catch (e) { out = null; }
       return out || { png: realToDataURL.call(c, 'image/png'), width: c.width, height: c.height };
-    },
-    // captureRawAt for each of `times` in turn, in one call from the host, with a task boundary
-    // between two frames (so the program sees the same sequence of tasks and microtasks as with
-    // one call per frame). Returns the frames of a prefix of `times`: it stops after a frame
-    // without canvas, and once the frames hold `maxChars` characters of payload.
-    async captureRawMany(times, maxChars) {
-      const out = [];
-      let chars = 0;
-      for (let i = 0; i < times.length; i++) {
-        if (i > 0) await nextTask();
-        const shot = api.captureRawAt(times[i]);
-        out.push(shot);
-        chars += (shot.runs || shot.raw || shot.png || '').length;
-        if (shot.png === null || chars >= maxChars) break;
-      }
-      return out;
     },
   };
   // The host's handle cannot be replaced or deleted by the page.
