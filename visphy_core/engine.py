@@ -186,7 +186,8 @@ def classify_frames(frames: np.ndarray) -> FailureClass | None:
     A blank clip is a failure (there is nothing to score); a static clip is still scored, the
     pipeline records the class as a flag so "no motion when motion was expected" stays visible.
     """
-    if np.all(frames == frames[0, 0, 0]):
+    # The first frame alone settles most clips (the whole clip is 75 × 512² pixels for 3D).
+    if np.all(frames[0] == frames[0, 0, 0]) and np.all(frames == frames[0, 0, 0]):
         return FailureClass.BLANK_OUTPUT
     if len(frames) > 1 and all(np.array_equal(frames[0], f) for f in frames[1:]):
         return FailureClass.STATIC_OUTPUT
