@@ -103,9 +103,18 @@ def shoot(url: str, out: Path, width: int, height: int) -> None:
         page = browser.new_page(viewport={"width": width, "height": height},
                                 device_scale_factor=1)
         page.goto(url)
-        page.get_by_text("Parameters", exact=False).first.wait_for(timeout=120_000)
-        page.wait_for_load_state("networkidle")
-        time.sleep(2)  # charts settle
+        # the compare table is there once it shows a run's name (a child is named by its
+        # swept values, "model=... engine=..."); the UI keeps polling, never network-idle
+        page.get_by_text("model=", exact=False).first.wait_for(timeout=180_000)
+        close = page.get_by_role("button", name="Close")  # the assistant side panel
+        if close.count():
+            close.first.click()
+        page.get_by_role("button", name="Visualizations").click()  # fold the chart away
+        for section in ("Parameters", "Metrics", "Tags"):  # what differs between the runs
+            page.get_by_role("switch", name=f"{section} - Show diff only").click()
+        page.get_by_role("button", name="Artifacts").click()  # fold the previews away
+        page.get_by_text("Comparing", exact=False).first.scroll_into_view_if_needed()
+        time.sleep(3)
         out.parent.mkdir(parents=True, exist_ok=True)
         page.screenshot(path=str(out))
         browser.close()
@@ -118,7 +127,7 @@ def main() -> None:
     parser.add_argument("--studies", nargs=2, default=["leaderboard", "baselines"])
     parser.add_argument("--make-studies", action="store_true")
     parser.add_argument("--out", type=Path, default=REPO / "docs" / "mlflow_compare.png")
-    parser.add_argument("--size", default="1600x1000")
+    parser.add_argument("--size", default="1600x1560")
     args = parser.parse_args()
     home = args.home or Path(tempfile.mkdtemp(prefix="visphy-mlflow-shot-"))
     if args.make_studies:
