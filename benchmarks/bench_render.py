@@ -14,8 +14,10 @@ of the catalogue (75 frames, 512²) with the threejs reference program.
 Between two renders the benchmark waits ``--gap`` seconds, as a run spends time scoring the clip
 before the next render (a prepared page is made in that time); wall times are the render call
 itself. CPU seconds are those of this process and all its children (Chromium, Playwright's
-driver) from the first render of a block to the end of its last, background work included,
-divided by the renders. Prints machine info (cores, CPU model, load average at start and end:
+driver): per clip, from the first render of a block to the end of its last, background work
+(pages prepared ahead, contexts closed) included, divided by the renders; and during the render
+call alone (the critical path: on an idle machine the call takes about that long, less where
+Chromium's processes overlap). Prints machine info (cores, CPU model, load average at start and end:
 the machine may be shared), medians, the phase breakdown (`PageCapture.timings`), what the
 pipeline pays per clip outside the renderer (H.264 encode and decode of the clip), peak RSS,
 and whether frames are byte-identical across paths and repeats.
@@ -27,6 +29,7 @@ import argparse
 import json
 import os
 import platform
+import re
 import resource
 import statistics
 import tempfile
@@ -68,28 +71,58 @@ def pss_bytes(pid: int) -> int:
     return 0
 
 
+def process_kind(pid: int) -> str:
+    """What a process of the tree is: python (this one), driver (Playwright's node), chromium's
+    ``--type`` (renderer, gpu-process, utility, zygote), browser, or other (launchers)."""
+    if pid == os.getpid():
+        return "python"
+    try:
+        cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(
+            errors="replace")
+    except OSError:
+        return "other"
+    m = re.search(r"--type=([\w-]+)", cmd)
+    if m:
+        return m.group(1)
+    exe = cmd.split(" ", 1)[0]
+    if exe.endswith("/node") or exe == "node":
+        return "driver"
+    return "browser" if "chrom" in exe else "other"
+
+
 class TreeCpu:
     """CPU seconds of this process and every descendant, counting processes that have ended
-    (at their last sighting: sample often enough, e.g. after each render); and the peak memory
-    of the tree (sum of PSS) at the samples."""
+    (at their last sighting: sample often enough, e.g. after each render), in all and by kind
+    of process (`process_kind`); and the peak memory of the tree (sum of PSS) at the samples."""
 
     def __init__(self) -> None:
-        self._seen: dict[tuple[int, str], int] = {}
+        self._seen: dict[tuple[int, str], list] = {}  # (pid, start time) -> [kind, ticks]
         self.peak_pss_mib = 0.0
 
     def sample(self) -> float:
         from visphy_core.sandbox.chromium import descendants
 
-        rss = 0
+        pss = 0
         for pid in [os.getpid(), *descendants(os.getpid())]:
             try:
                 fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
             except (OSError, IndexError):
                 continue
-            self._seen[(pid, fields[19])] = int(fields[11]) + int(fields[12])  # by start time
-            rss += pss_bytes(pid)
-        self.peak_pss_mib = max(self.peak_pss_mib, rss / 2**20)
-        return sum(self._seen.values()) / _TICK
+            key = (pid, fields[19])
+            entry = self._seen.get(key)
+            if entry is None or entry[0] in ("other", "browser"):  # forks are renamed later
+                entry = self._seen[key] = [process_kind(pid), 0]
+            entry[1] = int(fields[11]) + int(fields[12])
+            pss += pss_bytes(pid)
+        self.peak_pss_mib = max(self.peak_pss_mib, pss / 2**20)
+        return sum(ticks for _, ticks in self._seen.values()) / _TICK
+
+    def by_kind(self) -> dict[str, float]:
+        """CPU seconds so far per kind of process."""
+        out: dict[str, float] = {}
+        for kind, ticks in self._seen.values():
+            out[kind] = out.get(kind, 0.0) + ticks / _TICK
+        return out
 
 
 def median(xs) -> float | None:
@@ -128,8 +161,9 @@ def bench_group(engine, scenes, paths: dict, repeats: int, gap_s: float, cpu: Tr
     from visphy_plugins.engines.browser_base import classify_capture
 
     programs = [(s, engine.program_from_spec(s), RenderContract.for_scene(s)) for s in scenes]
-    out = {name: {"wall": [], "classify": [], "cpu_s": 0.0, "renders": 0, "phases": {},
-                  "raw_frames": 0, "frames": 0} for name in paths}
+    out = {name: {"wall": [], "call_cpu": [], "classify": [], "cpu_s": 0.0, "renders": 0,
+                  "phases": {},
+                  "raw_frames": 0, "frames": 0, "cpu_by_kind": {}} for name in paths}
     digests: dict[tuple[str, str], list] = {}
     for name, pool in paths.items():  # untimed: starts the browser, prepares the first page
         engine.pool = pool
@@ -140,11 +174,14 @@ def bench_group(engine, scenes, paths: dict, repeats: int, gap_s: float, cpu: Tr
             row = out[name]
             time.sleep(gap_s)
             cpu0 = cpu.sample()
+            kinds0 = cpu.by_kind()
             for scene, program, contract in programs:
                 time.sleep(gap_s)
+                c0 = cpu.sample()
                 t0 = time.perf_counter()
                 cap, _, _ = engine.capture_page(program, contract)
                 t1 = time.perf_counter()
+                row["call_cpu"].append(cpu.sample() - c0)
                 result = classify_capture(cap, contract,
                                           expects_recording_call=engine.expects_recording_call)
                 t2 = time.perf_counter()
@@ -159,9 +196,11 @@ def bench_group(engine, scenes, paths: dict, repeats: int, gap_s: float, cpu: Tr
                 row["renders"] += 1
                 digests.setdefault((scene.scene_id, name), []).append(
                     [frame_digest(f) for f in result.frames])
-                cpu.sample()
             time.sleep(gap_s)  # background work of the block's last render
             row["cpu_s"] += cpu.sample() - cpu0
+            for kind, sec in cpu.by_kind().items():
+                row["cpu_by_kind"][kind] = row["cpu_by_kind"].get(kind, 0.0) + sec - kinds0.get(
+                    kind, 0.0)
     with tempfile.TemporaryDirectory() as tmp:  # what the pipeline pays outside the renderer
         frames = result.frames
         t0 = time.perf_counter()
@@ -179,6 +218,10 @@ def bench_group(engine, scenes, paths: dict, repeats: int, gap_s: float, cpu: Tr
             "wall_s_median": median(row["wall"]),
             "wall_s_min": round(min(row["wall"]), 3), "wall_s_max": round(max(row["wall"]), 3),
             "cpu_s_per_clip": round(row["cpu_s"] / max(1, row["renders"]), 3),
+            "cpu_s_during_call_median": median(row["call_cpu"]),
+            "cpu_s_per_clip_by_process": {k: round(v / max(1, row["renders"]), 3)
+                                          for k, v in sorted(row["cpu_by_kind"].items())
+                                          if v > 0},
             "renders": row["renders"],
             "raw_frames_share": round(row["raw_frames"] / max(1, row["frames"]), 3),
             "phases_s_median": {k: median(v) for k, v in row["phases"].items()},

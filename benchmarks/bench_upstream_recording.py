@@ -106,15 +106,19 @@ def main() -> None:
             program = engine.program_from_spec(scene)
             contract = RenderContract.for_scene(scene)
             times = {name: [] for name in pools}
+            call_cpu = []
             digests = {name: [] for name in pools}
             up_times, up_counts, up_digests = [], [], []
             for run in range(args.runs):
                 for name, pool in pools.items():
                     engine.pool = pool
                     time.sleep(args.gap)
+                    c0 = cpu.sample()
                     t = time.perf_counter()
                     result = engine.render(program, contract)
                     times[name].append(time.perf_counter() - t)
+                    if name == "fast":
+                        call_cpu.append(cpu.sample() - c0)
                     digests[name].append([frame_digest(f) for f in result.frames])
                 wall, webm = record_upstream(browser, engine.canonicalise(program.source),
                                              engine.vendor, contract.width, contract.height)
@@ -128,6 +132,7 @@ def main() -> None:
                 "scene": scene.scene_id,
                 "clip_s": contract.n_frames / contract.fps,
                 "visphy_s": round(statistics.median(times["fast"]), 3),
+                "visphy_cpu_s_during_call": round(statistics.median(call_cpu), 3),
                 "visphy_png_path_s": round(statistics.median(times["png"]), 3),
                 "visphy_frames": contract.n_frames,
                 "visphy_identical_runs_and_paths": all(d == digests["fast"][0]
@@ -147,6 +152,8 @@ def main() -> None:
     summary = {"visphy_median_s": visphy,
                "visphy_png_path_median_s": statistics.median(r["visphy_png_path_s"]
                                                              for r in report),
+               "visphy_cpu_s_during_call_median": statistics.median(
+                   r["visphy_cpu_s_during_call"] for r in report),
                "upstream_median_s": upstream,
                "speedup_vs_upstream": round(upstream / visphy, 2),
                "machine_at_start": start_info, "machine_at_end": machine_info(),
