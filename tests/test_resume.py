@@ -22,6 +22,9 @@ pytestmark = pytest.mark.browser
 
 ARGS = ["model=oracle", "model.name=counting", "engine=threejs", "dataset=mini",
         "dataset.limit=4", "tracking=none", "run.progress=false", *FAST_METRICS]
+#: The interrupted runs: one worker, so rows come one by one and the kill lands mid-run; the
+#: rerun (run.workers=auto) resumes it all the same (the worker count is not in the config hash).
+PACED = [*ARGS, "run.workers=1"]
 COMPARED = ("scene_id", "model_success", "system_success", "fallback", "attempts",
             "failure_class", "first_failure_class", "frame_digests", "flags")
 
@@ -121,7 +124,7 @@ def test_sigkill_at_a_random_point_then_rerun_gives_identical_results(
     home = _fresh_home(tmp_path, mini_root)
     seed = random.randrange(1 << 30)
     rng = random.Random(seed)
-    proc = _start(home, script)
+    proc = _start(home, script, PACED)
     try:
         _wait_for_rows(proc, home, rng.randint(1, 2))
         time.sleep(rng.uniform(0.0, 1.5))
@@ -155,7 +158,7 @@ def test_a_signal_writes_a_partial_summary_and_the_rerun_resumes(
         tmp_path, mini_root, script, reference, sig, code):
     ref_rows, ref_calls, _ = reference
     home = _fresh_home(tmp_path, mini_root)
-    proc = _start(home, script)
+    proc = _start(home, script, PACED)
     try:
         _wait_for_rows(proc, home, 1)
         proc.send_signal(sig)

@@ -512,6 +512,21 @@ def _close_engine(engine, cfg: DictConfig, gates: StageGates | None) -> None:
                         type(exc).__name__, exc)
 
 
+#: Seconds the run waits for its abandoned scenes' threads to reach their next stage.
+STOP_WAIT_S = 60.0
+
+
+def _let_scenes_stop(scheduler: SceneScheduler) -> None:
+    """Wait for the worker threads of abandoned scenes (cancelled: each stops at its next stage
+    entrance, within the metric or render it is in): the run's files are final only once no
+    scene writes, and a process that exits under a thread inside torch aborts."""
+    if scheduler.join(1.0):
+        print(f"waiting for {scheduler.join(0)} scene(s) in flight to stop", file=sys.stderr)
+        left = scheduler.join(STOP_WAIT_S)
+        if left:
+            log.warning("%d scene thread(s) still running after %.0f s", left, STOP_WAIT_S)
+
+
 def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledger) -> dict:
     import pandas as pd
 
@@ -532,6 +547,7 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
     status, raised, cost_stop = FINISHED, None, None
     rows_path = run_dir / "results.jsonl"
     gates: StageGates | None = None
+    scheduler: SceneScheduler | None = None
     try:
         with _signals_close_the_run():
             pm.hook.visphy_run_start(run=ctx)
@@ -579,6 +595,8 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
         except Exception as exc:  # noqa: BLE001
             log.warning("closing model calls failed: %s: %s", type(exc).__name__, exc)
         _close_engine(engine, cfg, gates)
+        if scheduler is not None:
+            _let_scenes_stop(scheduler)
         order = {s.scene_id: i for i, s in enumerate(scenes)}
         ctx.results.sort(key=lambda r: order.get(r.scene_id, len(order)))
         pd.DataFrame([r.row() for r in ctx.results]).to_parquet(run_dir / "results.parquet",

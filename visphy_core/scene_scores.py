@@ -111,9 +111,11 @@ def score_outputs(scene: Scene, reference: np.ndarray, generated: np.ndarray | N
             own = _score(scene, reference, generated, analysis, spec, services, scene_dir,
                          result, program)
         if services.protocol.spec_track and spec_track:
+            services.progress.check()
             _spec_track(scene, reference, spec, result.spec_valid, services, scene_dir,
                         result, contract, generated, own)
         if services.protocol.variance_norm:
+            services.progress.check()
             _normalise(scene, reference, services, scene_dir, result, contract)
     if generated is not None and services.judges is not None:
         with services.progress.stage("judge", scene.scene_id):

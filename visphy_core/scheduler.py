@@ -34,6 +34,7 @@ from __future__ import annotations
 import logging
 import os
 import threading
+import time
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Callable, Iterator, Sequence, TypeVar
@@ -304,8 +305,9 @@ class StageGates(StageEvents):
 
 def scene_threads(workers: int) -> int:
     """Scenes in flight for ``workers`` slots: the slot holders, as many waiting on a provider
-    (their reply, their judges), and one more ready to take the next free slot."""
-    return 2 * workers + 1
+    (their reply, their judges), and one more ready to take the next free slot. One worker is
+    one scene at a time, as a plain loop would go (the prefetch still calls ahead)."""
+    return 1 if workers == 1 else 2 * workers + 1
 
 
 class SceneScheduler:
@@ -398,6 +400,16 @@ class SceneScheduler:
                 self._next_yield += 1
                 self._cond.notify_all()
             yield self.items[index], outcome
+
+    def join(self, timeout_s: float) -> int:
+        """Wait up to ``timeout_s`` for the worker threads to end (after `cancel`, each ends at
+        its scene's next stage entrance); returns how many are still running. A process must
+        not exit under a thread that is inside torch or a codec: its runtime aborts."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while self._alive and time.monotonic() < deadline:
+                self._cond.wait(min(POLL_S, max(0.0, deadline - time.monotonic())))
+            return self._alive
 
     def drain(self) -> None:
         """Take no further item; the ones taken finish and still come out of `results`."""

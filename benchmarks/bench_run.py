@@ -1,0 +1,235 @@
+"""A whole run, timed: wall, CPU seconds and peak memory of the process tree, seconds per stage.
+
+    .venv/bin/python benchmarks/bench_run.py [--dataset visphybench] [--scenes 8 | --every 26]
+        [--model oracle] [--engine threejs] [--metrics default | --metric-names psnr,ssim]
+        [--workers auto] [--home visphy-out] [--warm-cache] [--json out.json] [-- OVERRIDES…]
+
+Runs ``python -m visphy_core`` as a user would (``tracking=none``, no progress bars), with the
+data of ``--home`` and, unless ``--warm-cache``, an empty cache of its own (every reply, render
+and score computed) and a scratch runs folder. ``--scenes N`` takes the split's first N scenes
+(the generated benchmark lists its 2D scenes first); ``--every K`` every K-th scene, which keeps
+the split's 2D/3D mix (what a timing per scene needs).
+
+Prints machine info (cores, CPU model, load average at start and end: the machine may be
+shared, and then wall figures are upper bounds while CPU seconds still count the work), then the
+run's wall time, CPU seconds (user + system of the run and every process under it: Chromium,
+Playwright's driver), CPU seconds per scene, peak RSS (the sum over the process tree, sampled
+every 0.2 s, and the run's Python process alone), the seconds each stage took (summed over
+scenes: with several workers they overlap) and the render wall time per clip from the rows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+_PAGE = os.sysconf("SC_PAGE_SIZE")
+
+
+def machine_info() -> dict:
+    """Cores, CPU model, load average and memory: the figures a timing needs beside it."""
+    model = platform.processor() or "?"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        mem = Path("/proc/meminfo").read_text().split()[1]
+        mem_gib = round(int(mem) / 2**20, 1)
+    except (OSError, IndexError, ValueError):
+        mem_gib = None
+    return {"cores": os.cpu_count(), "usable_cores": len(os.sched_getaffinity(0)),
+            "cpu": model, "load_avg": [round(x, 2) for x in os.getloadavg()],
+            "memory_gib": mem_gib, "python": platform.python_version()}
+
+
+def _children() -> dict[int, list[int]]:
+    tree: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        tree.setdefault(int(fields[1]), []).append(int(entry.name))
+    return tree
+
+
+def _rss(pid: int) -> int:
+    try:
+        return int((Path(f"/proc/{pid}/statm")).read_text().split()[1]) * _PAGE
+    except (OSError, IndexError, ValueError):
+        return 0
+
+
+class TreeMemory:
+    """Peak resident memory of a process and its descendants, sampled on a thread."""
+
+    def __init__(self, pid: int, every_s: float = 0.2):
+        self.pid, self.every_s = pid, every_s
+        self.peak_tree = self.peak_main = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+
+    def _sample(self) -> None:
+        while not self._stop.is_set():
+            tree, todo, total = _children(), [self.pid], 0
+            while todo:
+                pid = todo.pop()
+                total += _rss(pid)
+                todo += tree.get(pid, [])
+            self.peak_tree = max(self.peak_tree, total)
+            self.peak_main = max(self.peak_main, _rss(self.pid))
+            self._stop.wait(self.every_s)
+
+    def __enter__(self) -> "TreeMemory":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def split_ids(dataset: str, home: Path) -> list[str]:
+    """The scene ids of a dataset config's split, in its order (the data must be built)."""
+    sys.path.insert(0, str(REPO))
+    from visphy_core.config_check import compose
+    from visphy_core.dataset import load_dataset
+
+    cfg = compose([f"dataset={dataset}"])
+    return [s.scene_id for s in load_dataset(cfg.dataset, home / "data", progress=False)]
+
+
+def parse_stages(stderr: str) -> dict[str, float]:
+    """``stages: generate 4/4 (0.0 s) · render …`` → seconds per stage (and ``all``)."""
+    out: dict[str, float] = {}
+    for line in stderr.splitlines():
+        if not line.startswith("stages: "):
+            continue
+        for part in line[len("stages: "):].split(" · "):
+            words = part.split()
+            if part.endswith("in all"):
+                out["all"] = float(words[0])
+            elif len(words) >= 3:
+                out[words[0]] = float(words[2].lstrip("("))
+    return out
+
+
+def run_once(*, dataset: str, scene_ids: list[str] | None, limit: int | None, model: str,
+             engine: str, metrics: str | None, metric_names: str | None, workers: str,
+             home: Path, warm_cache: bool, extra: list[str] = ()) -> dict:
+    """One run as a subprocess; returns its figures (see the module docstring)."""
+    scratch = Path(tempfile.mkdtemp(prefix="visphy-bench-run-"))
+    args = [f"dataset={dataset}", f"model={model}", f"engine={engine}", "tracking=none",
+            "run.progress=false", f"run.workers={workers}",
+            f"paths.runs_dir={scratch / 'runs'}"]
+    if not warm_cache:
+        args.append(f"paths.cache_dir={scratch / 'cache'}")
+    if metrics:
+        args.append(f"metrics={metrics}")
+    if metric_names:
+        args.append(f"metrics.names=[{metric_names}]")
+    if scene_ids is not None:
+        args.append(f"dataset.scenes=[{','.join(scene_ids)}]")
+    elif limit:
+        args.append(f"dataset.limit={limit}")
+    args += list(extra)
+    env = dict(os.environ, VISPHY_HOME=str(home))
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    load_start = [round(x, 2) for x in os.getloadavg()]
+    start = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-m", "visphy_core", *args], cwd=REPO, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    with TreeMemory(proc.pid) as memory:
+        out, err = proc.communicate()
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if proc.returncode != 0:
+        raise SystemExit(f"the run failed ({proc.returncode}):\n{err[-3000:]}")
+    (run_dir,) = (scratch / "runs").iterdir()
+    summary = json.loads((run_dir / "summary.json").read_text())
+    rows = [json.loads(line) for line in (run_dir / "results.jsonl").read_text().splitlines()]
+    renders = [r["render_wall_s"] for r in rows if r.get("render_wall_s") and
+               not r.get("render_cached")]
+    manifest = json.loads((run_dir / "manifest.json").read_text())
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    n = summary["n_scenes"]
+    return {
+        "scenes": n, "scenes_3d": sum(r["dim"] == "3d" for r in rows),
+        "workers": manifest.get("workers"), "wall_s": round(wall, 1),
+        "cpu_s": round(cpu, 1), "cpu_s_per_scene": round(cpu / n, 2) if n else None,
+        "wall_s_per_scene": round(wall / n, 2) if n else None,
+        "peak_rss_tree_gib": round(memory.peak_tree / 2**30, 2),
+        "peak_rss_run_gib": round(memory.peak_main / 2**30, 2),
+        "stages_s": parse_stages(err),
+        "render_wall_s_median": round(statistics.median(renders), 2) if renders else None,
+        "model_success": summary["model_success"],
+        "load_avg_start": load_start, "load_avg_end": [round(x, 2) for x in os.getloadavg()],
+        "run_dir": str(run_dir), "args": args,
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    extra = argv[argv.index("--") + 1:] if "--" in argv else []
+    argv = argv[:argv.index("--")] if "--" in argv else argv
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--dataset", default="visphybench")
+    pick = parser.add_mutually_exclusive_group()
+    pick.add_argument("--scenes", type=int, help="the split's first N scenes")
+    pick.add_argument("--every", type=int, help="every K-th scene of the split")
+    parser.add_argument("--model", default="oracle")
+    parser.add_argument("--engine", default="threejs")
+    parser.add_argument("--metrics", default="default", help="a metrics config (conf/metrics)")
+    parser.add_argument("--metric-names", help="comma-separated metric names instead")
+    parser.add_argument("--workers", default="auto")
+    parser.add_argument("--home", default=os.environ.get("VISPHY_HOME", "visphy-out"))
+    parser.add_argument("--warm-cache", action="store_true",
+                        help="use the home's cache (default: an empty one)")
+    parser.add_argument("--json", help="also write the figures here")
+    args = parser.parse_args(argv)
+    home = Path(args.home).resolve()
+    ids = split_ids(args.dataset, home)[::args.every] if args.every else None
+    info = machine_info()
+    figures = run_once(dataset=args.dataset, scene_ids=ids, limit=args.scenes,
+                       model=args.model, engine=args.engine,
+                       metrics=None if args.metric_names else args.metrics,
+                       metric_names=args.metric_names, workers=args.workers, home=home,
+                       warm_cache=args.warm_cache, extra=extra)
+    print(f"machine: {info['usable_cores']} usable cores · {info['cpu']} · "
+          f"{info['memory_gib']} GiB · load average at start {figures['load_avg_start']}, "
+          f"at end {figures['load_avg_end']}")
+    print(f"run: {figures['scenes']} scenes ({figures['scenes_3d']} 3D) · {args.model} × "
+          f"{args.engine} · metrics {args.metric_names or args.metrics} · workers "
+          f"{figures['workers']}")
+    print(f"wall {figures['wall_s']} s ({figures['wall_s_per_scene']} s/scene) · CPU "
+          f"{figures['cpu_s']} s ({figures['cpu_s_per_scene']} s/scene) · peak RSS "
+          f"{figures['peak_rss_tree_gib']} GiB (tree), {figures['peak_rss_run_gib']} GiB (run)")
+    print("stages (s, summed over scenes): " + ", ".join(
+        f"{k} {v}" for k, v in figures["stages_s"].items()))
+    print(f"render wall per clip, median: {figures['render_wall_s_median']} s")
+    if info["load_avg"][0] > info["usable_cores"] * 0.5:
+        print("note: the machine was busy; wall times are upper bounds, CPU seconds count the "
+              "work")
+    if args.json:
+        Path(args.json).write_text(json.dumps({"machine": info, **figures}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
