@@ -102,6 +102,47 @@ def test_one_and_two_workers_give_the_same_rows_frames_and_scores(two_runs):
     assert compared >= 3 * 4
 
 
+@pytest.mark.browser
+def test_sigint_with_scenes_in_flight_closes_the_run_and_exits_130(tmp_path, mini_root):
+    """Two workers, model calls one second apart (run.prefetch=0: one call at a time): the
+    signal lands while scenes render, score and wait; the run waits for them to stop, writes a
+    partial summary and exits 130 (not an abort from a thread left inside torch)."""
+    import shutil
+    import signal
+
+    home = tmp_path / "home"
+    shutil.copytree(mini_root, home / "data" / mini_root.name)
+    env = dict(os.environ, VISPHY_HOME=str(home), VISPHY_COUNTER=str(home / "calls.txt"),
+               VISPHY_MODEL_DELAY="1.0")
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO / "tests"), env.get("PYTHONPATH", "")])
+    proc = subprocess.Popen(
+        [sys.executable, str(REPO / "tests" / "scripted_cli.py"), "model=oracle",
+         "model.name=counting", "dataset=mini", "tracking=none", "run.progress=false",
+         "run.workers=2", "run.prefetch=0", "metrics.names=[psnr,ssim]",
+         "metrics.spec_track=false", "metrics.variance_norm=false"],
+        cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        rows = home / "runs"
+        while not any(p.stat().st_size for p in rows.glob("*/results.jsonl")):
+            assert proc.poll() is None and time.monotonic() < deadline, "no row in time"
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, out[-3000:]
+    assert "Traceback" not in out and "terminate called" not in out
+    (run_dir,) = rows.iterdir()
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["status"] == "interrupted" and 1 <= summary["n_scenes"] < 4
+    lines = (run_dir / "results.jsonl").read_text().splitlines()
+    assert len(lines) == summary["n_scenes"]
+    calls = (home / "calls.txt").read_text().splitlines()
+    assert [c.split()[0] for c in calls] == sorted(c.split()[0] for c in calls)  # in order
+
+
 # --------------------------------------------------------------------------- the gates
 
 class Recorder(StageEvents):

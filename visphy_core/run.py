@@ -418,7 +418,8 @@ class _Prefetch:
         frames = settings.prompt.frames[:1] if settings.prompt.forecast_only \
             else settings.prompt.frames
         while True:
-            with self._lock:
+            with self._lock:  # the scenes after ``position``: its own call is its own
+                self.next = max(self.next, position + 1)
                 if self.next >= min(len(self.scenes), position + 1 + self.window):
                     return
                 scene = self.scenes[self.next]
