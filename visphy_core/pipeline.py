@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 import os
 import threading
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -151,8 +151,12 @@ def _safe_render(engine: Engine, program: Program, contract: RenderContract) -> 
 
 
 def render_cached(engine: Engine, program: Program, contract: RenderContract,
-                  cache: Cache) -> RenderOutcome:
+                  cache: Cache, memo: dict[str, RenderOutcome] | None = None) -> RenderOutcome:
     """Render through the content-addressed cache.
+
+    ``memo``: one scene's clips by render key, so a program the scene renders twice (the
+    oracle's program is the reference program of its S) is rendered or decoded once; a clip
+    from it counts as cached.
 
     Deterministic program failures (syntax or runtime errors, blank output...) are cached: the
     same program fails the same way. Timeouts, resource limits and infrastructure errors are not:
@@ -186,9 +190,17 @@ def render_cached(engine: Engine, program: Program, contract: RenderContract,
                              flags=[str(f) for f in meta.get("flags") or []],
                              partial_path=partial if meta.get("partial_frames") else None)
 
+    if memo is not None and key in memo:
+        return replace(memo[key], cached=True)
+
+    def remember(outcome: RenderOutcome) -> RenderOutcome:
+        if memo is not None and outcome.failure is None:
+            memo[key] = outcome
+        return outcome
+
     outcome = cache.load("render", key, parse)
     if outcome is not None:
-        return outcome
+        return remember(outcome)
     result = _safe_render(engine, program, contract)
     ok = result.failure is None and result.frames is not None
     failure = result.failure or (None if ok else FailureClass.INFRA_ERROR)
@@ -225,7 +237,7 @@ def render_cached(engine: Engine, program: Program, contract: RenderContract,
     # Read back what was stored: a fresh render and a cached one give the same decoded frames.
     outcome = parse(entry)
     outcome.cached = False
-    return outcome
+    return remember(outcome)
 
 
 def error_summary(outcome_error: str | None, logs: list[str], max_lines: int = 12) -> str:
@@ -275,12 +287,12 @@ class SceneServices:
     protocol: ScoringProtocol = field(default_factory=ScoringProtocol)
     progress: StageEvents = field(default_factory=StageEvents)
 
-    def scoring(self) -> ScoringServices:
+    def scoring(self, renders: dict[str, RenderOutcome] | None = None) -> ScoringServices:
         """The scoring half (`visphy_core.scene_scores`): reference-program clips rendered by
-        this run's engine."""
+        this run's engine (``renders``: the scene's clips so far, `render_cached`'s memo)."""
         return ScoringServices(metrics=self.metrics, cache=self.cache, protocol=self.protocol,
                                clips=EngineReferenceClips(self.engine, self.cache,
-                                                          self.progress),
+                                                          self.progress, renders),
                                judges=self.judges, references=self.references,
                                progress=self.progress)
 
@@ -290,15 +302,17 @@ class EngineReferenceClips:
     program renders S and the twin (through the render cache) into the scene's folder. Each
     render goes through the ``render`` stage (the run's render lane)."""
 
-    def __init__(self, engine: Engine, cache: Cache, progress: StageEvents | None = None):
+    def __init__(self, engine: Engine, cache: Cache, progress: StageEvents | None = None,
+                 renders: dict[str, RenderOutcome] | None = None):
         self.engine = engine
         self.cache = cache
         self.progress = progress or StageEvents()
+        self.renders = renders
 
     def _render(self, scene: Scene, program: Program, contract: RenderContract
                 ) -> RenderOutcome:
         with self.progress.stage("render", scene.scene_id):
-            return render_cached(self.engine, program, contract, self.cache)
+            return render_cached(self.engine, program, contract, self.cache, self.renders)
 
     def spec_replay(self, scene: Scene, spec: dict, contract: RenderContract,
                     scene_dir: Path) -> np.ndarray:
@@ -452,6 +466,7 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
     analysis, spec = None, None
     program: Program | None = None
     attempts = (1, 2) if settings.retry and model.output_kind == "program" else (1,)
+    renders: dict[str, RenderOutcome] = {}  # this scene's clips, by render key
     for attempt in attempts:
         result.attempts = attempt
         with services.progress.stage("generate", scene.scene_id):
@@ -502,7 +517,7 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
                 with services.progress.stage("render", scene.scene_id):
                     outcome = _render_with_infra_retry(engine, program, contract,
                                                        services.cache, scene_dir, suffix,
-                                                       result, services.progress)
+                                                       result, services.progress, renders)
                 if outcome.failure is None:
                     break
                 failure, detail, failed_source, logs = (outcome.failure, outcome.error or "",
@@ -546,15 +561,17 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
         generated = frozen_clip(scene, contract, scene_dir / "video.mp4")
     else:
         generated = None
-    score_outputs(scene, reference, generated, analysis, spec, services.scoring(), scene_dir,
-                  result, contract, program if outcome is not None else None,
+    score_outputs(scene, reference, generated, analysis, spec, services.scoring(renders),
+                  scene_dir, result, contract, program if outcome is not None else None,
                   spec_track=model.output_kind == "program")
+
 
 def _render_with_infra_retry(engine: Engine, program: Program, contract: RenderContract,
                              cache: Cache, scene_dir: Path, suffix: str,
                              result: SceneResult,
-                             progress: StageEvents | None = None) -> RenderOutcome:
-    outcome = render_cached(engine, program, contract, cache)
+                             progress: StageEvents | None = None,
+                             renders: dict[str, RenderOutcome] | None = None) -> RenderOutcome:
+    outcome = render_cached(engine, program, contract, cache, renders)
     log_lines = []
     if outcome.failure is FailureClass.INFRA_ERROR:
         # Our side failed, not the program: render once more (never cached, so this is a
@@ -564,7 +581,7 @@ def _render_with_infra_retry(engine: Engine, program: Program, contract: RenderC
         result.infra_retries += 1
         log_lines += [f"infra_error (retrying the render once): {outcome.error or ''}",
                       *outcome.logs, "--- retry ---"]
-        outcome = render_cached(engine, program, contract, cache)
+        outcome = render_cached(engine, program, contract, cache, renders)
     _write(scene_dir / f"render{suffix}.log", "\n".join(
         [*log_lines, f"failure: {outcome.failure.value if outcome.failure else 'none'}",
          f"isolation: {outcome.isolation or 'unknown'}",

@@ -116,7 +116,9 @@ def score_outputs(scene: Scene, reference: np.ndarray, generated: np.ndarray | N
                         result, contract, generated, own)
         if services.protocol.variance_norm:
             services.progress.check()
-            _normalise(scene, reference, services, scene_dir, result, contract)
+            # a fallback clip is the frozen clip (`frozen_clip`): not made twice
+            _normalise(scene, reference, services, scene_dir, result, contract,
+                       generated if result.fallback else None)
     if generated is not None and services.judges is not None:
         with services.progress.stage("judge", scene.scene_id):
             _judge(scene, reference, generated, services, scene_dir, result)
@@ -173,7 +175,8 @@ def _spec_track(scene: Scene, reference: np.ndarray, spec: dict | None,
 
 
 def _normalise(scene: Scene, reference: np.ndarray, services: ScoringServices, scene_dir: Path,
-               result: "SceneResult", contract: RenderContract) -> None:
+               result: "SceneResult", contract: RenderContract,
+               frozen: np.ndarray | None = None) -> None:
     """``norm.`` columns: each frame/sequence metric between the frozen clip (0) and the
     ground truth's twin (1), visphy_core.normalisation; the anchors in normalisation.json."""
     metrics = [m for m in services.metrics if m.kind != SCENE]
@@ -193,8 +196,9 @@ def _normalise(scene: Scene, reference: np.ndarray, services: ScoringServices, s
     except ReferenceClipUnavailable as exc:
         unavailable(str(exc))
         return
-    with tempfile.TemporaryDirectory(prefix="visphy-frozen-") as tmp:
-        frozen = frozen_clip(scene, contract, Path(tmp) / "frozen.mp4")
+    if frozen is None:
+        with tempfile.TemporaryDirectory(prefix="visphy-frozen-") as tmp:
+            frozen = frozen_clip(scene, contract, Path(tmp) / "frozen.mp4")
     plain = ScoringProtocol(unaligned=True, aligned=False, paper=False)
     ceiling, why_c = score_scene(scene, reference, twin, metrics, None, None,
                                  services.cache, protocol=plain)
