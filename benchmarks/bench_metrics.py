@@ -19,6 +19,15 @@ what another scene or metric computed).
 
 Timings on a shared machine: run the before and after in the same go, several repeats
 (``--repeat``: each scene scored that many times, the median kept).
+
+``--floor`` also prints the arithmetic floor of the learned perceptual metric: ST-LPIPS'
+floating-point operations per frame at its working size (counted by torch's
+``FlopCounterMode`` on the real net), the throughput this machine's torch reaches on it
+(frames of a batch, at the run's thread count), the distinct frames a 2D scene of a real model
+needs at the fewest (the ``max_pairs`` sampled pairs of one pairing: as many reference as
+generated frames) and the seconds that takes at that throughput. No other metric of the suite
+can be cheaper than zero, so when that floor alone exceeds the per-scene goal the goal cannot be
+met on this machine with the suite as it is.
 """
 
 from __future__ import annotations
@@ -46,6 +55,8 @@ def main() -> None:
     parser.add_argument("--json", default=None)
     parser.add_argument("--repeat", type=int, default=1,
                         help="score each scene this many times and keep the median")
+    parser.add_argument("--floor", action="store_true",
+                        help="also print ST-LPIPS' GFLOP per frame and the seconds they floor")
     args = parser.parse_args()
 
     from omegaconf import OmegaConf
@@ -131,9 +142,42 @@ def main() -> None:
               "cpu_seconds_per_scene": means(cpu_dim),
               "frame_cache": dict(_torch.frame_cache_stats),
               "scenes": {dim: len(next(iter(d.values()), [])) for dim, d in per_dim.items()}}
+    if args.floor and "st_lpips" in result["metrics"]:
+        result["st_lpips_floor"] = stlpips_floor(registry.get("metrics", "st_lpips"))
     print(json.dumps(result, indent=1))
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=1))
+
+
+def stlpips_floor(metric, batch: int = 4, repeats: int = 5) -> dict:
+    """ST-LPIPS' GFLOP per frame at its working size, the GFLOP/s this process reaches on it and
+    the seconds the fewest frames of a 2D scene cost (see the module docstring)."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    from visphy_plugins.metrics import _torch
+
+    torch = _torch.torch()
+    model = metric.model()
+    side = metric.size or 512
+    x = torch.rand(batch, 3, side, side) * 2 - 1
+    with torch.inference_mode():
+        with FlopCounterMode(display=False) as counter:
+            metric.features(model, x[:1])
+        gflop = counter.get_total_flops() / 1e9
+        metric.features(model, x)  # warm-up
+        best = min(_timed_once(lambda: metric.features(model, x)) for _ in range(repeats)) / batch
+    frames = 2 * (metric.max_pairs or 17)
+    return {"size": side, "gflop_per_frame": round(gflop, 2),
+            "seconds_per_frame": round(best, 4), "gflop_per_s": round(gflop / best, 1),
+            "torch_threads": torch.get_num_threads(),
+            "fewest_frames_2d_scene": frames,
+            "floor_seconds_2d_scene": round(frames * best, 3)}
+
+
+def _timed_once(fn) -> float:
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
 
 
 if __name__ == "__main__":
