@@ -47,6 +47,7 @@ from visphy_core.usage import CostCapReached, UsageLedger
 from visphy_core.run_dir import (COST_CAP, FAILED, FINISHED, INTERRUPTED, RUNNING, RunLock,
                                   config_hash, find_resumable, new_run_dir, read_rows)
 from visphy_core.scene import Scene
+from visphy_core.heap import release_free_memory
 from visphy_core.scheduler import (SceneScheduler, StageGates, pin_torch_threads,
                                    resolve_workers)
 
@@ -565,6 +566,7 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
                 def process(scene: Scene) -> SceneResult:
                     result = process_scene(scene, services, run_dir / "scenes" / scene.scene_id)
                     progress.scene_finished(scene.scene_id)
+                    release_free_memory()  # the scene's clips and buffers, back to the system
                     return result
 
                 scheduler = SceneScheduler(pending, key=lambda s: s.scene_id, process=process,
