@@ -4,6 +4,7 @@ what it holds."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
@@ -28,7 +29,7 @@ SCRIPT = textwrap.dedent("""
         keep = blocks[-1]  # pins the arena's top: free() alone cannot shrink it
         del blocks
         out["freed"] = rss()
-        out["trimmed"] = release_free_memory() if {trim} else False
+        out["trimmed"] = release_free_memory()
         out["after"] = rss()
         out["keep"] = keep
     t = threading.Thread(target=scene); t.start(); t.join()
@@ -37,8 +38,9 @@ SCRIPT = textwrap.dedent("""
 
 
 def _run(trim: bool) -> tuple[int, str, int]:
-    proc = subprocess.run([sys.executable, "-c", SCRIPT.format(repo=str(REPO), trim=trim)],
-                          capture_output=True, text=True, check=True)
+    env = dict(os.environ, VISPHY_MALLOC_TRIM="1" if trim else "0")
+    proc = subprocess.run([sys.executable, "-c", SCRIPT.format(repo=str(REPO))],
+                          capture_output=True, text=True, check=True, env=env)
     freed, trimmed, after = proc.stdout.split()
     return int(freed), trimmed, int(after)
 
@@ -52,6 +54,6 @@ def test_freed_arena_memory_goes_back_to_the_system():
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's allocator")
-def test_without_the_trim_the_memory_stays():
+def test_visphy_malloc_trim_0_keeps_glibcs_default():
     freed, trimmed, after = _run(trim=False)
     assert trimmed == "False" and after > 250

@@ -11,17 +11,20 @@ machine): a whole `visphybench` run peaked at 8.7 GiB; 21 of its scenes at 4.9 G
 
 `release_free_memory` hands the arenas' free pages back (``malloc_trim(0)``); the run calls it
 after every scene. Nothing here changes a value that any computation sees. Where the C library
-is not glibc (musl, macOS) it does nothing.
+is not glibc (musl, macOS), or with ``VISPHY_MALLOC_TRIM=0``, it does nothing.
 """
 
 from __future__ import annotations
 
 import ctypes
+import os
 import sys
 import threading
 from functools import lru_cache
 
 _LOCK = threading.Lock()
+#: ``0`` turns the trim off (the allocator then keeps freed pages, as glibc does by default)
+TRIM_ENV = "VISPHY_MALLOC_TRIM"
 
 
 @lru_cache(maxsize=1)
@@ -42,7 +45,7 @@ def _glibc():
 def release_free_memory() -> bool:
     """Return the allocator's free pages to the operating system; True when some were."""
     lib = _glibc()
-    if lib is None:
+    if lib is None or os.environ.get(TRIM_ENV, "1").strip() == "0":
         return False
     with _LOCK:  # one trim at a time: it walks every arena under that arena's lock
         return bool(lib.malloc_trim(0))
