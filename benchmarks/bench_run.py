@@ -13,9 +13,10 @@ the split's 2D/3D mix (what a timing per scene needs).
 Prints machine info (cores, CPU model, load average at start and end: the machine may be
 shared, and then wall figures are upper bounds while CPU seconds still count the work), then the
 run's wall time, CPU seconds (user + system of the run and every process under it: Chromium,
-Playwright's driver; sampled per process, see `TreeMemory`), CPU seconds per scene, peak RSS (the sum over the process tree, sampled
-every 0.2 s, and the run's Python process alone), the seconds each stage took (summed over
-scenes: with several workers they overlap) and the render wall time per clip from the rows.
+Playwright's driver; sampled per process, see `TreeMemory`), CPU seconds per scene, peak RSS
+(the sum over the process tree, sampled every 0.2 s, and the run's Python process alone), the
+seconds each stage took (summed over scenes: with several workers they overlap) and the render
+wall time per clip from the rows.
 """
 
 from __future__ import annotations
@@ -57,36 +58,25 @@ def machine_info() -> dict:
             "memory_gib": mem_gib, "python": platform.python_version()}
 
 
-def _children() -> dict[int, list[int]]:
+def _processes() -> tuple[dict[int, list[int]], dict[int, tuple[int, int]]]:
+    """Every process's children, and its (start time, user + system clock ticks of its own),
+    from one read of each ``/proc/<pid>/stat``."""
     tree: dict[int, list[int]] = {}
+    cpu: dict[int, tuple[int, int]] = {}
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
             continue
         try:
             fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
+            pid = int(entry.name)
+            cpu[pid] = (int(fields[19]), int(fields[11]) + int(fields[12]))
+        except (OSError, IndexError, ValueError):
             continue
-        tree.setdefault(int(fields[1]), []).append(int(entry.name))
-    return tree
+        tree.setdefault(int(fields[1]), []).append(pid)
+    return tree, cpu
 
 
 _TICKS = os.sysconf("SC_CLK_TCK")
-
-
-def _cpu_ticks(pid: int) -> int | None:
-    """User + system clock ticks the process itself has used so far (not its children's)."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        return int(fields[11]) + int(fields[12])
-    except (OSError, IndexError, ValueError):
-        return None
-
-
-def _start_time(pid: int) -> int:
-    try:
-        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19])
-    except (OSError, IndexError, ValueError):
-        return 0
 
 
 def _rss(pid: int) -> int:
@@ -103,9 +93,9 @@ class TreeMemory:
     CPU: the last user + system time seen of every process of the tree, summed (`cpu_s`). The
     rusage of reaped children misses processes nobody waits for: Chromium's processes under
     bubblewrap are reaped inside their PID namespace, and their time never reaches the run's
-    rusage (measured on a run with 2 workers: /proc/stat had both cores 97 % busy while the rusage
-    counted 0.7 of them). The sampled sum misses
-    only what a process used in its last ``every_s`` seconds."""
+    rusage (measured on a run with 2 workers: /proc/stat had both cores 97 % busy while the
+    rusage counted 0.7 of them). The sampled sum misses only what a process used in its last
+    ``every_s`` seconds."""
 
     def __init__(self, pid: int, every_s: float = 0.2):
         self.pid, self.every_s = pid, every_s
@@ -116,13 +106,13 @@ class TreeMemory:
 
     def _sample(self) -> None:
         while not self._stop.is_set():
-            tree, todo, total = _children(), [self.pid], 0
+            (tree, cpu), todo, total = _processes(), [self.pid], 0
             while todo:
                 pid = todo.pop()
                 total += _rss(pid)
-                ticks = _cpu_ticks(pid)
-                if ticks is not None:  # keyed with the start time: pids are reused
-                    self._ticks[(pid, _start_time(pid))] = ticks
+                if pid in cpu:  # keyed with the start time: pids are reused
+                    started, ticks = cpu[pid]
+                    self._ticks[(pid, started)] = ticks
                 todo += tree.get(pid, [])
             self.peak_tree = max(self.peak_tree, total)
             self.peak_main = max(self.peak_main, _rss(self.pid))

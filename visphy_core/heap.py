@@ -6,9 +6,10 @@ once a large block has been freed, raises its threshold for serving blocks from 
 system directly (``mmap``) up to 32 MiB; blocks below it then come from the arenas, whose freed
 pages stay in the process. Measured (oracle × threejs, default suite, 2 workers, idle 2-core
 machine): a whole `visphybench` run peaked at 8.7 GiB; back to back on the same scenes, 21 of
-them peaked at 4.9 GiB without the trim below and 3.3 GiB with it (+4 % CPU), 42 of them at 6.3
-and 4.7 GiB (+12 % time: freed pages are faulted in again by the next scene). A fixed low ``mmap`` threshold
-(``MALLOC_MMAP_THRESHOLD_=262144``) held 2.9 GiB but cost 39 % more wall time in page faults.
+them peaked at 4.9 GiB without the trim below and 3.3 GiB with it (+4 % CPU), 42 of them at
+6.3 and 4.7 GiB (+12 % time: freed pages are faulted in again by the next scene). A fixed low
+``mmap`` threshold (``MALLOC_MMAP_THRESHOLD_=262144``) held 2.9 GiB but cost 39 % more wall time
+in page faults.
 
 `release_free_memory` hands the arenas' free pages back (``malloc_trim(0)``); the run calls it
 after every scene. Nothing here changes a value that any computation sees. Where the C library
