@@ -39,12 +39,29 @@ def mini_root(tmp_path_factory) -> Path:
 
     Built **lossless** (exact RGB clips) and placed where a default run looks for it: the
     tests compare reference programs, oracles and metrics with the exact ground truth, not
-    with the published-style crf-23 encoding (tested on its own in test_ground_truth.py)."""
+    with the published-style crf-23 encoding (tested on its own in test_ground_truth.py).
+
+    Under pytest-xdist every worker shares one build: the first worker to take the lock in
+    the session's common temp dir builds it, the others wait and reuse it (read-only)."""
+    from filelock import FileLock
+
     from visphy_plugins.datasets.visphybench.build import build_dataset, dataset_root
 
-    data = tmp_path_factory.mktemp("data")
-    exact = build_dataset(data, split="mini", progress=False, lossless=True)
-    return exact.rename(dataset_root(data))
+    if os.environ.get("PYTEST_XDIST_WORKER") is None:
+        data = tmp_path_factory.mktemp("data")
+        exact = build_dataset(data, split="mini", progress=False, lossless=True)
+        return exact.rename(dataset_root(data))
+    shared = tmp_path_factory.getbasetemp().parent / "shared-mini"
+    shared.mkdir(exist_ok=True)
+    with FileLock(str(shared / ".lock")):
+        done = shared / "data" / ".built"
+        root = dataset_root(shared / "data")
+        if not done.exists():
+            shutil.rmtree(shared / "data", ignore_errors=True)
+            exact = build_dataset(shared / "data", split="mini", progress=False, lossless=True)
+            exact.rename(root)
+            done.touch()
+    return root
 
 
 @pytest.fixture(scope="session")

@@ -377,7 +377,6 @@ def run_experiment(cfg: DictConfig) -> dict:
               file=sys.stderr)
     else:
         run_dir = new_run_dir(cfg, runs_dir)
-        run_dir.mkdir(parents=True, exist_ok=True)
         lock = RunLock(run_dir)
         lock.acquire()
         restored = []

@@ -47,17 +47,24 @@ def config_hash(cfg: DictConfig) -> str:
 
 
 def new_run_dir(cfg: DictConfig, runs_dir: Path) -> Path:
+    """A fresh run directory, created here: ``mkdir`` without ``exist_ok`` is the claim, so two
+    runs started in the same second (same config up to ``run.*``) never share one."""
     resolved = OmegaConf.to_container(cfg, resolve=True)
     for key in ("paths", "run"):
         resolved.pop(key, None)
     digest = content_key(resolved)[:8]
     stamp = dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
-    path = runs_dir / f"{stamp}_{cfg.model.name}_{cfg.engine.name}_{digest}"
+    base = f"{stamp}_{cfg.model.name}_{cfg.engine.name}_{digest}"
+    runs_dir.mkdir(parents=True, exist_ok=True)
     n = 1
-    while path.exists():  # two runs started in the same second
-        n += 1
-        path = runs_dir / f"{stamp}_{cfg.model.name}_{cfg.engine.name}_{digest}.{n}"
-    return path
+    while True:
+        path = runs_dir / (base if n == 1 else f"{base}.{n}")
+        try:
+            path.mkdir()
+        except FileExistsError:
+            n += 1
+            continue
+        return path
 
 
 class RunLock:

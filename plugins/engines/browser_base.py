@@ -30,6 +30,7 @@ failure detail.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import re
@@ -387,6 +388,14 @@ class BrowserEngine(Engine):
     #: The browser pool pages run in: None for the process' shared pool (`shared_pool`); a
     #: caller may set its own (e.g. a pool with ``readback="png"`` to compare render paths).
     pool: BrowserPool | None = None
+
+    def cache_identity(self) -> str:
+        """The engine's version plus the virtual clock's digest: a change to the clock (what a
+        page sees of time, timers, messages) re-renders instead of replaying old clips."""
+        from visphy_core.sandbox.browser import VIRTUAL_TIME_JS
+
+        clock = hashlib.sha256(VIRTUAL_TIME_JS.encode()).hexdigest()[:12]
+        return f"{super().cache_identity()}+clock.{clock}"
 
     def extract(self, text: str) -> Program:
         source = extract_code(text, ("html", "htm", "xml"), html_fallback=True)

@@ -119,6 +119,51 @@
   window.requestIdleCallback = (cb) => addTimer(() => cb({ didTimeout: false, timeRemaining: () => 0 }), 0, [], false);
   window.cancelIdleCallback = window.clearTimeout;
 
+  // MessageChannel: a message between the two ports of a channel is a real task, and whether it
+  // runs before the host's next capture depends on the machine's load. Here it waits in a queue
+  // that is delivered, in posting order, at the next animation tick (after the microtasks of the
+  // current capture): one round of messages between two frames, whatever the load. Messages
+  // carrying a transfer list, and ports not made by this page's MessageChannel, stay real.
+  const peers = new WeakMap();
+  const closedPorts = new WeakSet();
+  let messages = [];
+  const RealMessageChannel = window.MessageChannel;
+  if (typeof RealMessageChannel === 'function' && typeof MessagePort === 'function') {
+    const realPost = MessagePort.prototype.postMessage;
+    const realClose = MessagePort.prototype.close;
+    const VMessageChannel = function MessageChannel() {
+      if (!new.target) throw new TypeError("Failed to construct 'MessageChannel': Please use the 'new' operator");
+      const ch = new RealMessageChannel();
+      peers.set(ch.port1, ch.port2);
+      peers.set(ch.port2, ch.port1);
+      return ch;
+    };
+    VMessageChannel.prototype = RealMessageChannel.prototype;
+    window.MessageChannel = VMessageChannel;
+    MessagePort.prototype.postMessage = function (message, transfer) {
+      const peer = peers.get(this);
+      const list = Array.isArray(transfer) ? transfer : (transfer && transfer.transfer) || [];
+      if (!peer || list.length) return realPost.apply(this, arguments);
+      if (closedPorts.has(this)) return undefined;
+      messages.push({ peer, data: structuredClone(message) });  // DataCloneError as the real one
+      return undefined;
+    };
+    MessagePort.prototype.close = function () {
+      closedPorts.add(this);
+      const peer = peers.get(this);
+      if (peer) closedPorts.add(peer);
+      return realClose.apply(this, arguments);
+    };
+  }
+  function deliverMessages() {
+    const batch = messages; messages = [];
+    for (const m of batch) {
+      if (closedPorts.has(m.peer)) continue;
+      // a throwing listener is reported by the page's error handler, as a real message task's is
+      m.peer.dispatchEvent(new MessageEvent('message', { data: m.data }));
+    }
+  }
+
   function report(where, e) {
     const msg = (e && e.stack) ? String(e.stack) : String(e);
     if (errors.length < 200) errors.push(`${where} at t=${now.toFixed(1)}ms: ${msg}`.slice(0, 2000));
@@ -156,6 +201,7 @@
     while (nextTick * TICK_MS <= target + 1e-9) {
       const tickTime = nextTick * TICK_MS;
       nextTick += 1;
+      if (messages.length) deliverMessages();
       runTimersUntil(tickTime);
       now = Math.max(now, tickTime);
       if (syncDocumentAnimations) syncSmilClock();
