@@ -16,7 +16,7 @@ run: setup
 # fixtures are built once); 0 (the default) runs them in this process: on 2 cores the suite is
 # CPU-bound and two workers were slower (26.6 min against 23.9 min), e.g. TEST_WORKERS=8 on a
 # bigger machine.
-TEST_WORKERS ?= 0
+TEST_WORKERS ?= 2
 test: setup-test
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
 

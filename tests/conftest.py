@@ -23,7 +23,22 @@ def chromium_available() -> bool:
     return True
 
 
+#: The longest test files (seconds on 2 cores, `--durations=0`), run first so that parallel
+#: workers (`make test TEST_WORKERS=2`) do not end on one of them while the other idles.
+LONGEST_FIRST = ("test_engines_browser.py", "test_experiments.py", "test_hostile_browser.py",
+                 "test_resume.py", "test_models_e2e.py", "test_launchers.py",
+                 "test_metric_suite_e2e.py", "test_hostile_process.py", "test_analysis_runs.py",
+                 "test_config_values.py", "test_workers.py", "test_run_faults.py",
+                 "test_judges.py", "test_render_paths.py", "test_browser_engine.py")
+
+
+def _file_rank(item) -> int:
+    name = item.path.name
+    return LONGEST_FIRST.index(name) if name in LONGEST_FIRST else len(LONGEST_FIRST)
+
+
 def pytest_collection_modifyitems(config, items):
+    items.sort(key=_file_rank)  # stable: each file keeps its own order
     if chromium_available():
         return
     skip = pytest.mark.skip(reason="Chromium not installed (run `make setup`)")
@@ -88,7 +103,11 @@ SUBCOMMANDS = ("plugins", "setup", "build-dataset", "normalise", "render", "metr
 
 
 def with_fast_metrics(args: tuple[str, ...]) -> tuple[str, ...]:
-    if not args or args[0] in SUBCOMMANDS or args[0].startswith("-"):
+    """``args`` plus `FAST_METRICS` when they start a run or a multirun (``-m``) that names no
+    ``metrics`` setting; subcommands and other flags (``--cfg``, ``--help``) are left alone."""
+    if not args or args[0] in SUBCOMMANDS:
+        return args
+    if args[0].startswith("-") and args[0] not in ("-m", "--multirun"):
         return args
     if any(a.lstrip("+~").startswith("metrics") for a in args):
         return args

@@ -57,6 +57,12 @@ def test_corpus_has_at_least_twenty_programs_per_engine():
             assert re.fullmatch(r"\d\d_[a-z0-9_]+\.html", path.name), path.name
 
 
+#: Every third program of each engine is rendered twice (the determinism check); the clock that
+#: makes them repeatable is the same for all, and a render is ≈ 1 s of the suite's time.
+TWICE = {(e, p.name) for e in ENGINE_NAMES
+         for i, p in enumerate(sorted((CORPUS / e).glob("*.html"))) if i % 3 == 0}
+
+
 @pytest.mark.parametrize("engine_name, path", corpus(),
                          ids=[f"{e}/{p.stem}" for e, p in corpus()])
 def test_corpus_program_renders_deterministically(engines, engine_name, path):
@@ -69,6 +75,8 @@ def test_corpus_program_renders_deterministically(engines, engine_name, path):
     assert classify_frames(first.frames) is None, "the clip does not move"
     # every library URL was served from the vendored copies: nothing left the page
     assert not first.blocked_requests, first.blocked_requests
+    if (engine_name, path.name) not in TWICE:
+        return
     second = engine.render(program, CONTRACT)
     assert second.ok, (second.failure, second.error)
     assert digests(first.frames) == digests(second.frames)
