@@ -13,9 +13,8 @@ run: setup
 	$(PY) -m visphy_core $(ARGS)
 
 # Test files run in parallel processes (pytest-xdist, one file per worker at a time so module
-# fixtures are built once); 0 (the default) runs them in this process: on 2 cores the suite is
-# CPU-bound and two workers were slower (26.6 min against 23.9 min), e.g. TEST_WORKERS=8 on a
-# bigger machine.
+# fixtures are built once; the longest files first, tests/conftest.py). On 2 cores two workers
+# took 479 s where one took 638 s (a 264-test subset); TEST_WORKERS=0 runs in this process.
 TEST_WORKERS ?= 2
 test: setup-test
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile $(PYTEST_ARGS)

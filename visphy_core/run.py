@@ -411,22 +411,34 @@ class _Prefetch:
         self.services = services
         self.window = window
         self.next = 0
+        self._dispatched: set[int] = set()
         self._lock = threading.Lock()
 
     def advance(self, position: int) -> None:
+        """Called as scene ``position`` is taken: prefetch the scenes after it. A scene already
+        taken by a worker is never prefetched (its pipeline makes its own call): the check and
+        the submission hold the lock its dispatch takes, so a slow look at one scene's inputs
+        cannot send a second call after that scene's own call has finished."""
         settings = self.services.settings
         frames = settings.prompt.frames[:1] if settings.prompt.forecast_only \
             else settings.prompt.frames
+        with self._lock:
+            self._dispatched.add(position)
         while True:
             with self._lock:  # the scenes after ``position``: its own call is its own
                 self.next = max(self.next, position + 1)
                 if self.next >= min(len(self.scenes), position + 1 + self.window):
                     return
-                scene = self.scenes[self.next]
+                index = self.next
+                scene = self.scenes[index]
                 self.next += 1
             try:
-                if _sendable(scene, tuple(frames) or (1,)):
-                    self.services.caller.submit(first_call(scene, self.services).request)
+                if not _sendable(scene, tuple(frames) or (1,)):
+                    continue
+                request = first_call(scene, self.services).request
+                with self._lock:
+                    if index not in self._dispatched:
+                        self.services.caller.submit(request)
             except Exception:  # noqa: BLE001 - the pipeline classifies this scene itself
                 continue
 
