@@ -333,3 +333,21 @@ def test_rows_carry_the_render_flags_and_the_scene_dir_the_partial_clip(tmp_path
 def test_render_flag_values_are_the_documented_names():
     assert [f.value for f in RenderFlag] == ["library_substituted", "no_recording_call",
                                              "canvas_resized", "partial_clip"]
+
+
+@pytest.mark.parametrize("blocked, navigations", [
+    (["navigation http://127.0.0.1:9/form"], []), ([], ["http://127.0.0.1:9/away"])])
+def test_a_page_that_tried_to_leave_is_a_violation_even_if_it_then_timed_out(blocked,
+                                                                              navigations):
+    from visphy_core.sandbox.browser import PageCapture
+    from visphy_plugins.engines.browser_base import classify_capture
+
+    contract = RenderContract(fps=5, n_frames=3, width=64, height=64, timeout_s=8)
+    cap = PageCapture(blocked_requests=list(blocked), navigations=list(navigations),
+                      timed_out=True)
+    result = classify_capture(cap, contract)
+    assert result.failure is FailureClass.SANDBOX_VIOLATION
+    assert result.error.startswith("the page tried to leave: ") and "127.0.0.1:9/" in result.error
+    assert "[visphy] and then no result within 8 s" in result.logs
+    plain = classify_capture(PageCapture(timed_out=True), contract)
+    assert plain.failure is FailureClass.TIMEOUT

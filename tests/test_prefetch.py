@@ -52,3 +52,17 @@ def test_scenes_ahead_are_prefetched_once_each(monkeypatch):
         prefetch.advance(position)
     # each scene once, ahead of its turn; s2's inputs are unsound, s0 is the first one taken
     assert submitted == ["s1", "s3", "s4", "s5"]
+
+
+def test_nothing_is_submitted_once_the_run_stops_the_prefetch(monkeypatch):
+    monkeypatch.setattr(run_mod, "_sendable", lambda scene, frames: True)
+    monkeypatch.setattr(run_mod, "first_call",
+                        lambda scene, services: SimpleNamespace(request=scene.scene_id))
+    scenes = [SimpleNamespace(scene_id=f"s{i}") for i in range(6)]
+    submitted: list[str] = []
+    prefetch = run_mod._Prefetch(scenes, _services(submitted), window=2)
+    prefetch.advance(0)
+    prefetch.stop()               # the run was interrupted: workers may still take scenes
+    prefetch.advance(1)
+    prefetch.advance(2)
+    assert submitted == ["s1", "s2"]

@@ -412,7 +412,14 @@ class _Prefetch:
         self.window = window
         self.next = 0
         self._dispatched: set[int] = set()
+        self._stopped = False
         self._lock = threading.Lock()
+
+    def stop(self) -> None:
+        """No call is submitted after this (the run is ending: a call sent now would be neither
+        waited for nor cached, and the next run would pay for it again)."""
+        with self._lock:
+            self._stopped = True
 
     def advance(self, position: int) -> None:
         """Called as scene ``position`` is taken: prefetch the scenes after it. A scene already
@@ -426,6 +433,8 @@ class _Prefetch:
             self._dispatched.add(position)
         while True:
             with self._lock:  # the scenes after ``position``: its own call is its own
+                if self._stopped:
+                    return
                 self.next = max(self.next, position + 1)
                 if self.next >= min(len(self.scenes), position + 1 + self.window):
                     return
@@ -437,7 +446,7 @@ class _Prefetch:
                     continue
                 request = first_call(scene, self.services).request
                 with self._lock:
-                    if index not in self._dispatched:
+                    if index not in self._dispatched and not self._stopped:
                         self.services.caller.submit(request)
             except Exception:  # noqa: BLE001 - the pipeline classifies this scene itself
                 continue
@@ -594,6 +603,7 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
                         _write_row(rows, result, ctx)
                         pm.hook.visphy_scene_done(run=ctx, scene=scene, result=result)
                 finally:
+                    prefetch.stop()     # before the wait for calls in flight: none starts later
                     scheduler.cancel()  # the scenes still in flight are abandoned
             if cost_stop is not None:
                 status = COST_CAP

@@ -600,14 +600,18 @@ def classify_capture(cap: PageCapture, contract: RenderContract,
         result.failure, result.error = FailureClass.INFRA_ERROR, redact(cap.infra_error)
     elif cap.resource_limit:
         result.failure, result.error = FailureClass.RESOURCE_LIMIT, cap.resource_limit
-    elif cap.timed_out:
-        result.failure = FailureClass.TIMEOUT
-        result.error = f"no result within {contract.timeout_s:g} s (infinite loop?)"
     elif cap.navigations or any(u.split(" ", 1)[0] in ("navigation", "popup") for u in active):
+        # before the timeout: a page that tried to leave is a violation whether or not the
+        # blocked navigation then left it stuck past its time limit (that depends on the load)
         leaving = cap.navigations or [u for u in active
                                       if u.split(" ", 1)[0] in ("navigation", "popup")]
         result.failure = FailureClass.SANDBOX_VIOLATION
         result.error = f"the page tried to leave: {redact(leaving[0])}"
+        if cap.timed_out:
+            result.logs.append(f"[visphy] and then no result within {contract.timeout_s:g} s")
+    elif cap.timed_out:
+        result.failure = FailureClass.TIMEOUT
+        result.error = f"no result within {contract.timeout_s:g} s (infinite loop?)"
     elif active:
         result.failure = FailureClass.SANDBOX_VIOLATION
         what = "network or file access" if not active[0].startswith("webrtc") else "WebRTC"
