@@ -411,7 +411,7 @@ class _Prefetch:
         self.services = services
         self.window = window
         self.next = 0
-        self._dispatched: set[int] = set()
+        self._taken = -1  # the scheduler takes scenes in order: all up to here are taken
         self._stopped = False
         self._lock = threading.Lock()
 
@@ -430,7 +430,7 @@ class _Prefetch:
         frames = settings.prompt.frames[:1] if settings.prompt.forecast_only \
             else settings.prompt.frames
         with self._lock:
-            self._dispatched.add(position)
+            self._taken = max(self._taken, position)
         while True:
             with self._lock:  # the scenes after ``position``: its own call is its own
                 if self._stopped:
@@ -446,7 +446,7 @@ class _Prefetch:
                     continue
                 request = first_call(scene, self.services).request
                 with self._lock:
-                    if index not in self._dispatched and not self._stopped:
+                    if index > self._taken and not self._stopped:
                         self.services.caller.submit(request)
             except Exception:  # noqa: BLE001 - the pipeline classifies this scene itself
                 continue
