@@ -80,7 +80,8 @@ WATCH_INTERVAL_S = 0.1
 #: Isolation level recorded when Chromium runs in its own empty network namespace.
 ISOLATION_NETNS = "chromium:netns,no-egress"
 #: Isolation level when Chromium runs under bubblewrap as uid 65534 (root callers).
-ISOLATION_BWRAP = "chromium:bwrap,uid65534,netns,pidns,ipcns,utsns,mountns,no-egress"
+ISOLATION_BWRAP = ("chromium:bwrap,uid65534,netns,pidns,ipcns,utsns,mountns,nouserns,seccomp,"
+                   "no-egress")
 #: Isolation level recorded when the user opted out and no namespace could be had.
 ISOLATION_NONE = "none"
 

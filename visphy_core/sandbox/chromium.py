@@ -9,6 +9,13 @@ Two containment levels, the strongest available is used:
   user-data dir as the only writable places, and drops to uid/gid 65534 (``setpriv``, no
   capabilities, ``no_new_privs``). A renderer exploit then finds no network, no host files and
   no privileges. (Chromium's own sandbox stays off, as Playwright runs it as root.)
+  bwrap also loads the process sandbox's seccomp filter (`visphy_core.sandbox.syscall_filter`)
+  before it starts ``setpriv``: no ``unshare``/``setns``/``clone`` into a new namespace (so no
+  nested user namespace with a full capability set), no ``ptrace``, mounts, keyrings, ``bpf``,
+  ``perf_event_open``, ``userfaultfd`` or ``io_uring``. Chromium runs with ``--no-sandbox``
+  (Playwright's default for a root caller), so it creates no namespaces of its own and the
+  filter costs it nothing. ``--disable-userns`` is not used: it needs ``--unshare-user``, which
+  for a root caller would map the sandbox's uid onto root (see `visphy_core.sandbox.process`).
 * ``netns``: Chromium in a fresh, empty network namespace (``unshare -n`` / ``unshare -rn``).
 """
 
@@ -58,12 +65,34 @@ def _dirs_for(path: Path) -> list[str]:
     return out
 
 
+#: The seccomp filter's BPF program, written by `bwrap_launcher` next to the profile.
+SECCOMP_FILE = "chromium-seccomp.bpf"
+
+
+def write_seccomp_filter(directory: Path) -> Path:
+    """Write the seccomp filter (`syscall_filter.bpf_program`) to ``directory`` (root-owned and
+    not writable by uid 65534: the launcher reads it as root each time it starts bwrap)."""
+    from visphy_core.sandbox import syscall_filter
+
+    path = directory / SECCOMP_FILE
+    tmp = directory / (SECCOMP_FILE + ".tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o600)
+    with os.fdopen(fd, "wb") as fh:
+        fh.write(syscall_filter.bpf_program())
+    os.replace(tmp, path)
+    return path
+
+
 def bwrap_launcher(bwrap: str, executable: str, profile: Path) -> str:
     """The body of a /bin/sh launcher that execs ``executable "$@"`` under bubblewrap as uid
-    65534. ``profile`` (Chromium's HOME, owned by 65534) is bound writable; so is the
-    ``--user-data-dir`` Playwright passes, handed to 65534 by the script."""
+    65534, with the seccomp filter. ``profile`` (Chromium's HOME, owned by 65534) is bound
+    writable; so is the ``--user-data-dir`` Playwright passes, handed to 65534 by the script.
+    Writes the filter's BPF program to ``profile``'s parent (`write_seccomp_filter`), which the
+    script passes to bwrap as descriptor 9. Raises `syscall_filter.FilterUnavailable` when the
+    filter cannot be built (`bwrap_for_chromium` has already checked that it can)."""
+    bpf = write_seccomp_filter(profile.parent)
     static = [bwrap, "--unshare-net", "--unshare-pid", "--unshare-ipc", "--unshare-uts",
-              "--die-with-parent", "--new-session",
+              "--die-with-parent", "--new-session", "--seccomp", "9",
               "--ro-bind", "/usr", "/usr", "--symlink", "usr/lib", "/lib",
               "--symlink", "usr/lib64", "/lib64", "--symlink", "usr/bin", "/bin",
               "--symlink", "usr/sbin", "/sbin",
@@ -94,7 +123,7 @@ if [ -n "$udd" ]; then
   extra="$extra --bind $udd $udd"
 fi
 exec {q(sh_quote(a) for a in static)} $extra {q(sh_quote(a) for a in drop)} "$@" \
-  2>>"$VISPHY_CHROMIUM_STDERR"
+  9<{sh_quote(str(bpf))} 2>>"$VISPHY_CHROMIUM_STDERR"
 """
 
 

@@ -18,6 +18,22 @@ What is isolated
   As a non-root user, bwrap uses an unprivileged user namespace (``--unshare-all --uid 65534``).
   bwrap is started with the scrubbed environment below, so even its own ``/proc/1/environ``
   holds no secret of the caller.
+* **System calls.** A seccomp filter (`visphy_core.sandbox.syscall_filter`, built with
+  libseccomp, loaded by bwrap right before it executes the command) makes the calls that create
+  or enter namespaces fail: ``unshare`` and ``setns`` (``EPERM``), ``clone`` with a
+  ``CLONE_NEW*`` flag (``EPERM``), ``clone3`` (``ENOSYS``: glibc falls back to ``clone``). So
+  the program cannot build a nested user namespace (where it would hold a full capability set)
+  or any other namespace. The same filter denies tracing (``ptrace``, ``process_vm_readv``/
+  ``writev``, ``pidfd_getfd``), mounts and root changes, kernel keyrings, ``bpf``,
+  ``perf_event_open``, ``userfaultfd``, ``io_uring``, module/kexec loading and
+  ``open_by_handle_at`` (``EPERM``); threads, ``fork``/``exec``, ``multiprocessing`` and
+  everything else Python, Manim and Blender do are unaffected. ``/proc/self/status`` of the
+  program shows ``Seccomp: 2`` and ``NoNewPrivs: 1``. As a non-root user bwrap also passes
+  ``--disable-userns`` (the kernel's own limit, on top of the filter). As root it does not:
+  ``--disable-userns`` needs ``--unshare-user``, and bwrap 0.8 then maps the sandbox's one uid
+  onto the caller's, so the program's kernel uid would be 0 (owner access to every root-owned
+  file in the binds) instead of a real 65534; the filter alone closes ``unshare``/``clone``/
+  ``setns``, the only ways into a new namespace.
 * **Filesystem.** A new root (tmpfs) holding read-only binds of ``/usr`` (with ``/bin``,
   ``/lib``, ``/lib64`` symlinks), ``/etc/fonts``, ``/etc/ld.so.cache`` and the fontconfig cache
   when present, and only the interpreter installation(s) the program needs (``ro_paths``: for a
@@ -46,14 +62,18 @@ What is isolated
 What is *not* isolated
 ----------------------
 * The kernel is shared: a kernel exploit escapes any namespace sandbox (run visphy in a VM or a
-  container for that). There is no seccomp filter.
+  container for that). The seccomp filter is a deny list: it narrows the kernel surface (no
+  new namespaces, no tracing, no BPF/perf/io_uring/keyrings) but every other system call of the
+  shared kernel stays reachable.
 * Everything under the read-only binds (``/usr``, the interpreter installations) is readable,
   CPU time and memory bandwidth are shared, and the wall clock / CPU limits are the only
   defence against a program that keeps the machine busy until then.
 * Files the program writes into its work dir are untrusted: callers must read them without
   following symlinks (``O_NOFOLLOW``) and with size limits.
 
-When bwrap is missing or the kernel refuses namespaces, `run_sandboxed` **refuses** to run the
+When bwrap is missing, the kernel refuses namespaces or seccomp, or the seccomp filter cannot be
+built (libseccomp's Python binding, Debian ``python3-seccomp``, missing; an architecture the
+filter does not support), `run_sandboxed` **refuses** to run the
 program (``ProcessResult.refused``, the reason in ``stderr``), unless the user opted out
 explicitly: ``VISPHY_ALLOW_UNISOLATED=1`` or ``configure(allow_unisolated=True)`` (config key
 ``sandbox.allow_unisolated``). An unisolated run keeps the scrubbed environment, the rlimits,
@@ -87,6 +107,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Iterable, Sequence
 
+from visphy_core.sandbox import syscall_filter
 from visphy_core.sandbox.policy import (ALLOW_UNISOLATED_ENV, set_allow_unisolated,
                                         unisolated_allowed)
 from visphy_core.secrets import is_secret_name
@@ -99,8 +120,9 @@ MAX_OUTPUT_BYTES = 1 << 20
 _HEAD_BYTES = 64 << 10
 #: The unprivileged user (and group) the program runs as: Debian's nobody/nogroup.
 NOBODY_UID = 65534
-INSTALL_HINT = ("install bubblewrap (`apt-get install bubblewrap`, scripts/setup.sh) on a kernel "
-                "that allows namespaces, or opt out explicitly with sandbox.allow_unisolated=true "
+INSTALL_HINT = ("install bubblewrap and libseccomp's Python binding (`apt-get install bubblewrap "
+                "python3-seccomp`, scripts/setup.sh) on a kernel that allows namespaces and "
+                "seccomp, or opt out explicitly with sandbox.allow_unisolated=true "
                 f"/ {ALLOW_UNISOLATED_ENV}=1 (model-written code then runs unisolated)")
 #: How often the disk watchdog measures the work dir (seconds).
 DISK_POLL_S = 0.2
@@ -171,32 +193,66 @@ def _setpriv_path() -> str | None:
 
 
 @lru_cache(maxsize=1)
+def _bwrap_disables_userns() -> bool:
+    """Whether this bwrap has ``--disable-userns`` (bubblewrap 0.8 and later)."""
+    bwrap = _bwrap_path()
+    if bwrap is None:
+        return False
+    try:
+        proc = subprocess.run([bwrap, "--help"], capture_output=True, text=True, timeout=10,
+                              env={"PATH": "/usr/bin:/bin"}, cwd="/")
+    except (OSError, subprocess.SubprocessError):
+        return False
+    return "--disable-userns" in proc.stdout + proc.stderr
+
+
+#: What the probe's command prints inside the sandbox when everything holds: the uid, the
+#: seccomp mode of the process, and that a user namespace could not be created.
+_PROBE_SCRIPT = ("id -u; grep '^Seccomp:' /proc/self/status | tr -d ' \\t'; "
+                 "if unshare --user /bin/true 2>/dev/null; then echo userns-allowed; "
+                 "else echo userns-denied; fi")
+_PROBE_WANT = f"{NOBODY_UID}\nSeccomp:2\nuserns-denied"
+
+
+@lru_cache(maxsize=1)
 def _probe() -> tuple[str | None, str]:
-    """("root" | "user", isolation level) when bwrap works here, else (None, reason)."""
+    """("root" | "user", isolation level) when bwrap and the seccomp filter work here, else
+    (None, reason)."""
     bwrap = _bwrap_path()
     if bwrap is None:
         return None, "bubblewrap (bwrap) is not installed"
     root = os.geteuid() == 0
     if root and _setpriv_path() is None:
         return None, "setpriv (util-linux) is not installed"
+    ok, why = syscall_filter.available()
+    if not ok:
+        return None, f"no seccomp filter: {why}"
     mode = "root" if root else "user"
     work = Path(tempfile.mkdtemp(prefix="visphy-bwrap-probe-"))
+    seccomp_fd = None
     try:
         _prepare_workdir(work, mode)
         env = {"PATH": "/usr/bin:/bin", "LANG": "C.UTF-8"}
-        cmd = _bwrap_argv(bwrap, mode, work, [], env, Limits(), ["/bin/sh", "-c", "id -u"])
+        seccomp_fd = syscall_filter.memfd()
+        cmd = _bwrap_argv(bwrap, mode, work, [], env, Limits(),
+                          ["/bin/sh", "-c", _PROBE_SCRIPT], seccomp_fd=seccomp_fd)
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=30, env=env,
-                              cwd="/")
-    except (OSError, subprocess.TimeoutExpired) as exc:
+                              cwd="/", pass_fds=(seccomp_fd,))
+    except (OSError, subprocess.TimeoutExpired, syscall_filter.FilterUnavailable) as exc:
         return None, f"bwrap failed to run: {exc}"
     finally:
+        if seccomp_fd is not None:
+            os.close(seccomp_fd)
         shutil.rmtree(work, ignore_errors=True)
-    if proc.returncode != 0 or proc.stdout.strip() != str(NOBODY_UID):
+    if proc.returncode != 0 or proc.stdout.strip() != _PROBE_WANT:
         why = (proc.stderr or proc.stdout).strip().splitlines()
-        return None, ("the kernel refuses the namespaces bwrap needs (bwrap: "
-                      f"{why[-1] if why else f'exit {proc.returncode}'})")
+        if proc.returncode == 0:
+            return None, (f"the seccomp filter does not hold here (the probe printed "
+                          f"{proc.stdout.strip()!r}, expected {_PROBE_WANT!r})")
+        return None, ("the kernel refuses the namespaces or the seccomp filter bwrap needs "
+                      f"(bwrap: {why[-1] if why else f'exit {proc.returncode}'})")
     spaces = "netns,pidns,ipcns,utsns,mountns" if root else "userns,netns,pidns,ipcns,utsns,mountns"
-    return mode, f"bwrap:uid{NOBODY_UID},{spaces}"
+    return mode, f"bwrap:uid{NOBODY_UID},{spaces},nouserns,seccomp"
 
 
 def isolation_available() -> tuple[bool, str]:
@@ -208,7 +264,8 @@ def isolation_available() -> tuple[bool, str]:
 
 def isolation_level() -> str:
     """What `run_sandboxed` gives a program here, for the run manifest: the bwrap isolation
-    (``"bwrap:uid65534,netns,pidns,ipcns,utsns,mountns"``), ``"none"`` when it is unavailable
+    (``"bwrap:uid65534,netns,pidns,ipcns,utsns,mountns,nouserns,seccomp"`` as root; a non-root
+    caller's adds ``userns``, the sandbox's own user namespace), ``"none"`` when it is unavailable
     and the user opted out, or ``"refused: <reason>"`` when untrusted code will not run."""
     mode, text = _probe()
     if mode is not None:
@@ -523,14 +580,20 @@ def _under(path: str, roots: Iterable[str]) -> bool:
 
 
 def _bwrap_argv(bwrap: str, mode: str, workdir: Path, ro_paths: Sequence[Path],
-                env: dict[str, str], limits: Limits, argv: Sequence[str]) -> list[str]:
-    """The bwrap command line (see the module docstring)."""
+                env: dict[str, str], limits: Limits, argv: Sequence[str], *,
+                seccomp_fd: int | None = None) -> list[str]:
+    """The bwrap command line (see the module docstring). ``seccomp_fd``: a descriptor holding
+    the filter's BPF program (`syscall_filter.memfd`), which the caller passes to bwrap."""
     cmd = [bwrap]
     if mode == "root":
         cmd += ["--unshare-ipc", "--unshare-pid", "--unshare-net", "--unshare-uts",
                 "--unshare-cgroup-try"]
     else:
         cmd += ["--unshare-all", "--uid", str(NOBODY_UID), "--gid", str(NOBODY_UID)]
+        if _bwrap_disables_userns():
+            cmd += ["--unshare-user", "--disable-userns"]
+    if seccomp_fd is not None:
+        cmd += ["--seccomp", str(seccomp_fd)]
     cmd += ["--die-with-parent", "--new-session", "--clearenv"]
     for name, value in env.items():
         cmd += ["--setenv", name, value]
@@ -625,9 +688,15 @@ def run_sandboxed(argv: list[str], workdir: Path, limits: Limits,
             os.path.join(workdir, exe), os.X_OK):
         return _refused(workdir, f"could not start {cmd[0]}: not found or not executable",
                         refused=False)
+    seccomp_fd: int | None = None
     if mode is not None:
+        try:
+            seccomp_fd = syscall_filter.memfd()
+        except (OSError, syscall_filter.FilterUnavailable) as exc:
+            return _refused(workdir, f"sandbox unavailable, refusing to run untrusted code: "
+                                     f"no seccomp filter: {exc}; {INSTALL_HINT}")
         full = [*_bwrap_argv(_bwrap_path() or "bwrap", mode, workdir, ro_list, env, limits,
-                             cmd)]
+                             cmd, seccomp_fd=seccomp_fd)]
         isolation = level
         uid = NOBODY_UID if mode == "root" else os.getuid()
     else:
@@ -643,7 +712,7 @@ def run_sandboxed(argv: list[str], workdir: Path, limits: Limits,
         proc = subprocess.Popen(
             full, cwd=workdir, env=env, stdin=in_r if in_r is not None else subprocess.DEVNULL,
             stdout=out_w, stderr=err_w, start_new_session=True, preexec_fn=preexec,
-            close_fds=True)
+            close_fds=True, pass_fds=(seccomp_fd,) if seccomp_fd is not None else ())
     except OSError as exc:
         for fd in (out_r, out_w, err_r, err_w, in_r, in_w):
             if fd is not None:
@@ -652,7 +721,7 @@ def run_sandboxed(argv: list[str], workdir: Path, limits: Limits,
         res.isolation = isolation
         return res
     finally:
-        for fd in (out_w, err_w, in_r):
+        for fd in (out_w, err_w, in_r, seccomp_fd):
             if fd is not None:
                 try:
                     os.close(fd)
