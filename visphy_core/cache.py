@@ -23,6 +23,8 @@ from collections import Counter
 from pathlib import Path
 from typing import Any, Callable, TypeVar
 
+from visphy_core import files as files_mod
+
 log = logging.getLogger("visphy.cache")
 
 T = TypeVar("T")
@@ -82,6 +84,14 @@ class Cache:
     # ------------------------------------------------------------------ integrity
     def verify(self, entry: Path) -> str | None:
         """None when every payload file matches its recorded digest, else why not."""
+        try:  # no link on the way to the entry or in it, only regular files (never followed)
+            files_mod.entry_kind(entry, self.root)
+            refused = files_mod.scan_tree(entry)
+        except (OSError, files_mod.ForeignFileError) as exc:
+            return f"unsafe entry ({' '.join(str(exc).split())[:300]})"
+        if refused:
+            first = sorted(refused)[0]
+            return f"{first} is {refused[first]}"
         marker = entry / MARKER
         try:
             raw = marker.read_bytes()

@@ -328,6 +328,17 @@ def main(argv: list[str] | None = None) -> int:
         os.environ["VISPHY_TRACEBACK"] = "1"
     if _traceback_wanted():
         os.environ.setdefault("HYDRA_FULL_ERROR", "1")
+    from visphy_core.secrets import install_log_redaction
+
+    install_log_redaction()
+    try:
+        from visphy_core.keys import register_env_files
+
+        register_env_files()  # a bad .env is one line; its secrets are redacted everywhere
+    except UserError as exc:
+        if _traceback_wanted():
+            raise
+        return report(exc)
     if argv and argv[0] in SUBCOMMANDS:
         try:
             return SUBCOMMANDS[argv[0]](argv[1:])

@@ -198,6 +198,9 @@ class ModelCaller:
             raise
         response.prompt_version = response.prompt_version or request.prompt_version
         response.error = redact(response.error)
+        # a reply that echoes a secret (a hostile provider) is redacted before anything sees
+        # it, so the live run and one resumed from the cache see the same text
+        response.text = redact(response.text) or ""
         self._record(request, response, cached=False, ticket=ticket)
         if response.error is None:  # provider errors are not cached: a later run may succeed
             self._store(key, response)

@@ -9,11 +9,12 @@ from allow-listed environments anyway, and a key that is not exported cannot lea
 
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 
 from visphy_core.errors import UserError
-from visphy_core.secrets import register_secret
+from visphy_core.secrets import SECRET_ENV_LIST, is_secret_name, register_secret
 
 
 class MissingKey(UserError):
@@ -31,12 +32,61 @@ def env_files() -> list[Path]:
     return files
 
 
-def _from_files(var: str) -> tuple[str | None, Path | None]:
+_PARSED: dict[tuple[str, int, int], dict[str, str]] = {}
+MAX_ENV_FILE = 1 << 20
+
+
+def read_env_file(path: Path) -> dict[str, str]:
+    """The non-empty ``NAME=value`` entries of a ``.env`` file; a file that is not UTF-8 text
+    (binary, another encoding) or cannot be read is a `UserError` naming the file, one line."""
+    try:
+        st = path.stat()
+        key = (str(path), st.st_mtime_ns, st.st_size)
+        if key in _PARSED:
+            return _PARSED[key]
+        if st.st_size > MAX_ENV_FILE:
+            raise UserError(f"{path}: a .env file of {st.st_size} bytes is too large (over "
+                            f"{MAX_ENV_FILE}); it should hold lines NAME=value")
+        data = path.read_bytes()
+    except OSError as exc:
+        raise UserError(f"{path}: the .env file cannot be read ({exc.strerror or exc})") \
+            from None
+    try:
+        text = data.decode("utf-8")
+        if "\x00" in text:
+            raise UnicodeDecodeError("utf-8", data, text.index("\x00"), text.index("\x00") + 1,
+                                     "NUL byte")
+    except UnicodeDecodeError:
+        raise UserError(f"{path}: the .env file is not UTF-8 text (binary or another encoding); "
+                        "it should hold lines NAME=value") from None
     from dotenv import dotenv_values
 
+    values = {k: v for k, v in dotenv_values(stream=io.StringIO(text)).items() if k and v}
+    _PARSED[key] = values
+    return values
+
+
+def register_env_files() -> None:
+    """Register every secret of the ``.env`` files (by name, or listed in
+    ``VISPHY_SECRET_ENV`` of the environment or of the file) with `visphy_core.secrets`, so
+    redaction covers them even when no key is looked up. The CLI calls it first: a bad ``.env``
+    is one line before any work."""
+    for path in env_files():
+        if not path.is_file():
+            continue
+        values = read_env_file(path)
+        listed = {n.strip() for raw in (os.environ.get(SECRET_ENV_LIST, ""),
+                                        values.get(SECRET_ENV_LIST, ""))
+                  for n in raw.split(",") if n.strip()}
+        for name, value in values.items():
+            if name != SECRET_ENV_LIST and is_secret_name(name, listed):
+                register_secret(name, value)
+
+
+def _from_files(var: str) -> tuple[str | None, Path | None]:
     for path in env_files():
         if path.is_file():
-            value = dotenv_values(path).get(var)
+            value = read_env_file(path).get(var)
             if value:
                 return value, path
     return None, None

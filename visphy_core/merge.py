@@ -31,6 +31,8 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from visphy_core.secrets import public_yaml
+from visphy_core import files
 from visphy_core.dataset.shard import interleave, parse_shard
 from visphy_core.errors import UserError
 from visphy_core.pipeline import SceneResult
@@ -82,6 +84,7 @@ def read_shard(run_dir: Path) -> Shard:
     if missing:
         raise UserError(f"merge: {run_dir} is not a finished visphy run directory (no "
                         f"{', '.join(missing)})")
+    files.refuse_tree(run_dir, "run directory")
     manifest = json.loads((run_dir / "manifest.json").read_text())
     summary = json.loads((run_dir / "summary.json").read_text())
     status = summary.get("status") or manifest.get("status")
@@ -253,7 +256,7 @@ def _write_merged(out: Path, cfg: DictConfig, shards: list[Shard],
             if calls.is_file():
                 text = calls.read_text()
                 fh.write(text if not text or text.endswith("\n") else text + "\n")
-    (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    files.atomic_write(out / "config.yaml", public_yaml(cfg))  # no credentials in URLs
     _write_rows(out, results)
     chash = config_hash(cfg)
     merged_from = _merged_from(shards)

@@ -29,6 +29,8 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
+from visphy_core.files import atomic_write
+from visphy_core.secrets import public_yaml
 from visphy_core.cache import Cache
 from visphy_core.console import print_summary, print_where_to_look, stage_progress
 from visphy_core.engine import FailureClass, Program, RenderContract
@@ -40,6 +42,7 @@ from visphy_core.pipeline import SceneResult, mark_not_evaluable
 from visphy_core.references import ReferenceWriter
 from visphy_core.rescore_config import rescore_config
 from visphy_core.run_dir import FINISHED, INTERRUPTED, RUNNING, RunLock, config_hash
+from visphy_core import files
 from visphy_core.scene import Scene, SceneDataError
 from visphy_core.scene_scores import (ReferenceClipUnavailable, ScoringServices,
                                       score_columns_of, score_outputs, write_scores)
@@ -109,6 +112,7 @@ def check_run_dir(path: Path) -> Path:
         raise UserError(f"score: {path} is not a visphy run directory (missing "
                         f"{', '.join(missing) or 'everything'}); pass a folder under "
                         "<VISPHY_HOME>/runs/")
+    files.refuse_tree(path, "run directory")
     return path.resolve()
 
 
@@ -364,7 +368,7 @@ def _write_run(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, chang
     previous_mlflow = ((manifest.get("tracking") or {}).get("mlflow") or {}).get("run_id")
     rescored_from = {"run_dir": str(src), "mlflow_run_id": previous_mlflow,
                      "at": dt.datetime.now().isoformat(timespec="seconds")}
-    (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    atomic_write(out / "config.yaml", public_yaml(cfg))  # no credentials in URLs
     with open(out / ".results.jsonl.tmp", "w") as fh:
         fh.writelines(json.dumps(r.row(), default=str) + "\n" for r in results)
     (out / ".results.jsonl.tmp").replace(out / "results.jsonl")

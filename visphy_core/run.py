@@ -30,6 +30,8 @@ from typing import Any, Iterator
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
+from visphy_core.files import atomic_write
+from visphy_core.secrets import install_log_redaction, public_config, public_yaml
 from visphy_core.cache import Cache
 from visphy_core.console import print_summary, print_where_to_look, stage_progress
 from visphy_core.dataset import load_dataset
@@ -249,12 +251,9 @@ def _count_states(states) -> dict[str, int]:
 
 
 def write_json(path: Path, data: Any) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w") as fh:
-        fh.write(json.dumps(data, indent=1, default=str))
-        fh.flush()
-        os.fsync(fh.fileno())
-    tmp.replace(path)
+    """A run file (manifest, summary) as stored: atomic, never through a link, with no secret
+    value and no credentials in URLs (the manifest records the command line)."""
+    atomic_write(path, json.dumps(public_config(data), indent=1, default=str), fsync=True)
 
 
 @contextmanager
@@ -344,6 +343,7 @@ def run_experiment(cfg: DictConfig) -> dict:
     Resumes the newest unfinished run of the same config (see the module docstring). Raises
     `RunInterrupted` (exit status 130/143) after closing the run on SIGINT/SIGTERM.
     """
+    install_log_redaction()  # also in a launcher's job process (joblib, submitit, Ray)
     workers = resolve_workers(cfg.run.get("workers", "auto"))  # a bad value: before any work
     torch_threads = pin_torch_threads()
     registry = get_registry()
@@ -554,7 +554,7 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
 
     metrics, engine = services.metrics, services.engine
     judge_keys = [k for k, _ in services.judges.judges] if services.judges else []
-    (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    atomic_write(run_dir / "config.yaml", public_yaml(cfg))  # no credentials in URLs
     ctx = RunContext(cfg=cfg, run_dir=run_dir, root=root, scenes=scenes,
                      model_name=cfg.model.name, engine_name=cfg.engine.name, metrics=metrics,
                      cache=cache, extra=dict(extra), ledger=ledger, judges=judge_keys)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from visphy_core import files
 from visphy_core.errors import UserError
 from visphy_core.scene import Scene
 
@@ -28,6 +29,7 @@ def read_run_config(run_dir: Path) -> DictConfig:
     run_dir = Path(run_dir)
     if not is_run_dir(run_dir):
         raise UserError(f"{run_dir} is not a run directory (no config.yaml and scenes/ in it)")
+    files.refuse_tree(run_dir, "run directory")
     try:
         cfg = OmegaConf.load(run_dir / "config.yaml")
     except Exception as exc:  # noqa: BLE001 - any parse error is a damaged run directory

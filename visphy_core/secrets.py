@@ -4,14 +4,24 @@ Containment (the sandboxes) keeps secrets away from model-written programs; this
 second line: before a log, a failure detail, a repair prompt or cached metadata is written, every
 configured secret value in it is replaced by ``[REDACTED:<NAME>]``.
 
-A secret is the value of an environment variable whose name contains one of `SECRET_MARKERS`
-(``OPENAI_API_KEY``, ``HF_TOKEN``, ``DB_PASSWORD``…), or whose name is listed in
-``VISPHY_SECRET_ENV`` (comma-separated, for secrets with innocent names). Values shorter than
-`MIN_SECRET_LEN` characters are not treated as secrets (redacting "1" would shred every log).
+A secret is, by name, the value of an environment variable whose name contains one of
+`SECRET_MARKERS` (``OPENAI_API_KEY``, ``HF_TOKEN``, ``DB_PASSWORD``…), or whose name is listed in
+``VISPHY_SECRET_ENV`` (comma-separated, for secrets with innocent names), and every such entry of
+a ``.env`` file visphy reads keys from (`register_secret`); values shorter than `MIN_SECRET_LEN`
+characters are not treated as secrets (redacting "1" would shred every log). And, by value,
+whatever has the shape of a credential wherever it comes from (`VALUE_PATTERNS`): the user
+information of a URL (``postgres://u:pw@db/x`` → ``postgres://[REDACTED]@db/x``), a
+``Bearer`` token, a ``?key=``/``token=``/``password=`` query value, and the well-known key
+prefixes (``sk-…``, ``AIza…``, ``hf_…``, ``ghp_…``, ``github_pat_…``, ``AKIA…``, ``xox?-…``,
+``glpat-…``, JSON Web Tokens).
+
+`public_url` and `public_config` give the form of a URL and of a config that may be stored
+(``config.yaml``, MLflow params): no credentials in URLs, no secret values.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import re
 from typing import Any, Mapping
@@ -60,16 +70,68 @@ def secret_values(environ: Mapping[str, str] | None = None) -> dict[str, str]:
     return out
 
 
+#: Credentials recognised by their shape: (pattern, replacement). A pattern's group ``keep``
+#: (when present) is kept, the rest of the match becomes ``[REDACTED]``.
+VALUE_PATTERNS: tuple[tuple[re.Pattern, str], ...] = (
+    # URL user information: scheme://user:password@host, scheme://token@host
+    (re.compile(r"(?P<keep>\b[A-Za-z][A-Za-z0-9+.-]{0,30}://)[^\s/?#@'\"<>]+@"),
+     "[REDACTED]@"),
+    (re.compile(r"(?P<keep>\b(?:Bearer|Basic|Token)\s+)[A-Za-z0-9._~+/=-]{8,}", re.IGNORECASE),
+     "[REDACTED]"),
+    (re.compile(r"(?P<keep>[?&;](?:api[_-]?key|key|token|access[_-]?token|secret|password|"
+                r"passwd|sig|signature)=)[^&#\s'\"<>]{4,}", re.IGNORECASE), "[REDACTED]"),
+    (re.compile(r"\b(?:sk|rk|pk)[-_](?:live[-_]|test[-_]|proj[-_]|ant[-_]|svcacct[-_])?"
+                r"[A-Za-z0-9_-]{20,}"), "[REDACTED]"),
+    (re.compile(r"\bAIza[0-9A-Za-z_-]{30,}"), "[REDACTED]"),
+    (re.compile(r"\bhf_[A-Za-z0-9]{24,}"), "[REDACTED]"),
+    (re.compile(r"\b(?:gh[pousr]_[A-Za-z0-9]{30,}|github_pat_[A-Za-z0-9_]{22,})"),
+     "[REDACTED]"),
+    (re.compile(r"\b(?:AKIA|ASIA)[0-9A-Z]{16}\b"), "[REDACTED]"),
+    (re.compile(r"\bxox[abposr]-[A-Za-z0-9-]{10,}"), "[REDACTED]"),
+    (re.compile(r"\bglpat-[A-Za-z0-9_-]{20,}"), "[REDACTED]"),
+    (re.compile(r"\beyJ[A-Za-z0-9_-]{10,}\.eyJ[A-Za-z0-9_-]{10,}\.[A-Za-z0-9_-]{10,}"),
+     "[REDACTED]"),
+)
+
+
+def _redact_shapes(text: str) -> str:
+    for pattern, replacement in VALUE_PATTERNS:
+        if "keep" in pattern.groupindex:
+            text = pattern.sub(lambda m, r=replacement: m.group("keep") + r, text)
+        else:
+            text = pattern.sub(replacement, text)
+    return text
+
+
 def redact(text: str | None, environ: Mapping[str, str] | None = None) -> str | None:
-    """``text`` with every secret value replaced by ``[REDACTED:<NAME>]`` (None stays None)."""
+    """``text`` with every secret value replaced by ``[REDACTED:<NAME>]`` and every credential
+    recognised by its shape by ``[REDACTED]`` (None stays None)."""
     if not text:
         return text
     values = secret_values(environ)
-    if not values:
-        return text
-    # Longest first, so a secret that contains another is replaced whole.
-    pattern = re.compile("|".join(re.escape(v) for v in sorted(values, key=len, reverse=True)))
-    return pattern.sub(lambda m: f"[REDACTED:{values[m.group(0)]}]", text)
+    if values:
+        # Longest first, so a secret that contains another is replaced whole.
+        pattern = re.compile("|".join(re.escape(v)
+                                      for v in sorted(values, key=len, reverse=True)))
+        text = pattern.sub(lambda m: f"[REDACTED:{values[m.group(0)]}]", text)
+    return _redact_shapes(text)
+
+
+def public_url(url: str) -> str:
+    """``url`` without the user information (``https://u:p@host/v1`` → ``https://host/v1``)."""
+    return VALUE_PATTERNS[0][0].sub(lambda m: m.group("keep"), url)
+
+
+def public_config(obj: Any) -> Any:
+    """A config container (dicts, lists, scalars) as it may be stored: URLs without user
+    information, then `redact_obj` (secret values, credential shapes)."""
+    if isinstance(obj, str):
+        return redact(public_url(obj))
+    if isinstance(obj, dict):
+        return {k: public_config(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(public_config(v) for v in obj)
+    return obj
 
 
 def redact_obj(obj: Any, environ: Mapping[str, str] | None = None) -> Any:
@@ -81,3 +143,23 @@ def redact_obj(obj: Any, environ: Mapping[str, str] | None = None) -> Any:
     if isinstance(obj, (list, tuple)):
         return type(obj)(redact_obj(v, environ) for v in obj)
     return obj
+
+
+def public_yaml(cfg: Any) -> str:
+    """A resolved OmegaConf config as the YAML a run directory stores (`public_config`)."""
+    from omegaconf import OmegaConf
+
+    return OmegaConf.to_yaml(OmegaConf.create(
+        public_config(OmegaConf.to_container(cfg, resolve=True))))
+
+
+class _RedactedRecord(logging.LogRecord):
+    def getMessage(self) -> str:  # noqa: N802 (logging's name)
+        return redact(super().getMessage()) or ""
+
+
+def install_log_redaction() -> None:
+    """Every log record of every logger (visphy's, the SDKs', httpx's request lines with a
+    URL's user information) passes through `redact` when it is formatted. Idempotent."""
+    if logging.getLogRecordFactory() is not _RedactedRecord:
+        logging.setLogRecordFactory(_RedactedRecord)

@@ -95,7 +95,9 @@ def log_params(client, run_id: str, params: dict[str, Any]) -> None:
     """Params in batches (one request per 100 over a tracking server); MLflow's length limits."""
     from mlflow.entities import Param
 
-    client.log_batch(run_id, params=[Param(key[:250], str(value)[:6000])
+    from visphy_core.secrets import public_config
+
+    client.log_batch(run_id, params=[Param(key[:250], str(public_config(str(value)))[:6000])
                                      for key, value in sorted(params.items())])
 
 

@@ -32,6 +32,7 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
+from visphy_core import files
 from visphy_core.dataset.base import Dataset
 from visphy_core.errors import ConfigError
 from visphy_core.hookspecs import hookimpl
@@ -226,6 +227,13 @@ def load_original(root: Path, split: str, scene_ids: list[str] | None = None,
     split_dir = root / split
     if not split_dir.is_dir():
         raise FileNotFoundError(f"missing split folder: {split_dir} (dataset root {root})")
+    # a foreign tree: links, special files and oversized files are refused, never read
+    files.entry_kind(split_dir, root)
+    refused = files.scan_tree(split_dir)
+    for name in ("metadata.jsonl", "difficulty_table.json", "videos", "detection_json"):
+        if name in refused:
+            raise files.ForeignFileError(f"refused to read {split_dir / name}: it is "
+                                         f"{refused[name]}")
     videos_dir = split_dir / "videos"
     meta_path = split_dir / "metadata.jsonl"
     det_dir = split_dir / "detection_json"
@@ -265,6 +273,10 @@ def load_original(root: Path, split: str, scene_ids: list[str] | None = None,
         detection = det_dir / f"{sid}_frame_01.json"
         clip, label, load_error = ClipInfo(fps=0.0, n_frames=0, width=0, height=0), None, None
         try:
+            for path in (video, detection):
+                why = refused.get(path.relative_to(split_dir).as_posix())
+                if why:
+                    raise files.ForeignFileError(f"refused to read {path}: it is {why}")
             if not video.is_file():
                 raise FileNotFoundError(f"missing video for scene {sid} ({where}): {video}")
             clip = probe_clip(video)

@@ -17,6 +17,10 @@ re-rendered and re-scored offline (``model=replay model.source=PATH``).
 A scene with no recorded reply is a ``model_error`` naming the file it looked for; a repair call
 with no recorded repair reply keeps the first attempt's failure (``error_kind="not_recorded"``).
 Replies cost nothing and are not billed again.
+
+The source is a foreign tree: every file is read through `visphy_core.files` (no symbolic link
+below ``source`` is followed, only regular files, size caps). A scene whose reply is a link, or
+sits in a linked folder, is a ``data_error`` row naming the path; its content is never read.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from typing import Optional
 
 from omegaconf import MISSING
 
+from visphy_core import files
 from visphy_core.config_schema import ModelConfig
 from visphy_core.errors import UserError
 from visphy_core.extract import fenced_blocks
@@ -52,22 +57,30 @@ class ReplayModel(Model):
         super().__init__(cfg)
         self.name = str(cfg.get("name", "replay"))
         self.source = Path(str(cfg.source)).expanduser()
+        #: the tree no link is followed below (a single reply file: its folder)
+        self.root = self.source if self.source.is_dir() else self.source.parent
         self.output_kind = str(cfg.get("output") or self._detect_output())
 
     # ------------------------------------------------------------------ layout
     def _is_run_dir(self) -> bool:
-        return (self.source / "scenes").is_dir() and (self.source / "manifest.json").is_file()
+        if not hasattr(self, "_run_dir"):
+            self._run_dir = self.source.is_dir() \
+                and files.entry_kind(self.source / "scenes", self.root) == "dir" \
+                and files.is_file(self.source / "manifest.json", self.root)
+        return self._run_dir
 
     def _detect_output(self) -> str:
         if self._is_run_dir():
             try:
-                model = json.loads((self.source / "manifest.json").read_text()).get("model")
-                return (model or {}).get("output", "program")
-            except (OSError, ValueError):
+                manifest = files.read_json(self.source / "manifest.json", self.root)
+                return ((manifest or {}).get("model") or {}).get("output", "program")
+            except (OSError, ValueError, AttributeError):
                 return "program"
-        if self.source.is_dir() and any(self.source.glob("*.mp4")) \
-                and not any(p.suffix in TEXT_SUFFIXES for p in self.source.iterdir()):
-            return "video"
+        if self.source.is_dir():
+            suffixes = {Path(name).suffix for name, kind in files.list_dir(self.source)
+                        if kind == "file"}
+            if ".mp4" in suffixes and not suffixes & set(TEXT_SUFFIXES):
+                return "video"
         return "program"
 
     def check_ready(self) -> None:
@@ -77,15 +90,32 @@ class ReplayModel(Model):
                             "file)")
 
     def identity(self) -> str:
-        """Name plus a digest of every recorded reply: editing a reply file is a new model."""
+        """Name plus a digest of every recorded reply: editing a reply file is a new model.
+        A link is digested as its name only (its target is never read; the scene that uses it
+        becomes a ``data_error`` row)."""
         h = hashlib.sha256()
-        files = [self.source] if self.source.is_file() else sorted(
-            p for p in self.source.rglob("*")
-            if p.is_file() and (p.suffix in TEXT_SUFFIXES or p.suffix == ".mp4"))
-        for path in files:
-            h.update(str(path.relative_to(self.source.parent)).encode())
-            h.update(hashlib.sha256(path.read_bytes()).digest())
+        for path, kind in self._recorded_files():
+            h.update(f"{kind}:{path.relative_to(self.root)}".encode())
+            if kind == "file":
+                h.update(hashlib.sha256(files.read_bytes(path, self.root, kind="any")).digest())
         return json.dumps(["replay", self.version, self.output_kind, h.hexdigest()])
+
+    def _recorded_files(self) -> list[tuple[Path, str]]:
+        """(path, "file" | "link" | "other") of every reply or video under the source, sorted,
+        found without following links."""
+        if not self.source.is_dir():
+            return [(self.source, "file")]
+        out: list[tuple[Path, str]] = []
+        stack = [self.source]
+        while stack:
+            folder = stack.pop()
+            for name, kind in files.list_dir(folder, self.root):
+                path = folder / name
+                if kind == "dir":
+                    stack.append(path)
+                elif path.suffix in TEXT_SUFFIXES or path.suffix == ".mp4":
+                    out.append((path, kind))
+        return sorted(out)
 
     def _candidates(self, scene_id: str, attempt: int) -> list[Path]:
         if self.source.is_file():
@@ -103,11 +133,11 @@ class ReplayModel(Model):
             return [self.source / f"{scene_id}.mp4"] if attempt == 1 else []
         found = [self.source / f"{scene_id}{tag}{ext}" for ext in TEXT_SUFFIXES]
         folder = self.source / scene_id
-        if folder.is_dir():
+        if files.entry_kind(folder, self.root) == "dir":
             found.append(folder / f"response{tag}.txt")
             if attempt == 1:
-                found += sorted(p for p in folder.iterdir()
-                                if p.suffix in TEXT_SUFFIXES and ".attempt" not in p.name)
+                found += [folder / name for name, _ in files.list_dir(folder, self.root)
+                          if Path(name).suffix in TEXT_SUFFIXES and ".attempt" not in name]
         return found
 
     def _run_rows(self) -> dict[str, dict]:
@@ -115,13 +145,14 @@ class ReplayModel(Model):
         if not hasattr(self, "_rows"):
             self._rows = {}
             try:
-                for line in (self.source / "results.jsonl").read_text().splitlines():
+                text = files.read_text(self.source / "results.jsonl", self.root, kind="jsonl")
+                for line in text.splitlines():
                     try:
                         row = json.loads(line)
                         self._rows[str(row["scene_id"])] = row
                     except (ValueError, KeyError, TypeError):
                         continue
-            except OSError:
+            except (OSError, ValueError):
                 pass
         return self._rows
 
@@ -131,7 +162,13 @@ class ReplayModel(Model):
         tag = "" if attempt == 1 else f".attempt{attempt}"
         meta = self.source / "scenes" / scene_id / f"response{tag}.json"
         try:
-            recorded = json.loads(meta.read_text())
+            if not files.is_file(meta, self.root):
+                return None
+            recorded = files.read_json(meta, self.root)
+        except FileNotFoundError:
+            return None
+        except files.ForeignFileError:
+            raise
         except (OSError, ValueError):
             return None
         if not isinstance(recorded, dict) or not recorded.get("error"):
@@ -152,7 +189,7 @@ class ReplayModel(Model):
             if failed is not None:
                 return failed
         candidates = self._candidates(request.scene_id, request.attempt)
-        path = next((p for p in candidates if p.is_file()), None)
+        path = next((p for p in candidates if files.is_file(p, self.root)), None)
         if path is not None and self._is_run_dir() and self._fallback_video(path,
                                                                             request.scene_id):
             return ModelResponse(text="", error=f"the recorded run has no video of its own for "
@@ -169,22 +206,24 @@ class ReplayModel(Model):
         if self.output_kind == "video":
             return ModelResponse(text=f"recorded video {path.name}", video_path=str(path),
                                  cost_usd=0.0)
-        response = ModelResponse(text=_as_reply(path), cost_usd=0.0)
+        response = ModelResponse(text=_as_reply(path, self.root), cost_usd=0.0)
         if self._is_run_dir():  # the recorded finish reason and refusal classify it the same
             meta = path.with_suffix(".json")
             try:
-                recorded = json.loads(meta.read_text())
+                recorded = files.read_json(meta, self.root)
                 response.finish_reason = recorded.get("finish_reason")
                 response.refusal = recorded.get("refusal")
+            except files.ForeignFileError:
+                raise
             except (OSError, ValueError, AttributeError):
                 pass
         return response
 
 
-def _as_reply(path: Path) -> str:
+def _as_reply(path: Path, root: Path) -> str:
     """The file's text; a bare program (no fence at all) is wrapped in the fence its suffix
     implies, so recorded programs written elsewhere extract like replies."""
-    text = path.read_text(errors="replace")
+    text = files.read_text(path, root, kind="reply")
     blocks, unclosed = fenced_blocks(text)
     if not blocks and unclosed is None and path.suffix in FENCE_FOR:
         return f"```{FENCE_FOR[path.suffix]}\n{text.rstrip()}\n```\n"

@@ -18,6 +18,7 @@ from typing import Any, Iterable
 
 import pandas as pd
 
+from visphy_core import files
 from visphy_core.analysis.human import read_ratings
 from visphy_core.errors import UserError
 
@@ -191,6 +192,7 @@ def load_run(path: str | Path) -> RunData:
     if not is_run_dir(run_dir):
         raise UserError(f"{run_dir}: not a run directory (a run directory holds {SUMMARY} and "
                         f"{' or '.join(RESULTS)})")
+    files.refuse_tree(run_dir, "run directory")
     return RunData(run_dir=run_dir.resolve(), config=_read_config(run_dir),
                    summary=_read_json(run_dir / SUMMARY, required=True),
                    manifest=_read_json(run_dir / "manifest.json", required=False),

@@ -16,6 +16,7 @@ import random
 from dataclasses import dataclass
 from pathlib import Path
 
+from visphy_core import files
 from visphy_core.errors import UserError
 from visphy_core.run_scenes import is_run_dir, load_run_scenes
 
@@ -58,6 +59,8 @@ def find_run_dirs(paths: list[str | Path]) -> list[Path]:
                         if is_run_dir(p.parent) and not any(is_run_dir(a) for a in
                                                              p.parent.parents))
     unique = list(dict.fromkeys(found))
+    for run_dir in unique:  # a linked clip or ratings file: the whole run is refused, one line
+        files.refuse_tree(run_dir, "run directory")
     if not unique:
         raise UserError(f"no run directory under {', '.join(str(p) for p in paths)} (a run "
                         "directory holds config.yaml and scenes/)")

@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import datetime as dt
 import json
-import os
 import re
 import threading
 from pathlib import Path
 
+from visphy_core import files
 from visphy_core.errors import UserError
 from visphy_core.human.items import RatingItem
 
@@ -45,10 +45,10 @@ def rating_record(item: RatingItem, rater: str, rating: int, comment: str | None
 def read_ratings(run_dir: Path) -> list[dict]:
     """The well-formed lines of a run's ratings file (a torn or foreign line is skipped)."""
     path = Path(run_dir) / RATINGS_FILE
-    if not path.is_file():
+    if not files.is_file(path, run_dir):
         return []
     out = []
-    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+    for line in files.read_text(path, run_dir, kind="jsonl").splitlines():
         try:
             row = json.loads(line)
         except ValueError:
@@ -83,12 +83,6 @@ class RatingStore:
         """Write one rating (a single ``write`` of a whole line, under a lock)."""
         record = rating_record(item, rater, rating, comment)
         line = (json.dumps(record, ensure_ascii=False) + "\n").encode("utf-8")
-        path = item.run_dir / RATINGS_FILE
-        with self._lock:
-            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-            try:
-                os.write(fd, line)
-                os.fsync(fd)
-            finally:
-                os.close(fd)
+        with self._lock:  # never through a link, never into a file visphy did not create
+            files.append_line(item.run_dir / RATINGS_FILE, line, item.run_dir, fsync=True)
         return record

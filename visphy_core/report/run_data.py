@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from visphy_core import files
 from visphy_core.errors import UserError
 from visphy_core.pipeline import NOT_EVALUABLE, SceneResult
 from visphy_core.scoring import SPEC_PREFIX
@@ -141,6 +142,7 @@ def load_run(run_dir: Path) -> RunData:
             "is not a directory" if not run_dir.is_dir() else
             f"is not a visphy run directory (none of {', '.join(RUN_MARKERS)})")
         raise UserError(f"{run_dir} {what}; pass a folder under <VISPHY_HOME>/runs/")
+    files.refuse_tree(run_dir, "run directory")
     manifest = _read_json(run_dir / "manifest.json")
     results, skipped = read_results(run_dir)
     order = [str(s) for s in manifest.get("scenes") or []]
