@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from visphy_core.files import atomic_write
 from visphy_core.cache import Cache, content_key
 from visphy_core.console import StageEvents
 from visphy_core.engine import RenderContract
@@ -44,11 +45,9 @@ def one_line(text: str) -> str:
 
 
 def write_artifact(path: Path, content: str | bytes) -> None:
-    """Atomic write; text passes through `redact` first (no secret value reaches the run dir)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(redact(content).encode() if isinstance(content, str) else content)
-    tmp.replace(path)
+    """Atomic write, never through a link (`visphy_core.files.atomic_write`); text passes
+    through `redact` first (no secret value reaches the run dir)."""
+    atomic_write(path, redact(content) if isinstance(content, str) else content)
 
 
 def frozen_clip(scene: Scene, contract: RenderContract, path: Path) -> np.ndarray:

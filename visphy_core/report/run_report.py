@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
+from visphy_core.files import atomic_write
 from visphy_core.report.ground_truth import locate_ground_truth
 from visphy_core.report.markup import esc, page
 from visphy_core.report.media import MediaStore
@@ -53,8 +53,4 @@ def write_run_report(run_dir: Path, out_dir: Path | None = None) -> Path:
     out = Path(out_dir) if out_dir is not None else run.run_dir / "report"
     out.mkdir(parents=True, exist_ok=True)
     html = build_run_page(run, out)
-    index = out / "index.html"
-    tmp = out / f".index.html.{os.getpid()}.tmp"
-    tmp.write_text(html, encoding="utf-8")
-    os.replace(tmp, index)
-    return index
+    return atomic_write(out / "index.html", html)

@@ -15,6 +15,7 @@ import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from visphy_core.files import atomic_write
 from visphy_core.report.columns import PRIMARY, direction_of, grouped, label
 from visphy_core.report.markup import arrow, attr, details, esc, fmt, page, rate, table, url
 from visphy_core.report.run_data import RunData, is_run_dir, load_run
@@ -208,7 +209,5 @@ def write_study_report(run_dirs: list[Path], out_dir: Path, title: str,
                 + table(["run report", "model", "engine", "status", "model success"], rows)
                 + "</section>")
     index = out_dir / "index.html"
-    tmp = out_dir / f".index.html.{os.getpid()}.tmp"
-    tmp.write_text(page(title, "".join(body)), encoding="utf-8")
-    os.replace(tmp, index)
+    atomic_write(index, page(title, "".join(body)))
     return index
