@@ -13,7 +13,20 @@ scrubbed environment, rlimits, a work-dir disk quota, wall-clock kill of the who
 namespace). The isolation is recorded in ``RenderResult.isolation`` and the render log; memory,
 file-size, disk and process-count hits are ``resource_limit``, wall/CPU ``timeout``, a sandbox
 that cannot start ``infra_error`` with the reason. Files the script leaves in the work dir are
-read without following symlinks and with size limits. The trusted runner
+read without following symlinks and with size limits.
+
+Frames cross the sandbox boundary as files the script could have rewritten (an ``atexit``
+handler runs after the runner wrote ``result.json``), so the host reads them only through
+`visphy_core.video.read_untrusted_frames`: exactly the names ``frame_00000.png`` ..
+``frame_{n_frames-1}.png`` (other files are ignored), each a regular file (no symbolic link)
+of bounded size whose PNG header must say exactly the contract's width × height **before** it is
+decoded. The runner always renders at the contract size, so a frame of another size is not fitted
+but refused: ``runtime_error`` "frame output refused: frame_00000.png is 10000x10000 px, not the
+clip's 64x64: refused before decoding (...)". Reading the frames on the host counts against the
+scene's wall-clock limit (one deadline: sandbox start + ``contract.timeout_s``); past it the
+render is a ``timeout``.
+
+The trusted runner
 (`blender_runner.py`, copied into the work directory) resets Blender to an empty factory scene,
 runs the model's script, forces the render settings (engine, contract size at 100 %, colour
 management "Standard", fixed seeds, PNG output) and renders exactly ``n_frames`` stills; the frame
@@ -52,6 +65,7 @@ from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, 
                                 RenderFlag, RenderResult, classify_frames)
 from visphy_core.extract import extract_code, extract_spec, fenced_blocks
 from visphy_core.hookspecs import hookimpl
+from visphy_core.png import DeadlineExceeded, FrameRejected
 from visphy_core.replay import replay_payload
 from visphy_core.scene import Scene
 from visphy_core.secrets import redact
@@ -178,7 +192,7 @@ containers, planks) whose full 3D motion, including rotation, comes from the rig
 class BlenderEngine(Engine):
     name = "blender"
     language = "python"
-    version = "2"  # 2: partial_clip (the frames rendered before a runtime error)
+    version = "3"  # 2: partial_clip; 3: frames of another size are refused, not fitted
     supports_3d = True
 
     # ------------------------------------------------------------------ prompt & programs
@@ -268,9 +282,11 @@ class BlenderEngine(Engine):
                 max_files=max(20000, contract.n_frames + 1000))
             # HOME and TMPDIR are the work dir (run_sandboxed); PYTHONHASHSEED is fixed there
             env = {"PYTHONNOUSERSITE": "1", "PYTHONDONTWRITEBYTECODE": "1"}
+            # one wall-clock deadline for the sandbox and for reading its frames on the host
+            deadline = time.monotonic() + float(contract.timeout_s)
             proc = run_sandboxed([str(python), "-s", "-B", RUNNER.name, "job.json"], workdir,
                                  limits, env_extra=env, ro_paths=python_ro_paths(python))
-            result = self._collect(proc, workdir, contract, limits)
+            result = self._collect(proc, workdir, contract, limits, deadline)
             result.isolation = proc.isolation
             result.logs.insert(0, f"sandbox: {proc.isolation}; exit {proc.returncode}; "
                                   f"{proc.wall_s:.2f} s")
@@ -284,7 +300,7 @@ class BlenderEngine(Engine):
         return result
 
     def _collect(self, proc: Any, workdir: Path, contract: RenderContract,
-                 limits: Any) -> RenderResult:
+                 limits: Any, deadline: float | None = None) -> RenderResult:
         logs = [line for line in _lines(proc.stdout) + _lines(proc.stderr)
                 if not _noise(line)][-200:]
         result = RenderResult(frames=None, logs=logs)
@@ -300,7 +316,7 @@ class BlenderEngine(Engine):
         if info.get("traceback"):
             result.logs.append(str(info["traceback"])[:20000])
         status = info.get("status")
-        frame_files = _frame_files(workdir / "frames")
+        frame_files = _frame_files(workdir / "frames", contract.n_frames)
         fail = FailureClass
         detail = str(info["error"])[:1500] if info.get("error") else ""
         hit = proc.limit_hit
@@ -322,7 +338,7 @@ class BlenderEngine(Engine):
             result.failure, result.error = fail.SYNTAX_ERROR, info.get("error")
         elif status in ("runtime_error", "render_error"):
             result.failure, result.error = fail.RUNTIME_ERROR, info.get("error")
-            _keep_partial(result, info.get("frames_rendered"), frame_files, contract)
+            _keep_partial(result, info.get("frames_rendered"), frame_files, contract, deadline)
         elif status == "sandbox_violation":
             result.failure, result.error = fail.SANDBOX_VIOLATION, info.get("error")
         elif status == "infra_error":
@@ -342,10 +358,15 @@ class BlenderEngine(Engine):
             result.error = f"{len(frame_files)} frames rendered, {contract.n_frames} expected"
             return result
         try:
-            frames = _read_frames(frame_files, contract, result)
-        except Exception as exc:  # noqa: BLE001 (the script may have replaced the PNGs)
+            frames = _read_frames(frame_files, contract, deadline)
+        except DeadlineExceeded as exc:
+            result.failure = fail.TIMEOUT
+            result.error = (f"no result within the time limit of {contract.timeout_s:g} s: "
+                            f"reading the rendered frames on the host went past it ({exc})")
+            return result
+        except FrameRejected as exc:
             result.failure = fail.RUNTIME_ERROR
-            result.error = f"unreadable frame output: {type(exc).__name__}: {str(exc)[:300]}"
+            result.error = f"frame output refused: {exc} {TAMPERED}"
             return result
         if classify_frames(frames) is FailureClass.BLANK_OUTPUT:
             result.failure, result.error = fail.BLANK_OUTPUT, "every frame is one flat colour"
@@ -359,22 +380,29 @@ class BlenderEngine(Engine):
         return result
 
 
-def _frame_files(frames_dir: Path) -> list[Path]:
-    """The PNG frames the runner wrote: only when ``frames`` is a real directory (not a link the
-    script planted) and only regular files (no links, FIFOs or devices)."""
+#: Appended to a refused frame's reason: the trusted runner writes nothing else.
+TAMPERED = ("(the runner writes every frame as an 8-bit PNG at the clip's size: the program "
+            "changed the render settings or rewrote the frame files)")
+
+
+def _frame_files(frames_dir: Path, n_frames: int) -> list[Path]:
+    """The frames the runner writes, ``frame_00000.png`` .. ``frame_{n_frames-1}.png``, that
+    exist, in order: only when ``frames`` is a real directory (not a link the script planted);
+    any other file there is ignored (never listed, never read). What each entry is (a link, a
+    FIFO, a huge file) is judged by `read_untrusted_frames`, which refuses it with the reason."""
     try:
         if not stat.S_ISDIR(os.lstat(frames_dir).st_mode):
             return []
     except OSError:
         return []
     out = []
-    for p in sorted(frames_dir.glob("frame_*.png")):
+    for k in range(n_frames):
+        p = frames_dir / f"frame_{k:05d}.png"
         try:
-            st = os.lstat(p)
+            os.lstat(p)
         except OSError:
             continue
-        if stat.S_ISREG(st.st_mode) and st.st_size <= 256 << 20:
-            out.append(p)
+        out.append(p)
     return out
 
 
@@ -395,38 +423,34 @@ def _noise(line: str) -> bool:
 
 
 def _read_frames(paths: list[Path], contract: RenderContract,
-                 result: RenderResult | None = None) -> np.ndarray:
-    """The PNG frames at the clip size; one of another size is fitted (uniformly, centred,
-    white bars) and ``result`` flagged ``canvas_resized``."""
-    from PIL import Image
+                 deadline: float | None = None) -> np.ndarray:
+    """The PNG frames, each exactly the clip's size (the runner renders nothing else): read by
+    the shared untrusted-frame reader (header before decoding, no links, size caps, at most
+    ``n_frames``, ``deadline``); raises `FrameRejected` or `DeadlineExceeded`."""
+    from visphy_core.video import read_untrusted_frames
 
-    frames = []
-    for p in paths:
-        with Image.open(p) as im:
-            arr = np.asarray(im.convert("RGB"))
-        if arr.shape[:2] != (contract.height, contract.width):
-            from visphy_core.video import resize_with_padding
-
-            if result is not None and RenderFlag.CANVAS_RESIZED.value not in result.flags:
-                result.flag(RenderFlag.CANVAS_RESIZED)
-                result.logs.append(f"rendered frames are {arr.shape[1]}x{arr.shape[0]} px, not "
-                                   f"the clip's {contract.width}x{contract.height}: scaled to fit")
-            arr = resize_with_padding(arr, contract.width, contract.height)
-        frames.append(arr)
-    return np.stack(frames).astype(np.uint8, copy=False)
+    return read_untrusted_frames(paths, contract.width, contract.height, contract.n_frames,
+                                 deadline)
 
 
 def _keep_partial(result: RenderResult, rendered: Any, frame_files: list[Path],
-                  contract: RenderContract) -> None:
-    """After a runtime error at frame k: frames 0..k-1 (rendered before it) as the partial clip."""
+                  contract: RenderContract, deadline: float | None = None) -> None:
+    """After a runtime error at frame k: frames 0..k-1 (rendered before it) as the partial clip,
+    read like a whole clip; a refused frame or the deadline drops it (the failure stays the
+    program's ``runtime_error``; the log says why there is no partial clip)."""
     if not isinstance(rendered, int) or not 0 < rendered < contract.n_frames:
         return
     names = [f"frame_{k:05d}.png" for k in range(rendered)]
     if [p.name for p in frame_files[:rendered]] != names:
         return
     try:
-        result.partial_frames = _read_frames(frame_files[:rendered], contract)
-    except Exception:  # noqa: BLE001 (the script may have replaced the PNGs)
+        result.partial_frames = _read_frames(frame_files[:rendered], contract, deadline)
+    except DeadlineExceeded as exc:
+        result.logs.append(f"partial clip dropped: reading it went past the time limit of "
+                           f"{contract.timeout_s:g} s ({exc})")
+        return
+    except FrameRejected as exc:
+        result.logs.append(f"partial clip refused: {exc} {TAMPERED}")
         return
     result.flag(RenderFlag.PARTIAL_CLIP)
     result.logs.append(f"partial clip: {rendered} of {contract.n_frames} frames were rendered "

@@ -44,6 +44,15 @@ disk quota or process-count limit → ``resource_limit``; no frame or only one f
 explicit opt-out) → ``infra_error`` with the reason. The isolation the program ran under is
 ``RenderResult.isolation`` and the first line of ``RenderResult.logs`` (``sandbox: ...``).
 
+Frames cross the sandbox boundary as one raw file (``frames.rgb``: no codec, no header, the
+runner writes clip-sized RGB frames); the program runs in the runner's process and could rewrite
+it, so the host reads it with `visphy_core.video.read_untrusted_raw_frames`: no symbolic link, a
+regular file, at most ``n_frames`` clip-sized frames (a larger file is refused by its size,
+unread: ``runtime_error`` "frame output refused: frames.rgb is N bytes, more than the clip's ...
+refused unread"), straight into one clip-sized array. Reading it counts against the scene's
+wall-clock limit (one deadline: sandbox start + ``timeout_s``); past it the render is a
+``timeout``.
+
 Configuration (``conf/engine/manim.yaml``, schema `ManimConfig`): ``timeout_s``, ``memory_mb``,
 ``file_size_mb``, ``disk_mb``, ``keep_workdir``.
 """
@@ -53,6 +62,7 @@ from __future__ import annotations
 import ast
 import json
 import logging
+import os
 import shutil
 import sys
 import tempfile
@@ -67,6 +77,7 @@ from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, 
                                 RenderFlag, RenderResult, classify_frames)
 from visphy_core.extract import extract_code, extract_spec
 from visphy_core.hookspecs import hookimpl
+from visphy_core.png import DeadlineExceeded, FrameRejected
 from visphy_core.replay import replay_payload
 from visphy_core.sandbox.process import (Limits, ProcessResult, describe_limit, python_ro_paths,
                                          read_untrusted, run_sandboxed)
@@ -201,9 +212,11 @@ class ManimEngine(Engine):
             env = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
                    "PYTHONDONTWRITEBYTECODE": "1", "PYTHONUNBUFFERED": "1",
                    "XDG_CACHE_HOME": str(work / ".cache")}
+            # one wall-clock deadline for the sandbox and for reading its frames on the host
+            deadline = time.monotonic() + float(contract.timeout_s)
             res = run_sandboxed([sys.executable, "-s", "-B", RUNNER.name], work, limits,
                                 env_extra=env, ro_paths=python_ro_paths(sys.executable))
-            result = self._classify(res, work, contract, limits)
+            result = self._classify(res, work, contract, limits, deadline)
             result.isolation = res.isolation
             result.logs.insert(0, f"sandbox: {res.isolation}; exit {res.returncode}; "
                                   f"{res.wall_s:.2f} s")
@@ -220,7 +233,7 @@ class ManimEngine(Engine):
 
     @staticmethod
     def _classify(res: ProcessResult, work: Path, contract: RenderContract,
-                  limits: Limits) -> RenderResult:
+                  limits: Limits, deadline: float | None = None) -> RenderResult:
         logs = [f"[stdout] {line}" for line in res.stdout.splitlines()[-40:]]
         logs += [f"[stderr] {line}" for line in res.stderr.splitlines()[-60:]]
         result = RenderResult(frames=None, logs=logs, wall_s=res.wall_s)
@@ -245,7 +258,7 @@ class ManimEngine(Engine):
             count = error.get("frames")
             if (result.failure is FailureClass.RUNTIME_ERROR and isinstance(count, int)
                     and 0 < count < contract.n_frames):
-                partial = _read_partial(work, contract, count)
+                partial = _read_partial(work, contract, count, deadline, result)
                 if partial is not None:
                     result.partial_frames = partial
                     result.flag(RenderFlag.PARTIAL_CLIP)
@@ -260,8 +273,16 @@ class ManimEngine(Engine):
             else:
                 result.error = f"exit status {res.returncode}: {_last_line(res.stderr)}"
         else:
-            frames, problem = _read_frames(work, contract)
-            if problem:
+            try:
+                frames, problem = _read_frames(work, contract, deadline)
+            except DeadlineExceeded as exc:
+                frames, problem = None, None
+                result.failure = FailureClass.TIMEOUT
+                result.error = (f"no result within {contract.timeout_s:g} s: reading the frames "
+                                f"on the host went past the limit ({exc})")
+            if result.failure is not None:
+                pass
+            elif problem:
                 result.failure, result.error = FailureClass.RUNTIME_ERROR, problem
             elif frames is None:
                 result.failure = FailureClass.BLANK_OUTPUT
@@ -343,35 +364,54 @@ def _note_frame(result: RenderResult, meta, contract: RenderContract) -> None:
     result.logs.append(line)
 
 
-def _read_partial(work: Path, contract: RenderContract, count: int) -> np.ndarray | None:
-    """The ``count`` clip frames the runner wrote before a runtime error, or None."""
-    frame_bytes = contract.width * contract.height * 3
-    raw = _read_untrusted(work / "frames.rgb", count * frame_bytes)
-    if raw is None or len(raw) != count * frame_bytes:
+def _read_raw(work: Path, contract: RenderContract, max_frames: int,
+              deadline: float | None) -> np.ndarray:
+    """``frames.rgb`` through the shared untrusted-frame reader (no link, a regular file, at
+    most ``max_frames`` clip-sized frames by its size, ``deadline``)."""
+    from visphy_core.video import read_untrusted_raw_frames
+
+    return read_untrusted_raw_frames(work / "frames.rgb", contract.width, contract.height,
+                                     max_frames, deadline)
+
+
+def _read_partial(work: Path, contract: RenderContract, count: int,
+                  deadline: float | None = None,
+                  result: RenderResult | None = None) -> np.ndarray | None:
+    """The ``count`` clip frames the runner wrote before a runtime error, or None (the log of
+    ``result`` says why when the file was refused or the deadline passed)."""
+    try:
+        frames = _read_raw(work, contract, count, deadline)
+    except (FrameRejected, DeadlineExceeded) as exc:
+        if result is not None and "is missing" not in str(exc):
+            result.logs.append(f"partial clip dropped: {exc}")
         return None
-    data = np.frombuffer(raw, dtype=np.uint8).reshape(count, contract.height, contract.width, 3)
-    return np.array(data, copy=True)
+    return frames if len(frames) == count else None
 
 
-def _read_frames(work: Path, contract: RenderContract) -> tuple[np.ndarray | None, str | None]:
-    """Frames the runner wrote (held to ``n_frames``), None when it wrote none, or a problem."""
+def _read_frames(work: Path, contract: RenderContract, deadline: float | None = None
+                 ) -> tuple[np.ndarray | None, str | None]:
+    """Frames the runner wrote (held to ``n_frames``), None when it wrote none, or a problem;
+    `DeadlineExceeded` when reading them passes ``deadline``."""
     meta = _read_json(work / "result.json")
-    frame_bytes = contract.width * contract.height * 3
-    raw = _read_untrusted(work / "frames.rgb", contract.n_frames * frame_bytes)
-    if not isinstance(meta, dict) or raw is None:
-        return None, ("the runner wrote no usable result (the program ended the process early, "
-                      "or replaced its output files?)")
-    count = len(raw) // frame_bytes
-    if len(raw) % frame_bytes or count != meta.get("frames"):
-        return None, f"corrupt frame output ({len(raw)} bytes, result says {meta.get('frames')!r})"
+    no_result = ("the runner wrote no usable result (the program ended the process early, or "
+                 "replaced its output files?)")
+    if not isinstance(meta, dict) or not os.path.lexists(work / "frames.rgb"):
+        return None, no_result
+    try:
+        frames = _read_raw(work, contract, contract.n_frames, deadline)
+    except FrameRejected as exc:
+        return None, (f"frame output refused: {exc} (the runner writes at most the clip's "
+                      "frames: the program rewrote its output files?)")
+    count = len(frames)
+    if count != meta.get("frames"):
+        return None, (f"corrupt frame output ({count} frames in frames.rgb, result says "
+                      f"{meta.get('frames')!r})")
     if count == 0:
         return None, None
-    data = np.frombuffer(raw, dtype=np.uint8)
-    frames = data.reshape(count, contract.height, contract.width, 3)
     if count < contract.n_frames:  # the scene ended early: hold its last frame
         hold = np.repeat(frames[-1:], contract.n_frames - count, axis=0)
         frames = np.concatenate([frames, hold])
-    return np.array(frames, copy=True), None  # writable, independent of the buffer
+    return frames, None  # writable, independent of any buffer
 
 
 @hookimpl
