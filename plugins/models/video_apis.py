@@ -53,7 +53,8 @@ from visphy_core.errors import ConfigError
 from visphy_core.hookspecs import hookimpl
 from visphy_core.keys import require_key
 from visphy_core.model import Model, ModelRequest, ModelResponse, OutputContract
-from visphy_core.video import ClipInfo, decode_video_timed, resample_by_time, resize_with_padding
+from visphy_core.video import (ClipInfo, VideoBudget, decode_video_timed, resample_by_time,
+                               resize_with_padding)
 from visphy_plugins.models.baselines import decode_png, key_frame_index, png_bytes, write_clip
 from visphy_plugins.providers.config import ConcurrencyConfig, RetriesConfig
 
@@ -170,7 +171,8 @@ def finish_clip(video: bytes, framing: Framing, contract: OutputContract, first_
     tmp = Path(tempfile.mkdtemp(prefix=prefix)) / "provider.mp4"
     tmp.write_bytes(video)
     try:
-        frames, times, info = decode_video_timed(tmp)
+        # the provider's bytes are untrusted: header checked, decoded within a budget
+        frames, times, info = decode_video_timed(tmp, VideoBudget())
     except (ValueError, FileNotFoundError) as exc:
         raise CallError(CallErrorKind.malformed, f"the returned video does not decode: {exc}")
     return finish_frames(frames, times, framing, contract, first_index, prefix), info

@@ -492,3 +492,37 @@ def test_decode_png_can_refuse_by_header_before_decoding():
     with pytest.raises(FrameRejected, match="the image is 10000x10000 px, more than the 4096 "
                                             "pixels allowed: refused before decoding"):
         decode_png(crafted_png(10000, 10000, GARBAGE), max_pixels=W * H)
+
+
+def test_a_page_cannot_make_the_host_decode_a_huge_canvas():
+    """Browser readback: a raw or run-length payload, a canvas PNG or a screenshot claiming more
+    than `MAX_FRAME_PIXELS` is refused before it is expanded or decoded."""
+    import base64
+    import struct
+    import zlib
+
+    import numpy as np
+
+    from visphy_core.png import FrameRejected
+    from visphy_core.sandbox import readback
+
+    side = 20000
+    runs = np.array([side * side, 0xFFFFFFFF], dtype="<u4").tobytes()
+    with pytest.raises(readback.ReadbackError, match="outside the readback budget"):
+        readback.raw_to_rgb({"width": side, "height": side,
+                             "runs": base64.b64encode(runs).decode()})
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return (struct.pack(">I", len(data)) + kind + data
+                + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF))
+
+    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", side, side, 8, 2, 0, 0, 0))
+           + chunk(b"IDAT", b"garbage") + chunk(b"IEND", b""))
+    with pytest.raises(FrameRejected):
+        readback.png_data_url_to_rgb("data:image/png;base64," + base64.b64encode(png).decode())
+    with pytest.raises(FrameRejected):
+        readback.png_bytes_to_rgb(png)
+    small = np.full((4, 4, 3), 200, np.uint8)
+    from visphy_core.png import png_bytes
+
+    assert (readback.png_bytes_to_rgb(png_bytes(small)) == small).all()

@@ -21,15 +21,22 @@ class ReadbackError(ValueError):
     """A frame payload from the page that does not describe a whole frame."""
 
 
+#: The largest frame a page may hand back (a canvas of 4096² px; the clip is 512²): a payload
+#: claiming more is refused before anything is decoded or expanded (the page controls its
+#: canvas size, and a 16384² canvas would cost the host a gigabyte per frame).
+MAX_FRAME_PIXELS = 4096 * 4096
+
+
 def png_data_url_to_rgb(data_url: str) -> np.ndarray:
     """RGB of a ``data:image/png;base64,...`` URL; transparent canvas pixels are shown as the
     white page behind them."""
-    return decode_png(base64.b64decode(data_url.split(",", 1)[1]), background=(255, 255, 255))
+    return decode_png(base64.b64decode(data_url.split(",", 1)[1]), background=(255, 255, 255),
+                      max_pixels=MAX_FRAME_PIXELS)
 
 
 def png_bytes_to_rgb(png: bytes) -> np.ndarray:
     """RGB of a PNG screenshot (always opaque)."""
-    return decode_png(png)
+    return decode_png(png, max_pixels=MAX_FRAME_PIXELS)
 
 
 def raw_to_rgb(payload: dict) -> np.ndarray:
@@ -38,6 +45,9 @@ def raw_to_rgb(payload: dict) -> np.ndarray:
     bottom first, as WebGL reads them)."""
     width, height = int(payload["width"]), int(payload["height"])
     n = width * height
+    if not 0 < n <= MAX_FRAME_PIXELS or width <= 0 or height <= 0:
+        raise ReadbackError(f"a {width}x{height} frame is outside the readback budget "
+                            f"(at most {MAX_FRAME_PIXELS} pixels)")
     if "runs" in payload:
         runs = np.frombuffer(base64.b64decode(payload["runs"]), dtype="<u4")
         if runs.size % 2:
