@@ -2,18 +2,23 @@
 
 Two scoring protocols use it (MISSION §6):
 
-* ``paper``: the upstream evaluation's pairing. Both clips are sampled every ``sample_every``
-  (3) frames; a coarse search over offsets −``max_offset``…+``max_offset`` sampled frames
-  compares ``downsample``×``downsample`` (64²) grayscale vectors (area-averaged, each
-  standardised to zero mean and unit variance: see `standardised`) by MSE over the overlap; the
-  ``top_k`` (5) cheapest offsets are refined on at most ``max_samples`` (16) evenly spread sample
-  positions, each compared as a stack of ``window`` (3) neighbouring frames, with the cost
-  MSE + 0.5·MAE + 0.1·(1 − cosine) + ``offset_penalty`` (0.05)·|offset|. Optionally (``dtw``)
-  a monotone path by dynamic time warping over 48² grayscale features with a step penalty
-  (0.005) replaces the single offset.
-* ``visphy``: every frame paired by time, unaligned (``unaligned``), plus the same offset search
-  on every frame (``sample_every=1``) reported as the *aligned* variant with its offset and
-  Align-Err beside it, so a warp cannot hide a timing error.
+* ``paper`` (``rules="upstream"``, `PAPER`): upstream's ``utils/evaluate_video_metrics.py::
+  evaluate_pair`` pairing, rule by rule, implemented in `visphy_core.paper_protocol` (every
+  3rd frame by index; coarse candidates from centred, L2-normalised 64² grayscale vectors, the
+  ``top_k`` (5) best plus 0 and ±1, ±2 always; each refined on ONE stack of ``window`` (3)
+  frames at the start of the overlap on raw intensities, cost MSE + 0.5·MAE + 0.1·(1 − cosine)
+  + ``offset_penalty`` (0.05)·|offset|; the clips trimmed to that offset; then DTW (``dtw``, on
+  by default) over 48² grayscale features with step penalty 0.005 on the trimmed clips).
+* ``visphy``: every frame paired by time, unaligned (``unaligned``), plus an offset search on
+  every frame (``sample_every=1``, ``rules="visphy"``) reported as the *aligned* variant with
+  its offset and Align-Err beside it, so a warp cannot hide a timing error. Its search: a coarse
+  search over offsets −``max_offset``…+``max_offset`` sampled frames compares ``downsample``²
+  (64²) grayscale vectors (area-averaged, each standardised to zero mean and unit variance: see
+  `standardised`) by MSE over the overlap; the ``top_k`` (5) cheapest offsets are refined on at
+  most ``max_samples`` (16) evenly spread sample positions, each compared as a stack of
+  ``window`` (3) neighbouring frames, with the same cost and penalty. Optionally (``dtw``) a
+  monotone path by dynamic time warping over 48² standardised grayscale features with a step
+  penalty (0.005) replaces the single offset.
 
 An `Alignment` is a list of index pairs (reference frame, generated frame) in time order, the
 chosen offset in frames of the input clips (generated frame = reference frame + offset), and
@@ -41,10 +46,14 @@ class AlignParams:
     dtw: bool = False
     dtw_size: int = 48
     dtw_step_penalty: float = 0.005
+    # "visphy": this module's search (DTW, when on, replaces it); "upstream": the paper
+    # protocol's rules (visphy_core.paper_protocol; DTW, when on, runs after the offset step)
+    rules: str = "visphy"
 
 
-#: The upstream evaluation's settings.
-PAPER = AlignParams(sample_every=3)
+#: The upstream evaluation's settings and rules (``evaluate_pair(sample_every=3)``: DTW after
+#: the offset step, as upstream's ``auto_align`` always runs it).
+PAPER = AlignParams(sample_every=3, dtw=True, rules="upstream")
 #: visphy's aligned variant: every frame.
 EVERY_FRAME = AlignParams(sample_every=1)
 
@@ -144,6 +153,12 @@ def _refine_cost(fr: np.ndarray, fg: np.ndarray, off: int, p: AlignParams) -> fl
 def align(reference: np.ndarray, generated: np.ndarray, p: AlignParams = EVERY_FRAME
           ) -> Alignment:
     """The pairing of ``generated`` with ``reference`` under ``p`` (see the module docstring)."""
+    if p.rules == "upstream":
+        from visphy_core.paper_protocol import align_paper
+
+        return align_paper(reference, generated, p)
+    if p.rules != "visphy":
+        raise ValueError(f"unknown alignment rules {p.rules!r} (visphy or upstream)")
     s = max(1, int(p.sample_every))
     ref_pos = np.arange(0, len(reference), s)
     gen_pos = np.arange(0, len(generated), s)

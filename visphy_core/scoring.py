@@ -12,10 +12,16 @@ visphy (unaligned)     every frame k with frame k (by time)      ``psnr``, ``flo
 visphy aligned         every frame, best single offset           ``psnr.aligned``, …,
                                                                   ``align.offset``,
                                                                   ``align.err``
-paper                  every 3rd frame, the upstream search       ``paper.psnr``, …,
-                                                                  ``paper.align.offset``,
-                                                                  ``paper.align.err``
+paper                  every 3rd frame BY INDEX, upstream's       ``paper.psnr``, …,
+                       offset step then DTW                       ``paper.align.offset``,
+                       (`visphy_core.paper_protocol`)             ``paper.align.err``
 =====================  ========================================  ==========================
+
+The ``paper`` pairing follows upstream's ``evaluate_pair`` on the generated clip AS GIVEN (its
+frames in decode order, stretched to the reference's size), not on the clip brought to the
+contract by time: upstream reads no timestamps, so a clip at a foreign frame rate is paired by
+index there (`paper_clip`). Its ``paper.psnr`` and ``paper.ssim`` are upstream's own frame
+scores (`visphy_core.paper_protocol.FRAME_SCORES`), averaged over the pairs that gave a number.
 
 A ``scene`` metric (text, spec) has one column. Values are cached by the content of both clips,
 the pairing and the metric's identity, so re-scoring never recomputes.
@@ -34,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from visphy_core.alignment import EVERY_FRAME, PAPER, AlignParams, Alignment, align, unaligned
+from visphy_core import paper_protocol
 from visphy_core.cache import Cache, content_key
 from visphy_core.metrics import HIGHER, LOWER, PAIRS, SCENE, Metric, MetricInput
 from visphy_core.scene import Scene
@@ -171,8 +178,18 @@ def score_columns(metrics: list[Metric], protocol: ScoringProtocol | None = None
     return cols
 
 
-def alignments(reference: np.ndarray, generated: np.ndarray, protocol: ScoringProtocol
-               ) -> dict[str, Alignment]:
+def paper_clip(reference: np.ndarray, generated: np.ndarray) -> np.ndarray:
+    """The generated clip as upstream's ``evaluate_pair`` reads it (``read_video_frames`` with
+    ``resize_to`` the reference's size): every frame in decode order, by index (no timestamps),
+    stretched to the reference's width×height by area interpolation. ``generated`` must be the
+    clip as decoded, before `to_contract`."""
+    return paper_protocol.fit_to_reference(generated, *reference.shape[1:3])
+
+
+def alignments(reference: np.ndarray, generated: np.ndarray, protocol: ScoringProtocol,
+               paper_generated: np.ndarray | None = None) -> dict[str, Alignment]:
+    """Each view's pairing. ``paper_generated``: the clip the paper view pairs (`paper_clip`;
+    default ``generated``); the paper view's indices point into it."""
     out = {}
     for v in protocol.views():
         if v == "":
@@ -180,7 +197,8 @@ def alignments(reference: np.ndarray, generated: np.ndarray, protocol: ScoringPr
         elif v == "aligned":
             out[v] = align(reference, generated, protocol.aligned_params)
         else:
-            out[v] = align(reference, generated, protocol.paper_params)
+            out[v] = align(reference, generated if paper_generated is None else paper_generated,
+                           protocol.paper_params)
     return out
 
 
@@ -201,6 +219,7 @@ def score_scene(scene: Scene, reference: np.ndarray, generated: np.ndarray,
     ``details``: a dict filled with the metrics' per-scene breakdowns (`Metric.details`).
     """
     protocol = protocol or ScoringProtocol()
+    as_given = generated
     if generated.shape != reference.shape or generated_times_s is not None:
         generated = to_contract(scene, generated, generated_times_s)
     inp = MetricInput(scene=scene, reference=reference, generated=generated, analysis=analysis,
@@ -208,16 +227,27 @@ def score_scene(scene: Scene, reference: np.ndarray, generated: np.ndarray,
                       language=language)
     clips = content_key(clip_digest(reference), clip_digest(generated), analysis or "",
                         json.dumps(spec, sort_keys=True) if spec else "", reference_text or "")
-    views = alignments(reference, generated, protocol) \
-        if any(m.kind != SCENE for m in metrics) else {}
+    frame_metrics = any(m.kind != SCENE for m in metrics)
+    # the paper view pairs the clip as given, by index (upstream reads no timestamps)
+    paper_gen = paper_clip(reference, as_given) if protocol.paper and frame_metrics \
+        else generated
+    if paper_gen is not generated and paper_gen.shape == generated.shape \
+            and np.array_equal(paper_gen, generated):
+        paper_gen = generated
+    paper_inp, paper_clips = inp, clips
+    if paper_gen is not generated:  # its own clip: own per-scene memo (indices differ)
+        paper_inp = replace(inp, generated=paper_gen, extra={})
+        paper_clips = content_key(clips, "paper-clip", clip_digest(paper_gen))
+    views = alignments(reference, generated, protocol, paper_gen) if frame_metrics else {}
     scores: dict[str, float | None] = {}
     unavailable: dict[str, str] = {}
     for v, a in views.items():
         if v:
             (off_col, _), (err_col, _) = _align_columns(v)
-            scores[off_col], scores[err_col] = float(a.offset), float(a.align_err)
+            err = float(a.align_err)
+            scores[off_col], scores[err_col] = float(a.offset), None if math.isnan(err) else err
 
-    def cached(col: str, key_parts: tuple, fn) -> float | None:
+    def cached(col: str, key_parts: tuple, fn, clips: str = clips) -> float | None:
         key = content_key("score", col, *key_parts, clips)
         if "program" in metric.needs:
             key = content_key(key, language or "", program or "")
@@ -242,14 +272,24 @@ def score_scene(scene: Scene, reference: np.ndarray, generated: np.ndarray,
         elif metric.kind == PAIRS:
             memo: dict[tuple[int, int], float] = {}
             for v, a in views.items():
+                if v == "paper":
+                    scores[column(metric.name, v)] = cached(
+                        column(metric.name, v), ident + (_pairs_key(a), _paper_key(metric)),
+                        lambda a=a: _paper_mean_over_pairs(metric, reference, paper_gen, a,
+                                                           memo if paper_gen is generated
+                                                           else {}),
+                        clips=paper_clips)
+                    continue
                 scores[column(metric.name, v)] = cached(
                     column(metric.name, v), ident + (_pairs_key(a),),
                     lambda a=a: _mean_over_pairs(metric, reference, generated, a, memo))
         else:
             for v, a in views.items():
+                view_inp = paper_inp if v == "paper" else inp
                 scores[column(metric.name, v)] = cached(
                     column(metric.name, v), ident + (_pairs_key(a),),
-                    lambda a=a: metric.compute_sequence(inp, a))
+                    lambda a=a, view_inp=view_inp: metric.compute_sequence(view_inp, a),
+                    clips=paper_clips if v == "paper" else clips)
     if details is not None:
         for metric in metrics:
             if metric.unavailable_reason():
@@ -266,6 +306,34 @@ def score_scene(scene: Scene, reference: np.ndarray, generated: np.ndarray,
 def _pairs_key(a: Alignment) -> str:
     return hashlib.sha256(np.stack([a.ref_idx, a.gen_idx]).astype(np.int64).tobytes()
                           ).hexdigest()[:16]
+
+
+def _paper_key(metric: Metric) -> str:
+    """What the paper view's value of a pair metric depends on beyond visphy's: upstream's own
+    frame score (psnr, ssim) or visphy's, and the version of the paper rules."""
+    own = "upstream-score" if metric.name in paper_protocol.FRAME_SCORES else "visphy-score"
+    return f"paper-rules:{paper_protocol.RULES_VERSION}/{own}"
+
+
+def _paper_mean_over_pairs(metric: Metric, reference: np.ndarray, generated: np.ndarray,
+                           a: Alignment, memo: dict[tuple[int, int], float]) -> float:
+    """A pair metric under the paper view: upstream's own frame score where upstream computes
+    one (psnr, ssim; the mean over the pairs that gave a number, as upstream's
+    ``evaluate_pair`` averages them), otherwise visphy's metric on the paper's pairs."""
+    own = paper_protocol.FRAME_SCORES.get(metric.name)
+    if own is None:
+        return _mean_over_pairs(metric, reference, generated, a, memo)
+    pairs = subsample_pairs(a.pairs(), metric.max_pairs)
+    if not pairs:
+        return float("nan")
+    values: dict[tuple[int, int], float] = {}
+    for p in pairs:
+        if p not in values:
+            try:
+                values[p] = own(reference[p[0]], generated[p[1]])
+            except paper_protocol.FRAME_SCORE_ERRORS:  # upstream: NaN for an OpenCV failure
+                values[p] = float("nan")
+    return paper_protocol.mean_of_numbers(values[p] for p in pairs)
 
 
 def subsample_pairs(pairs: list[tuple[int, int]], max_pairs: int | None
