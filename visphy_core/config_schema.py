@@ -23,6 +23,7 @@ from typing import Any, Optional
 
 from omegaconf import MISSING
 
+from visphy_core.headline import DEFAULT_COMPONENTS, DEFAULT_NAME
 from visphy_core.hookspecs import hookimpl
 
 
@@ -120,16 +121,26 @@ class PaperAlignConfig:
     max_samples: int = 16
     window: int = 3
     offset_penalty: float = 0.05
-    dtw: bool = False
+    dtw: bool = True              # upstream always runs DTW after the offset step
     dtw_size: int = 48
     dtw_step_penalty: float = 0.005
 
 
 @dataclass
 class VisphyAlignConfig(PaperAlignConfig):
-    """visphy's aligned variant: the same search on every frame."""
+    """visphy's aligned variant: the same search on every frame, no DTW (it can hide the very
+    timing errors physics gets wrong)."""
 
     sample_every: int = 1
+    dtw: bool = False
+
+
+@dataclass
+class HeadlineConfig:
+    enabled: bool = True
+    name: str = DEFAULT_NAME
+    components: list[str] = field(default_factory=lambda: list(DEFAULT_COMPONENTS))
+    clip: list[float] = field(default_factory=lambda: [-1.0, 1.0])
 
 
 @dataclass
@@ -151,6 +162,9 @@ class MetricsConfig:
     variance_norm: bool = True
     device: str = "cpu"           # torch device of the learned metrics (cpu, cuda, cuda:1…)
     max_pairs: dict[str, int] = field(default_factory=dict)  # per metric: pairs scored at most
+    # The headline physics score (visphy_core.headline): its components, each between the still
+    # clip (0) and the twin or the ideal value (1), clipped, averaged per scene.
+    headline: HeadlineConfig = field(default_factory=HeadlineConfig)
 
 
 @dataclass

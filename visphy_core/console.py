@@ -217,8 +217,10 @@ def print_summary(summary: dict, results: list) -> None:
     # per scene: the primary columns only (visphy, unaligned); every column is in the means
     primary = [n for n in summary["metrics"] if "." not in n
                and not summary["metrics"][n]["unavailable"]]
-    metric_names = ([n for n in SCENE_COLUMNS if n in primary]
-                    or primary)[:5]
+    head = summary.get("headline") or {}
+    first = [head["metric"]] if head.get("metric") in primary else []
+    metric_names = first + ([n for n in SCENE_COLUMNS if n in primary]
+                            or [n for n in primary if n not in first])[:5 - len(first)]
     table = Table(title=f"visphy · {summary['model']} × {summary['engine']} · "
                         f"{summary['dataset']} ({summary['n_scenes']} scenes)")
     table.add_column("scene")
@@ -235,6 +237,14 @@ def print_summary(summary: dict, results: list) -> None:
             f"{r.render_wall_s:.2f}s" if r.render_wall_s is not None else "—")
         table.add_row(r.scene_id, status, *[_fmt(r.scores.get(n)) for n in metric_names], render)
     console.print(table)
+    if head.get("metric"):
+        ci = head.get("ci")
+        interval = f" [{_fmt(ci[0])}, {_fmt(ci[1])}]" if ci else ""
+        small = " (fewer than 10 scenes: a wide interval)" if head.get("small_sample") else ""
+        console.print(f"[bold]headline {head['metric']} ↑[/bold] {_fmt(head.get('mean'))}"
+                      f"{interval} over {head.get('n', 0)} scored scene(s), 95% bootstrap "
+                      f"interval; a still clip scores 0, the ground truth about 1{small}",
+                      soft_wrap=True)
 
     means = Table(title="means over model successes · n · with fallbacks (all scenes)")
     means.add_column("metric", no_wrap=True)

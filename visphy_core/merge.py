@@ -31,6 +31,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from visphy_core.headline import Headline
 from visphy_core.secrets import public_yaml
 from visphy_core import files
 from visphy_core.dataset.shard import interleave, parse_shard
@@ -265,7 +266,8 @@ def _write_merged(out: Path, cfg: DictConfig, shards: list[Shard],
     ledger = UsageLedger(out / "calls.jsonl")
     cache = Cache(Path(str(cfg.paths.cache_dir)), enabled=False)
     summary = summarise(results, metrics, cache, judges=judges, ledger=ledger,
-                        protocol=ScoringProtocol.from_cfg(cfg.metrics))
+                        protocol=ScoringProtocol.from_cfg(cfg.metrics),
+                        headline=Headline.from_cfg(cfg.metrics))
     summary.update({
         "status": FINISHED, "run_dir": str(out), "model": cfg.model.name,
         "engine": cfg.engine.name, "dataset": cfg.dataset.name,

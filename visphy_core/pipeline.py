@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from visphy_core.headline import Headline
 from visphy_core.cache import Cache, CorruptEntry, content_key, read_json
 from visphy_core.console import StageEvents
 from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
@@ -286,6 +287,7 @@ class SceneServices:
     references: ReferenceWriter | None = None
     protocol: ScoringProtocol = field(default_factory=ScoringProtocol)
     progress: StageEvents = field(default_factory=StageEvents)
+    headline: Headline | None = None
 
     def scoring(self, renders: dict[str, RenderOutcome] | None = None) -> ScoringServices:
         """The scoring half (`visphy_core.scene_scores`): reference-program clips rendered by
@@ -294,7 +296,7 @@ class SceneServices:
                                clips=EngineReferenceClips(self.engine, self.cache,
                                                           self.progress, renders),
                                judges=self.judges, references=self.references,
-                               progress=self.progress)
+                               progress=self.progress, headline=self.headline)
 
 
 class EngineReferenceClips:

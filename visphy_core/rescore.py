@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
+from visphy_core.headline import Headline
 from visphy_core.files import atomic_write
 from visphy_core.secrets import public_yaml
 from visphy_core.cache import Cache
@@ -324,6 +325,7 @@ def _rescore_into(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, ch
     services = ScoringServices(
         metrics=select_metrics(registry, cfg.metrics), cache=cache,
         protocol=ScoringProtocol.from_cfg(cfg.metrics), clips=None,  # per row: RunDirClips
+        headline=Headline.from_cfg(cfg.metrics),
         judges=JudgeCaller(judges, cache, ledger) if judges else None,
         references=ReferenceWriter(cfg.reference, cache, reference_model,
                                    ModelCaller(reference_model, cache, ledger)
@@ -374,7 +376,7 @@ def _write_run(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, chang
     (out / ".results.jsonl.tmp").replace(out / "results.jsonl")
     pd.DataFrame([r.row() for r in results]).to_parquet(out / "results.parquet", index=False)
     summary = summarise(results, services.metrics, services.cache, judge_keys, ledger,
-                        services.protocol)
+                        services.protocol, services.headline)
     summary.update({
         "status": status, "run_dir": str(out), "model": run_cfg.model.name,
         "engine": run_cfg.engine.name, "dataset": run_cfg.dataset.name,

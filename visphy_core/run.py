@@ -30,6 +30,7 @@ from typing import Any, Iterator
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
+from visphy_core.headline import Headline, summary_entry
 from visphy_core.files import atomic_write
 from visphy_core.secrets import install_log_redaction, public_config, public_yaml
 from visphy_core.cache import Cache
@@ -180,7 +181,8 @@ def _judge_columns(results: list[SceneResult], judges: list[str]) -> dict[str, d
 
 def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache,
               judges: list[str] | None = None, ledger: UsageLedger | None = None,
-              protocol: ScoringProtocol | None = None) -> dict:
+              protocol: ScoringProtocol | None = None,
+              headline: Headline | None = None) -> dict:
     """Means with honest denominators: model successes only, and all scenes with fallbacks.
 
     Success rates are given over all scenes and over the evaluable ones (scenes that ended in
@@ -197,7 +199,8 @@ def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache,
             side = "infra_or_data" if r.failure_class in NOT_EVALUABLE else "model"
             failures[side][r.failure_class] = failures[side].get(r.failure_class, 0) + 1
     per_metric = {}
-    columns = score_columns(metrics, protocol)
+    columns = [(headline.name, "higher")] if headline is not None else []
+    columns += score_columns(metrics, protocol)
     columns += [(f"judge_{key}", "higher") for key in judges or []]
     for name, direction in columns:
         def mean(rows):
@@ -213,7 +216,15 @@ def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache,
             "mean_with_fallbacks": all_mean, "n_with_fallbacks": all_n,
             "unavailable": sorted(reasons)[0] if reasons else None,
         }
+    head = None
+    if headline is not None:
+        def values(rows):
+            return [r.scores[headline.name] for r in rows
+                    if r.scores.get(headline.name) is not None]
+
+        head = summary_entry(headline, values(ok), values(scored))
     return {
+        "headline": head,
         "n_scenes": n,
         "n_evaluable": len(evaluable),
         "model_success": len(ok), "model_success_rate": len(ok) / n if n else None,
@@ -387,7 +398,7 @@ def run_experiment(cfg: DictConfig) -> dict:
     caller = ModelCaller(model, cache, ledger)
     services = SceneServices(
         model=model, caller=caller, engine=engine, metrics=metrics, settings=settings,
-        protocol=ScoringProtocol.from_cfg(cfg.metrics),
+        protocol=ScoringProtocol.from_cfg(cfg.metrics), headline=Headline.from_cfg(cfg.metrics),
         cache=cache, judges=JudgeCaller(judges, cache, ledger) if judges else None,
         references=ReferenceWriter(cfg.reference, cache, reference_model,
                                    ModelCaller(reference_model, cache, ledger)
@@ -626,7 +637,7 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
         pd.DataFrame([r.row() for r in ctx.results]).to_parquet(run_dir / "results.parquet",
                                                                index=False)
         summary = summarise(ctx.results, metrics, cache, judge_keys, ledger,
-                            services.protocol)
+                            services.protocol, services.headline)
         summary.update({"status": status, "run_dir": str(run_dir), "model": cfg.model.name,
                         "engine": cfg.engine.name, "dataset": cfg.dataset.name,
                         "n_selected": len(scenes), "resumed_rows": len(restored),

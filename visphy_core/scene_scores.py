@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from visphy_core.headline import Headline, scene_headline
 from visphy_core.files import atomic_write
 from visphy_core.cache import Cache, content_key
 from visphy_core.console import StageEvents
@@ -85,11 +86,14 @@ class ScoringServices:
     judges: JudgeCaller | None = None
     references: ReferenceWriter | None = None
     progress: StageEvents = field(default_factory=StageEvents)
+    headline: Headline | None = None
 
 
 def score_columns_of(services: ScoringServices) -> list[str]:
-    """Every score column a row gets (the same for every row of a run), judges last."""
-    columns = [name for name, _ in score_columns(services.metrics, services.protocol)]
+    """Every score column a row gets (the same for every row of a run): the headline first,
+    judges last."""
+    columns = [services.headline.name] if services.headline is not None else []
+    columns += [name for name, _ in score_columns(services.metrics, services.protocol)]
     if services.judges is not None:
         columns += [services.judges.column(k) for k, _ in services.judges.judges]
     return columns
@@ -113,11 +117,16 @@ def score_outputs(scene: Scene, reference: np.ndarray, generated: np.ndarray | N
             services.progress.check()
             _spec_track(scene, reference, spec, result.spec_valid, services, scene_dir,
                         result, contract, generated, own)
+        anchors: tuple[dict, dict] | None = None
+        # a fallback clip is the frozen clip (`frozen_clip`): not made twice
+        frozen = generated if result.fallback else None
         if services.protocol.variance_norm:
             services.progress.check()
-            # a fallback clip is the frozen clip (`frozen_clip`): not made twice
-            _normalise(scene, reference, services, scene_dir, result, contract,
-                       generated if result.fallback else None)
+            anchors = _normalise(scene, reference, services, scene_dir, result, contract,
+                                 frozen)
+        if services.headline is not None:
+            _headline(scene, reference, generated, services, scene_dir, result, contract,
+                      frozen, anchors)
     if generated is not None and services.judges is not None:
         with services.progress.stage("judge", scene.scene_id):
             _judge(scene, reference, generated, services, scene_dir, result)
@@ -175,14 +184,15 @@ def _spec_track(scene: Scene, reference: np.ndarray, spec: dict | None,
 
 def _normalise(scene: Scene, reference: np.ndarray, services: ScoringServices, scene_dir: Path,
                result: "SceneResult", contract: RenderContract,
-               frozen: np.ndarray | None = None) -> None:
+               frozen: np.ndarray | None = None) -> tuple[dict, dict] | None:
     """``norm.`` columns: each frame/sequence metric between the frozen clip (0) and the
-    ground truth's twin (1), visphy_core.normalisation; the anchors in normalisation.json."""
+    ground truth's twin (1), visphy_core.normalisation; the anchors in normalisation.json.
+    Returns what the frozen clip and the twin scored (None when there was no twin)."""
     metrics = [m for m in services.metrics if m.kind != SCENE]
     targets = [c for c in (m.name for m in metrics) if c in result.scores] + [
         SPEC_PREFIX + m.name for m in metrics if SPEC_PREFIX + m.name in result.scores]
     if not targets:
-        return
+        return None
     direction = {m.name: m.direction for m in metrics}
 
     def unavailable(why: str) -> None:
@@ -194,7 +204,7 @@ def _normalise(scene: Scene, reference: np.ndarray, services: ScoringServices, s
         twin = services.clips.twin(scene, contract, scene_dir)
     except ReferenceClipUnavailable as exc:
         unavailable(str(exc))
-        return
+        return None
     if frozen is None:
         with tempfile.TemporaryDirectory(prefix="visphy-frozen-") as tmp:
             frozen = frozen_clip(scene, contract, Path(tmp) / "frozen.mp4")
@@ -221,6 +231,39 @@ def _normalise(scene: Scene, reference: np.ndarray, services: ScoringServices, s
         {"perturbation": perturbation(), "twin_video": "twin_video.mp4",
          "floor": "the first key frame held (the fallback clip)",
          "pairing": "visphy (unaligned)", "anchors": anchors}, indent=1))
+    return ({k: v for k, v in floor.items() if k not in why_f},
+            {k: v for k, v in ceiling.items() if k not in why_c})
+
+
+def _headline(scene: Scene, reference: np.ndarray, generated: np.ndarray | None,
+              services: ScoringServices, scene_dir: Path, result: "SceneResult",
+              contract: RenderContract, frozen: np.ndarray | None,
+              anchors: tuple[dict, dict] | None) -> None:
+    """The headline column (`visphy_core.headline`): its components between the still clip
+    and the twin (or the ideal values), from the anchors normalisation already scored where it
+    did, else the still clip scored here on the components alone (cached like every score)."""
+    headline = services.headline
+    components = headline.metrics_of(services.metrics)
+    if generated is None or not components:
+        result.scores[headline.name] = None
+        result.unavailable[headline.name] = ("no clip to score" if generated is None else
+                                             "none of its components is in the run's metrics")
+        return
+    floor, twin = anchors if anchors is not None else ({}, {})
+    missing = [m for m in components if m.name not in floor]
+    if missing:
+        if frozen is None:
+            with tempfile.TemporaryDirectory(prefix="visphy-frozen-") as tmp:
+                frozen = frozen_clip(scene, contract, Path(tmp) / "frozen.mp4")
+        plain = ScoringProtocol(unaligned=True, aligned=False, paper=False)
+        more, _ = score_scene(scene, reference, frozen, missing, None, None, services.cache,
+                              protocol=plain)
+        floor = {**floor, **more}
+    value, details = scene_headline(headline, services.metrics, result.scores, floor, twin)
+    result.scores[headline.name] = value
+    if value is None:
+        result.unavailable[headline.name] = "no component is defined on this scene"
+    write_artifact(scene_dir / "headline.json", json.dumps(details, indent=1))
 
 
 def _score(scene: Scene, reference: np.ndarray, generated: np.ndarray,
