@@ -261,6 +261,9 @@ def summary_metrics(summary: dict) -> dict[str, float]:
             if m.get(mean) is not None:
                 out[key] = m[mean]
             out[f"{key}_n"] = float(m.get(count) or 0)
+    head = summary.get("headline") or {}
+    if head.get("ci"):  # the headline's mean is its column's (above); its interval here
+        out[f"{head['metric']}_ci_low"], out[f"{head['metric']}_ci_high"] = head["ci"]
     for key in SUMMARY_COUNTS:
         if summary.get(key) is not None:
             out[key] = float(summary[key])

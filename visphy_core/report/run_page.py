@@ -101,6 +101,15 @@ def leaderboard(run: RunData) -> str:
             main.append(block)
         else:
             folded.append(f'<p class="note">{esc(HEADINGS[key])}</p>{block}')
+    head = s.get("headline") or {}
+    if head.get("metric"):
+        ci = head.get("ci")
+        interval = f" [{esc(fmt(ci[0]))}, {esc(fmt(ci[1]))}]" if ci else ""
+        small = " · fewer than 10 scenes: read the interval" if head.get("small_sample") else ""
+        card = _card(f"headline {head['metric']} ↑ (95% bootstrap interval, "
+                     f"n={head.get('n', 0)}; a still clip scores 0, the ground truth about "
+                     f"1{small})", f"{esc(fmt(head.get('mean')))}{interval}")
+        main.insert(0, f'<div class="cards" id="headline">{card}</div>')
     if not metrics:
         main.append('<p class="note">no scores yet</p>')
     if folded:
