@@ -343,3 +343,32 @@ def test_the_paper_rules_are_the_protocols_default_and_dtw_runs_after_the_offset
     assert p.aligned_params.rules == "visphy" and not p.aligned_params.dtw
     (cfg,) = check_overrides(["metrics.paper.dtw=false"])
     assert not ScoringProtocol.from_cfg(cfg.metrics).paper_params.dtw
+
+
+def test_a_replayed_video_at_a_foreign_rate_is_paired_by_index_in_a_run(tmp_path):
+    """End to end: a video model's reply at 35 fps (the ground truth's frames, encoded at the
+    wrong rate) goes through `load_clip_for` (time-resampled for visphy's pairing) while the
+    paper view pairs the reply's own decoded frames by index, as upstream reads the file: the
+    paper PSNR is that of the truth against itself, visphy's that of a clip 7× too fast."""
+    import json
+
+    from conftest import run_cli
+    from visphy_core.video import decode_video, encode_video
+    from visphy_plugins.datasets.tiny import make_tiny_dataset
+
+    root = make_tiny_dataset(tmp_path / "data", 1)
+    truth_path = next((root / "sub" / "videos").glob("*.mp4"))
+    truth, info = decode_video(truth_path)
+    replies = tmp_path / "replies"
+    replies.mkdir()
+    encode_video(truth, replies / truth_path.name, 35.0)
+    home = tmp_path / "home"
+    run_cli("model=replay", f"model.source={replies}", "model.output=video",
+            "dataset=original", f"dataset.root={root}", "metrics.names=[psnr]",
+            "metrics.spec_track=false", "metrics.variance_norm=false", "tracking=none",
+            "run.progress=false", home=home)
+    run_dir = next((home / "runs").iterdir())
+    row = json.loads((run_dir / "results.jsonl").read_text().splitlines()[0])
+    assert info.fps != 35.0
+    assert row["score_paper.psnr"] > 35 and row["score_paper.align.offset"] == 0
+    assert row["score_psnr"] < row["score_paper.psnr"] - 5

@@ -76,6 +76,14 @@ def sampled_positions(n_frames: int, sample_every: int) -> np.ndarray:
     return np.arange(0, n_frames, max(1, int(sample_every)))
 
 
+def frames_needed(n_reference: int, sample_every: int, max_offset: int) -> int:
+    """How many decoded frames of a generated clip upstream's pairing can ever reach for a
+    reference of ``n_reference`` frames: its sampled length plus the widest offset, in decoded
+    frames (beyond them the overlap is trimmed away). A caller may keep only these."""
+    sampled = -(-n_reference // sample_every)
+    return sample_every * (sampled + max_offset + 1)
+
+
 def fit_to_reference(frames: np.ndarray, height: int, width: int) -> np.ndarray:
     """Upstream ``read_video_frames(resize_to=(w, h))`` of the generated clip: every frame
     stretched to the reference's size by area interpolation (aspect not kept, no padding).

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from visphy_core.paper_protocol import frames_needed
 from visphy_core.headline import Headline
 from visphy_core.cache import Cache, CorruptEntry, content_key, read_json
 from visphy_core.console import StageEvents
@@ -464,6 +465,7 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
          "prompt_version": first.version, "privileged": model.privileged}, indent=1))
     outcome: RenderOutcome | None = None
     clip: np.ndarray | None = None
+    decoded: np.ndarray | None = None   # a video reply's frames by index (the paper protocol)
     request = first.request
     analysis, spec = None, None
     program: Program | None = None
@@ -500,7 +502,7 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
             if response.video_path and Path(response.video_path).is_file():
                 # the model's own video, byte for byte: a replay of this run starts from it
                 _write(scene_dir / f"reply{suffix}.mp4", Path(response.video_path).read_bytes())
-            clip, failure, detail = _video_reply(response, scene)
+            clip, decoded, failure, detail = _video_reply(response, scene, services.protocol)
             if clip is not None:
                 break
             failed_source, logs = response.text, []
@@ -565,7 +567,8 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
         generated = None
     score_outputs(scene, reference, generated, analysis, spec, services.scoring(renders),
                   scene_dir, result, contract, program if outcome is not None else None,
-                  spec_track=model.output_kind == "program")
+                  spec_track=model.output_kind == "program",
+                  as_decoded=decoded if clip is not None and outcome is None else None)
 
 
 def _render_with_infra_retry(engine: Engine, program: Program, contract: RenderContract,
@@ -605,16 +608,23 @@ def _set_render_flags(result: SceneResult, flags: list[str]) -> None:
     result.flags += [f for f in flags if f in RENDER_FLAGS and f not in result.flags]
 
 
-def _video_reply(response: ModelResponse, scene: Scene
-                 ) -> tuple[np.ndarray | None, FailureClass, str]:
-    """A pixel-space model's clip, resampled to the reference by its own timestamps."""
+def _video_reply(response: ModelResponse, scene: Scene, protocol: ScoringProtocol
+                 ) -> tuple[np.ndarray | None, np.ndarray | None, FailureClass, str]:
+    """A pixel-space model's clip, resampled to the reference by its own timestamps, and (for
+    the ``paper`` protocol, which pairs by index) its first decoded frames as they are."""
     if not response.video_path:
-        return None, FailureClass.NO_CODE, "the video model returned no video"
+        return None, None, FailureClass.NO_CODE, "the video model returned no video"
+    keep: list | None = [] if protocol.paper else None
+    need = frames_needed(scene.clip.n_frames, protocol.paper_params.sample_every,
+                         protocol.paper_params.max_offset)
     try:
-        clip = load_clip_for(Path(response.video_path), scene.clip)
+        clip = load_clip_for(Path(response.video_path), scene.clip, keep_decoded=keep,
+                             keep_max=need)
     except (ValueError, OSError) as exc:
-        return None, FailureClass.BLANK_OUTPUT, f"unreadable video: {_one_line(str(exc))}"
+        return None, None, FailureClass.BLANK_OUTPUT, \
+            f"unreadable video: {_one_line(str(exc))}"
     if classify_frames(clip) is FailureClass.BLANK_OUTPUT:
-        return None, FailureClass.BLANK_OUTPUT, "every frame of the video is one flat colour"
-    return clip, FailureClass.BLANK_OUTPUT, ""
+        return None, None, FailureClass.BLANK_OUTPUT, \
+            "every frame of the video is one flat colour"
+    return clip, (np.stack(keep) if keep else None), FailureClass.BLANK_OUTPUT, ""
 

@@ -49,7 +49,8 @@ from visphy_core.scene_scores import (ReferenceClipUnavailable, ScoringServices,
                                       score_columns_of, score_outputs, write_scores)
 from visphy_core.scoring import ScoringProtocol, select_metrics
 from visphy_core.usage import UsageLedger
-from visphy_core.video import decode_video
+from visphy_core.paper_protocol import frames_needed
+from visphy_core.video import decode_video, load_clip_for
 
 #: Written anew by re-scoring (the rest of a run directory is carried over as it is).
 REWRITTEN = ("config.yaml", "manifest.json", "summary.json", "results.jsonl",
@@ -155,6 +156,23 @@ def _final_reply(scene_dir: Path, attempts: int) -> tuple[str | None, dict | Non
     return analysis, spec
 
 
+def _decoded_reply(scene_dir: Path, result: SceneResult, scene: Scene,
+                   protocol: ScoringProtocol) -> np.ndarray | None:
+    """A video model's own reply as decoded (by index), for the ``paper`` protocol: the same
+    frames the run scored (`visphy_core.pipeline`), read from ``reply*.mp4``."""
+    if not (protocol.paper and result.model_success and result.output_kind == "video"):
+        return None
+    suffix = "" if result.attempts <= 1 else f".attempt{result.attempts}"
+    path = scene_dir / f"reply{suffix}.mp4"
+    if not path.is_file():
+        return None
+    keep: list = []
+    load_clip_for(path, scene.clip, keep_decoded=keep,
+                  keep_max=frames_needed(scene.clip.n_frames, protocol.paper_params.sample_every,
+                                         protocol.paper_params.max_offset))
+    return np.stack(keep) if keep else None
+
+
 def _program(scene_dir: Path, result: SceneResult) -> Program | None:
     """The program whose clip the row reports (the model's own, first or repaired)."""
     if not result.model_success or result.output_kind != "program":
@@ -199,7 +217,8 @@ def rescore_row(before: SceneResult, scene: Scene, scene_dir: Path, services: Sc
             generated = decode_video(video)[0]
         score_outputs(scene, reference, generated, analysis, spec, scoring, scene_dir, result,
                       contract, _program(scene_dir, before),
-                      spec_track=before.output_kind == "program")
+                      spec_track=before.output_kind == "program",
+                      as_decoded=_decoded_reply(scene_dir, before, scene, services.protocol))
     except UserError:
         raise
     except SceneDataError as exc:

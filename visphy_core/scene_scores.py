@@ -102,7 +102,8 @@ def score_columns_of(services: ScoringServices) -> list[str]:
 def score_outputs(scene: Scene, reference: np.ndarray, generated: np.ndarray | None,
                   analysis: str | None, spec: dict | None, services: ScoringServices,
                   scene_dir: Path, result: "SceneResult", contract: RenderContract,
-                  program: "Program | None" = None, spec_track: bool = True) -> None:
+                  program: "Program | None" = None, spec_track: bool = True,
+                  as_decoded: np.ndarray | None = None) -> None:
     """Score a scene's clip (when there is one), then the spec track (when ``spec_track``: a
     program-writing model) and normalisation, as the protocol asks; then judge the clip.
 
@@ -112,7 +113,7 @@ def score_outputs(scene: Scene, reference: np.ndarray, generated: np.ndarray | N
         own: dict[str, float | None] = {}
         if generated is not None:
             own = _score(scene, reference, generated, analysis, spec, services, scene_dir,
-                         result, program)
+                         result, program, as_decoded)
         if services.protocol.spec_track and spec_track:
             services.progress.check()
             _spec_track(scene, reference, spec, result.spec_valid, services, scene_dir,
@@ -268,8 +269,8 @@ def _headline(scene: Scene, reference: np.ndarray, generated: np.ndarray | None,
 
 def _score(scene: Scene, reference: np.ndarray, generated: np.ndarray,
            analysis: str | None, spec: dict | None, services: ScoringServices,
-           scene_dir: Path, result: "SceneResult", program: "Program | None" = None
-           ) -> dict[str, float | None]:
+           scene_dir: Path, result: "SceneResult", program: "Program | None" = None,
+           as_decoded: np.ndarray | None = None) -> dict[str, float | None]:
     """The metrics on the scene's own clip; returns their scores (also in ``result``)."""
     reference_text = None
     if services.references is not None:
@@ -281,7 +282,7 @@ def _score(scene: Scene, reference: np.ndarray, generated: np.ndarray,
                                       protocol=services.protocol,
                                       program=program.source if program else None,
                                       language=program.language if program else None,
-                                      details=details)
+                                      details=details, as_decoded=as_decoded)
     if details:
         write_artifact(scene_dir / "metric_details.json",
                        json.dumps(details, indent=1, default=str))

@@ -207,7 +207,7 @@ def score_scene(scene: Scene, reference: np.ndarray, generated: np.ndarray,
                 cache: Cache, generated_times_s: np.ndarray | None = None,
                 reference_text: str | None = None, protocol: ScoringProtocol | None = None,
                 program: str | None = None, language: str | None = None,
-                details: dict | None = None
+                details: dict | None = None, as_decoded: np.ndarray | None = None
                 ) -> tuple[dict[str, float | None], dict[str, str]]:
     """Scores by column, and the reason for each column that could not be computed.
 
@@ -217,9 +217,12 @@ def score_scene(scene: Scene, reference: np.ndarray, generated: np.ndarray,
     ``program``/``language``: the model's program, for metrics that read it (``needs``
     ``program``; only their cached values depend on it).
     ``details``: a dict filled with the metrics' per-scene breakdowns (`Metric.details`).
+    ``as_decoded``: a foreign video's first frames in decode order (at least
+    `paper_protocol.frames_needed`), when ``generated`` was already put on the contract's time
+    grid: the ``paper`` view pairs these by index, as upstream does.
     """
     protocol = protocol or ScoringProtocol()
-    as_given = generated
+    as_given = generated if as_decoded is None else as_decoded
     if generated.shape != reference.shape or generated_times_s is not None:
         generated = to_contract(scene, generated, generated_times_s)
     inp = MetricInput(scene=scene, reference=reference, generated=generated, analysis=analysis,

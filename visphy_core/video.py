@@ -227,7 +227,8 @@ def clip_matches(info: ClipInfo, target: ClipInfo, rel_tol: float = 1e-3) -> boo
 
 
 def load_clip_for(path: str | Path, target: ClipInfo,
-                  budget: "VideoBudget | None" = None) -> np.ndarray:
+                  budget: "VideoBudget | None" = None,
+                  keep_decoded: list | None = None, keep_max: int = 0) -> np.ndarray:
     """A foreign clip (a model's video: untrusted) as the frames ``target`` describes, paired
     with the reference by time (the same rule as `resample_by_time`).
 
@@ -235,8 +236,9 @@ def load_clip_for(path: str | Path, target: ClipInfo,
     under ``budget`` (default `VideoBudget()`): its header is checked before any frame is
     decoded, and the frames are fitted to the target as they are decoded, so memory stays at
     one target-sized clip whatever the source's size or frame count (see `stream_clip_for`).
+    ``keep_decoded``/``keep_max``: see `stream_clip_for` (the paper protocol's clip by index).
     """
-    return stream_clip_for(path, target, budget or VideoBudget())
+    return stream_clip_for(path, target, budget or VideoBudget(), keep_decoded, keep_max)
 
 
 def normalise_clip(
@@ -475,8 +477,8 @@ def decode_untrusted_video_timed(path: str | os.PathLike, budget: VideoBudget
     return _timed(path, frames, stamps, fps)
 
 
-def stream_clip_for(path: str | os.PathLike, target: ClipInfo, budget: VideoBudget
-                    ) -> np.ndarray:
+def stream_clip_for(path: str | os.PathLike, target: ClipInfo, budget: VideoBudget,
+                    keep_decoded: list | None = None, keep_max: int = 0) -> np.ndarray:
     """`load_clip_for`'s clip, decoded under ``budget`` without keeping the source's frames.
 
     Frames are taken in decoding (= presentation) order with their times relative to the
@@ -486,6 +488,11 @@ def stream_clip_for(path: str | os.PathLike, target: ClipInfo, budget: VideoBudg
     backwards, or frames without one mixed with stamped frames, are `FrameRejected` (the
     trusted `decode_video_timed` sorts them; an untrusted stream must be in order). A clip that
     already meets ``target`` (`clip_matches`) comes back exactly as decoded.
+
+    ``keep_decoded`` (a list) also receives the first ``keep_max`` frames in decode order, each
+    stretched to the target's size by area interpolation (no timestamps, no padding): the clip
+    as upstream's evaluation reads it (the ``paper`` protocol pairs frames by index), bounded to
+    the frames that protocol can pair.
     """
     path = Path(path)
     n = target.n_frames
@@ -536,7 +543,16 @@ def stream_clip_for(path: str | os.PathLike, target: ClipInfo, budget: VideoBudg
                     exact = None
                 else:
                     exact.append(frame.to_ndarray(format="rgb24"))
-            if filled >= n and exact is None:  # past the target's end: nothing more to see
+            keeping = keep_decoded is not None and len(keep_decoded) < keep_max
+            if keeping:
+                rgb = frame.to_ndarray(format="rgb24")
+                if rgb.shape[:2] != (target.height, target.width):
+                    import cv2
+
+                    rgb = cv2.resize(rgb, (target.width, target.height),
+                                     interpolation=cv2.INTER_AREA)
+                keep_decoded.append(rgb)
+            if filled >= n and exact is None and not keeping:  # nothing more to see
                 break
     if current is None:
         raise ValueError(f"video has no frames: {path}")
