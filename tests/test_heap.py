@@ -45,6 +45,7 @@ def _run(trim: bool) -> tuple[int, str, int]:
     return int(freed), trimmed, int(after)
 
 
+@pytest.mark.skip_ok(reason="another platform, not a missing dependency")
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's allocator")
 def test_freed_arena_memory_goes_back_to_the_system():
     freed, trimmed, after = _run(trim=True)
@@ -53,6 +54,7 @@ def test_freed_arena_memory_goes_back_to_the_system():
     assert after < freed - 200
 
 
+@pytest.mark.skip_ok(reason="another platform, not a missing dependency")
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's allocator")
 def test_visphy_malloc_trim_0_keeps_glibcs_default():
     freed, trimmed, after = _run(trim=False)
