@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -26,6 +27,20 @@ def test_the_tree_has_every_required_group():
             "hydra/launcher"} <= groups
 
 
+def _missing_from(own, got, where: str) -> list[str]:
+    """Where the values a config file sets (``own``) are not in the composed config (``got``);
+    a file's mandatory ``???`` is not a value, and the schema may add keys beside the file's."""
+    if isinstance(own, dict):
+        if not isinstance(got, dict):
+            return [f"{where}: {got!r} is not a mapping"]
+        return [m for k, v in own.items()
+                for m in (_missing_from(v, got[k], f"{where}.{k}") if k in got
+                          else [f"{where}.{k}: missing"])]
+    if own == "???" or own == got:
+        return []
+    return [f"{where}: {got!r} instead of {own!r}"]
+
+
 @pytest.mark.parametrize("path", GROUP_FILES, ids=lambda p: _override(p))
 def test_every_config_file_composes(path):
     override = _override(path)
@@ -35,8 +50,30 @@ def test_every_config_file_composes(path):
     cfg = compose([override])
     OmegaConf.to_container(cfg, resolve=True)  # every interpolation resolves
     group, option = override.split("=")
-    if group != "experiment":
-        assert cfg[group] is not None
+    # the option is the one composed: every value the file sets is in the config, at its package
+    package = re.search(r"^# @package (\S+)", path.read_text(), re.M)
+    package = package.group(1) if package else group
+    node = cfg if package == "_global_" else OmegaConf.select(cfg, package)
+    assert node is not None, package
+    own = OmegaConf.to_container(OmegaConf.load(path), resolve=False)
+    defaults = own.pop("defaults", None) or []
+    own.pop("hydra", None)  # the launcher's settings: not part of the job's config
+    composed = OmegaConf.to_container(node, resolve=False)
+    assert _missing_from(own, composed, package) == []
+    if not own and package != "_global_":  # judge=none sets nothing: no judge is selected
+        assert composed == {}, (override, node)
+    # an experiment's `override /group: option` selects that option (its values, where the
+    # experiment sets none of its own)
+    for entry in defaults:
+        for key, choice in (entry.items() if isinstance(entry, dict) else ()):
+            if not key.startswith("override /") or not isinstance(choice, str):
+                continue
+            other = key.removeprefix("override /")
+            theirs = OmegaConf.to_container(OmegaConf.load(CONF / other / f"{choice}.yaml"),
+                                            resolve=False)
+            theirs = {k: v for k, v in theirs.items()
+                      if k != "defaults" and k not in (own.get(other) or {})}
+            assert _missing_from(theirs, composed[other], other) == [], (key, choice)
 
 
 def test_default_config_values():

@@ -127,7 +127,12 @@ def test_validation_failure_classes(engine, source, failure, text):
 @pytest.mark.parametrize("source", ["import bpy", "import math, bpy\n", "from bpy import data",
                                     "if True:\n    import bpy.types\n"])
 def test_every_way_of_importing_bpy_validates(engine, source):
-    engine.validate(Program("python", source))
+    assert engine.validate(Program("python", source)) is None  # accepted: no ProgramRejected
+    # the import of bpy is what it accepts: the same program importing another module is not
+    # a Blender script
+    with pytest.raises(ProgramRejected) as info:
+        engine.validate(Program("python", source.replace("bpy", "numpy")))
+    assert info.value.failure is FailureClass.WRONG_LANGUAGE
 
 
 def test_instructions_differ_by_dimension(engine):

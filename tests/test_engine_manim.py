@@ -278,15 +278,45 @@ def test_timeout(engine):
     assert res.failure is FailureClass.TIMEOUT and res.wall_s < 20
 
 
+NET_PROBE = """\
+        import json, os, socket
+        seen = {{"netns": os.stat("/proc/self/ns/net").st_ino,
+                "interfaces": sorted(name for _, name in socket.if_nameindex())}}
+        try:
+            socket.create_connection(("127.0.0.1", {port}), timeout=3).close()
+            seen["connect"] = "connected"
+        except OSError as exc:
+            seen["connect"] = type(exc).__name__
+        raise RuntimeError("NETPROBE" + json.dumps(seen) + "NETPROBE")
+"""
+
+
 def test_program_has_no_network(engine):
-    body = ("        import socket\n        s = socket.socket()\n"
-            "        s.connect(('127.0.0.1', 9))\n")
-    res = engine.render(program(HEADER + body), contract())
-    assert res.failure is FailureClass.RUNTIME_ERROR
-    if res.isolation and res.isolation.startswith("bwrap:"):
-        assert "netns" in res.isolation
-        # its own loopback only: nothing listens there
-        assert "refused" in res.error.lower() or "unreachable" in res.error.lower()
+    """The program runs in a network namespace of its own: another namespace than the host's,
+    no interface but loopback, and a port that listens on the host's 127.0.0.1 (reachable from
+    here) is not reachable from there."""
+    import os
+    import socket
+
+    from visphy_core.sandbox.process import isolation_available
+
+    if not isolation_available()[0]:
+        pytest.skip("no bubblewrap sandbox here")
+    host_netns = os.stat("/proc/self/ns/net").st_ino
+    with socket.create_server(("127.0.0.1", 0)) as listener:
+        port = listener.getsockname()[1]
+        socket.create_connection(("127.0.0.1", port), timeout=3).close()  # reachable from here
+        listener.accept()[0].close()
+        listener.settimeout(0.5)
+        res = engine.render(program(HEADER + NET_PROBE.format(port=port)), contract())
+        with pytest.raises(TimeoutError):  # and nothing came from the program
+            listener.accept()
+    assert res.failure is FailureClass.RUNTIME_ERROR and "NETPROBE" in (res.error or ""), res
+    assert res.isolation.startswith("bwrap:") and "netns" in res.isolation
+    seen = json.loads(res.error.split("NETPROBE")[1])
+    assert seen["netns"] != host_netns
+    assert seen["interfaces"] == ["lo"]
+    assert seen["connect"] != "connected", seen  # refused, unreachable or denied: an OSError
 
 
 def test_program_runs_as_nobody_and_sees_no_host_file(engine, tmp_path):

@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from itertools import combinations
 from pathlib import Path
 
 import pandas as pd
@@ -199,7 +200,11 @@ def test_judge_replacement_against_the_fake_servers_tabulates_agreement(judge_st
     assert {k: v["n_valid"] for k, v in run["judges"].items()} == \
         {"gemini": 3, "gpt_frames": 3, "qwen_vl": 3, "claude_frames": 3}
     judges = pd.read_csv(study / "analysis" / "judges.csv")
-    assert len(judges) >= 6  # every pair of the four judges
+    # every pair of the four judges once (no human ratings here), each over the 3 scenes
+    columns = [f"judge_{j}" for j in ("gemini", "gpt_frames", "qwen_vl", "claude_frames")]
+    pairs = [frozenset(p) for p in zip(judges["A"], judges["B"])]
+    assert len(pairs) == 6 and set(pairs) == {frozenset(p) for p in combinations(columns, 2)}
+    assert judges["n"].tolist() == [3] * 6, judges
     assert "study judge_replacement: 1/1 jobs completed" in proc.stdout
 
 
