@@ -9,7 +9,9 @@ and reports what the issue compares with the published VisPhyBench:
   median over its 17 frames, then min / median / max over scenes
 * objects per scene (paper: 1,523 objects over 209 scenes, about 7.3)
 * category object counts and per-scene shares, draws needed, difficulty scores / labels
-* time to draw + simulate (+ features) the whole 2D catalogue
+* time to draw + simulate (+ features) the whole 2D catalogue, and per candidate
+  (target: ≤ 0.15 s per candidate drawn, simulated and screened)
+* time to rasterise each accepted rollout (target: < 1 s for a 17-frame 512² clip)
 
 Usage: ``python benchmarks/bench_2d_stats.py [--workers 2] [--every 1] [--json out.json]``
 (``--every k`` keeps every k-th slot, for a quick look).
@@ -31,15 +33,18 @@ from visphy_core.spec2d import CATEGORIES
 PUBLISHED = {"radius_px": (17, 39, 56), "nonwhite_pct": (3.3, 4.4, 6.6), "objects": 1523 / 209}
 
 
-def nonwhite_pct(spec: dict) -> list[float]:
-    """Per frame, the percentage of pixels not drawn in the white background."""
+def nonwhite_pct(spec: dict) -> tuple[list[float], float]:
+    """Per frame, the percentage of pixels not drawn in the white background; and the seconds
+    the rasteriser took for the clip."""
     from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
     from visphy_plugins.physics.box2d import simulate_2d
 
     rollout = simulate_2d(spec)
+    start = time.perf_counter()
     frames = render_clip_2d(spec, rollout.frame_poses)
+    render_s = time.perf_counter() - start
     white = np.array(spec["render"]["background_rgb"], dtype=frames.dtype)
-    return [float(100.0 * np.any(f != white, axis=-1).mean()) for f in frames]
+    return [float(100.0 * np.any(f != white, axis=-1).mean()) for f in frames], render_s
 
 
 def one(unit: Unit, seed: int = 0) -> dict:
@@ -47,6 +52,7 @@ def one(unit: Unit, seed: int = 0) -> dict:
     entry = draw_scene(unit, seed)
     seconds = time.perf_counter() - start
     spec = entry.spec
+    nonwhite, render_s = nonwhite_pct(spec)
     red = next(b for b in spec["bodies"] if b["id"] == "red_ball")
     return {"scene_id": spec["scene_id"], "attempts": entry.attempts, "seconds": seconds,
             "red_radius": red["shape"]["radius_px"],
@@ -56,7 +62,7 @@ def one(unit: Unit, seed: int = 0) -> dict:
             "n_dynamic": sum(b["dynamic"] for b in spec["bodies"]),
             "score": spec["difficulty"]["score"],
             "chaotic": spec["difficulty"]["features"]["chaotic"],
-            "nonwhite": nonwhite_pct(spec), "rejected": entry.rejected}
+            "nonwhite": nonwhite, "render_s": render_s, "rejected": entry.rejected}
 
 
 def _one(u: Unit) -> dict:
@@ -122,6 +128,13 @@ def main() -> None:
     out = summarise(rows)
     out["wall_s"] = round(seconds, 1)
     out["draw_simulate_cpu_s"] = round(sum(r["seconds"] for r in rows), 1)
+    # the speed goals the unit tests no longer assert (wall-clock checks fail under load)
+    out["seconds_per_candidate"] = round(sum(r["seconds"] for r in rows)
+                                         / sum(r["attempts"] for r in rows), 3)
+    out["seconds_per_candidate_target"] = 0.15
+    render = np.array([r["render_s"] for r in rows])
+    out["render_s_per_clip"] = {"median": round(float(np.median(render)), 3),
+                                "max": round(float(render.max()), 3), "target_max": 1.0}
     out["published"] = PUBLISHED
     print(json.dumps(out, indent=1))
     if args.json:

@@ -7,7 +7,6 @@ from __future__ import annotations
 import copy
 import json
 import math
-import time
 from pathlib import Path
 
 import numpy as np
@@ -170,7 +169,8 @@ def test_identical_clips_score_zero_under_every_pairing(mini):
         assert got == dict.fromkeys(NAMES, 0.0), (view, got)
 
 
-def test_segmentation_runs_once_per_clip_and_is_fast(mini, monkeypatch):
+def test_segmentation_runs_once_per_clip(mini, monkeypatch):
+    # the tracks' cost per scene is benchmarks/bench_metrics.py's (track_* per 2D scene)
     m = mini[0]
     ref, gen = m["decoded"], clean_clip(perturbed(m["spec"], "speed", 2))
     calls = []
@@ -180,14 +180,11 @@ def test_segmentation_runs_once_per_clip_and_is_fast(mini, monkeypatch):
     views = alignments(ref, gen, ScoringProtocol())
     T.segment(ref, T.scene_palette(m["scene"]))  # warm the colour table
     calls.clear()
-    t0 = time.perf_counter()
     for a in views.values():
         for cls in T.METRICS:
             cls().compute_sequence(inp, a)
-    elapsed = time.perf_counter() - t0
     assert len(calls) == 2  # reference and generated, shared by 5 metrics × 3 pairings
     assert inp.extra["tracks"]["value"]["tracked"] == ["red_ball", "gray_ball"]
-    assert elapsed < 0.5, elapsed  # ~0.05 s on an idle core
 
 
 # ------------------------------------------------------------------------------ validity

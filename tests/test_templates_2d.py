@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import copy
 import re
-import time
 
 import numpy as np
 import pytest
@@ -36,16 +35,14 @@ def _draw(template, k: int) -> dict:
 
 @pytest.fixture(scope="module")
 def draws():
-    """For every template, the first DRAWS candidates: (variant, spec, problems, seconds)."""
+    """For every template, the first DRAWS candidates: (variant, spec, problems)."""
     out = {}
     for t in TEMPLATES_2D:
         rows = []
         for k in range(DRAWS):
-            start = time.perf_counter()
             spec = _draw(t, k)
             rollout = simulate_2d(spec)
-            rows.append((k % t.n_variants, spec, validity_problems(spec, rollout),
-                         time.perf_counter() - start))
+            rows.append((k % t.n_variants, spec, validity_problems(spec, rollout)))
         out[t.template_id] = rows
     return out
 
@@ -64,7 +61,7 @@ def test_catalogue_counts_and_ids():
 
 def test_every_draw_is_a_valid_phyre_style_spec(draws):
     for t in TEMPLATES_2D:
-        for variant, spec, _, _ in draws[t.template_id]:
+        for variant, spec, _ in draws[t.template_id]:
             validate_spec(spec)
             assert spec["scene_id"] == f"task{t.template_id:05d}_{variant:03d}"
             assert re.fullmatch(r"task\d{5}_\d{3}", spec["scene_id"]) and spec["seed"] == 0
@@ -85,26 +82,21 @@ def test_every_draw_is_a_valid_phyre_style_spec(draws):
 def test_each_template_is_valid_with_probability_at_least_half(draws):
     rates = {"combinatorial": [], "law": []}
     for t in TEMPLATES_2D:
-        ok = [not problems for _, _, problems, _ in draws[t.template_id]]
-        assert any(ok), (t.template_id, [p for _, _, p, _ in draws[t.template_id]])
-        assert sum(ok) >= DRAWS // 2, (t.template_id, [p for _, _, p, _ in draws[t.template_id]])
+        ok = [not problems for _, _, problems in draws[t.template_id]]
+        assert any(ok), (t.template_id, [p for _, _, p in draws[t.template_id]])
+        assert sum(ok) >= DRAWS // 2, (t.template_id, [p for _, _, p in draws[t.template_id]])
         rates[t.family].extend(ok)
-        for _, _, problems, _ in draws[t.template_id]:
+        for _, _, problems in draws[t.template_id]:
             assert set(problems) <= set(REASONS) and len(problems) == len(set(problems))
     for family, ok in rates.items():
         assert np.mean(ok) >= 0.75, family
-
-
-def test_generation_plus_simulation_is_fast(draws):
-    seconds = [s for rows in draws.values() for _, _, _, s in rows]
-    assert np.mean(seconds) <= 0.15, np.mean(seconds)
 
 
 def test_category_shares_match_visphybench(draws):
     specs = []
     for t in TEMPLATES_2D:
         for v in range(t.n_variants):
-            valid = [s for var, s, p, _ in draws[t.template_id] if var == v and not p]
+            valid = [s for var, s, p in draws[t.template_id] if var == v and not p]
             k = DRAWS + v
             while not valid:  # draw further candidates of this variant, as the builder would
                 spec = t.make(np.random.default_rng(t.template_id * 100 + k), v)
@@ -121,7 +113,7 @@ def test_category_shares_match_visphybench(draws):
 def test_categories_of_a_template_do_not_depend_on_the_draw(draws):
     for t in TEMPLATES_2D:
         cats = {frozenset(category_of(b) for b in spec["bodies"])
-                for _, spec, _, _ in draws[t.template_id]}
+                for _, spec, _ in draws[t.template_id]}
         assert len(cats) == 1, (t.template_id, cats)
 
 
