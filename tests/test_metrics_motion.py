@@ -250,8 +250,38 @@ def fake_raft_dir(tmp_path_factory):
 def fake_raft(fake_raft_dir, monkeypatch):
     monkeypatch.delenv("VISPHY_WEIGHTS", raising=False)
     weights.configure(fake_raft_dir)
+    # the random-init stand-in passes as the published checkpoint, for the test only
+    path = fake_raft_dir / RAFT_WEIGHT_NAMES[0]
+    monkeypatch.setitem(weights.PUBLISHED, RAFT_WEIGHT_NAMES[0],
+                        weights.Published(weights.sha256(path), "test: random init"))
     yield fake_raft_dir
     weights.configure(None)
+
+
+def test_a_raft_file_that_is_not_the_published_one_is_never_used(fake_raft_dir, monkeypatch,
+                                                                 tmp_path):
+    """The checkpoint's name carries the start of its SHA-256 (torchvision's convention): the
+    random file under that name fails the check, every RAFT metric is unavailable with the
+    mismatch, and loading it is refused."""
+    monkeypatch.delenv("VISPHY_WEIGHTS", raising=False)
+    weights.configure(fake_raft_dir)
+    try:
+        path = fake_raft_dir / RAFT_WEIGHT_NAMES[0]
+        reason = RAFT_METRICS[0].unavailable_reason()
+        assert reason == (f"checksum mismatch ({path}: expected ff5fadd5, "
+                          f"got {weights.sha256(path)[:8]})")
+        assert all(m.unavailable_reason() == reason for m in RAFT_METRICS)
+        with pytest.raises(RuntimeError, match="checksum mismatch"):
+            motion.load_raft(path, "cpu")
+        ref = disk_clip(5, (3.0, 0.0))
+        scores, unavailable = score_scene(scene_for(5, 128), ref, disk_clip(5, (2.0, 0.0)),
+                                          RAFT_METRICS[:1], None, None, Cache(tmp_path / "c"),
+                                          protocol=ScoringProtocol(paper=False))
+        assert scores["raft_epe"] is None and unavailable["raft_epe"] == reason
+        # torchvision's other RAFT checkpoints are other models: not searched for
+        assert RAFT_WEIGHT_NAMES == ("raft_large_C_T_SKHT_V2-ff5fadd5.pth",)
+    finally:
+        weights.configure(None)
 
 
 def test_raft_runs_the_real_architecture_on_inputs_in_minus_one_one(fake_raft, monkeypatch):

