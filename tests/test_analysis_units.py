@@ -385,3 +385,97 @@ def test_analyse_writes_every_table_and_figure(tmp_path):
         analyse(runs, tmp_path / "bad", metrics=["psnr", "nope"])
     assert set(STUDIES) == {"leaderboard", "cross_engine", "judge_replacement", "no_detection",
                             "forecast_only", "retry_ablation", "param_recovery", "baselines"}
+
+
+# ----------------------------------------------------------------------------- small samples
+def _two_runs(tmp: Path | None, n: int, seed: int = 0) -> list[RunData]:
+    rng = np.random.default_rng(seed)
+    base = rng.uniform(10, 40, n)
+    return [make_run(tmp / name if tmp else None, name, scenes(
+        {"psnr": list(base + shift + rng.normal(0, 1, n)),
+         "judge_a": list(rng.integers(1, 11, n).astype(float)),
+         "judge_b": list(rng.integers(1, 11, n).astype(float))}), model=name)
+        for name, shift in (("good", 5.0), ("bad", -5.0))]
+
+
+def test_small_sample_marks_the_numbers_over_fewer_than_ten_scenes():
+    from visphy_core.analysis import small_sample
+
+    assert small_sample.MIN_SCENES == 10
+    assert [small_sample.small(n) for n in (0, 1, 9, 10, 40, NAN, None)] == [
+        False, True, True, False, False, False, False]
+    few, many = _two_runs(None, 6), _two_runs(None, 12)
+    for runs, flagged in ((few, True), (many, False)):
+        long = correlation.spearman_long(runs, ["A", "B"], ["psnr"])
+        tables = {"spearman": long, "spearman_mean": correlation.mean_offdiagonal(long),
+                  "spearman_psnr": correlation.spearman_matrix(long, ["A", "B"], "psnr"),
+                  "bootstrap": bootstrap_table(runs, ["A", "B"], ["psnr"], resamples=200),
+                  "judges": correlation.judge_agreement(runs[:1], ["judge_a", "judge_b"])}
+        marks = small_sample.marks(tables)
+        if not flagged:
+            assert marks == {}
+            continue
+        assert set(marks) == set(tables)
+        assert marks["spearman"].iloc[0].to_dict() == {
+            "metric": False, "A": False, "B": False, "n": False, "ρ": True, "p": True}
+        assert marks["spearman_mean"]["mean ρ"].tolist() == [True]
+        # the matrix: both off-diagonal cells, never the diagonal or the labels
+        assert marks["spearman_psnr"].to_numpy().tolist() == [[False, False, True],
+                                                               [False, True, False]]
+        boot = marks["bootstrap"].iloc[0]
+        assert boot[["A − B", "CI low", "CI high", "p", "better"]].all()
+        assert not boot[["n common", "mean A", "mean B"]].any()
+        assert marks["judges"].iloc[0][["pearson r", "spearman ρ"]].all()
+    # a coefficient that is not there (n < 3: a dash) carries no warning
+    two = _two_runs(None, 2)
+    long = correlation.spearman_long(two, ["A", "B"], ["psnr"])
+    assert small_sample.marks({"spearman": long}) == {}
+
+
+def test_analyse_warns_beside_small_sample_numbers_in_every_output(tmp_path):
+    import io
+
+    from rich.console import Console
+
+    from visphy_core.analysis.printing import print_study
+
+    few = analyse(_two_runs(tmp_path / "few", 6), tmp_path / "out", resamples=200)
+    out = tmp_path / "out"
+    md = (out / "spearman_psnr.md").read_text()
+    assert md.splitlines()[2].endswith(" ⚠ |") and "fewer than 10 common scenes" in md
+    boot_md = (out / "bootstrap.md").read_text().splitlines()
+    psnr_row = next(line for line in boot_md if line.startswith("| psnr ↑"))
+    assert psnr_row.count(" ⚠") == 5  # A − B, CI low, CI high, p, better
+    assert "| 6 |" in psnr_row  # beside its n
+    tex = (out / "bootstrap.tex").read_text()
+    assert r"$^{\dagger}$ &" in tex and r"fewer than 10 common scenes" in tex
+    assert r"\caption{" in tex and tex.count(r"\dagger") >= 6
+    assert "⚠" in (out / "analysis.md").read_text()
+    index = json.loads((out / "analysis.json").read_text())
+    assert index["small_sample"]["min_scenes"] == 10
+    assert index["small_sample"]["flagged"]["bootstrap"] == 3
+    flag = index["tables"]["bootstrap"]["small_sample"][0]
+    assert flag["small_sample"] is True and flag["n"] == 6 and "CI low" in flag["columns"]
+    assert index["tables"]["spearman_psnr"]["small_sample"][0]["run"] == "good/threejs"
+    assert any("fewer than 10 common scenes" in n for n in index["notes"])
+    # the CSV keeps the plain numbers
+    assert pd.read_csv(out / "bootstrap.csv")["CI low"].dtype == np.float64
+    buf = io.StringIO()
+    print_study(few, out, console=Console(file=buf, width=200))
+    text = buf.getvalue()
+    assert "mean off-diagonal ρ = " in text and "⚠; common scenes per pair: 6" in text
+    assert "fewer than 10 common scenes behind the marked ρ" in text
+    assert "⚠ bootstrap: 3 row(s) computed over fewer than 10 common scenes" in text
+    # 12 common scenes: no warning anywhere
+    many = analyse(_two_runs(tmp_path / "many", 12), tmp_path / "out12", resamples=200)
+    assert many.marks == {}
+    for f in (tmp_path / "out12").glob("*.md"):
+        assert "⚠" not in f.read_text(), f.name
+    for f in (tmp_path / "out12").glob("*.tex"):
+        assert r"\dagger" not in f.read_text(), f.name
+    index = json.loads((tmp_path / "out12" / "analysis.json").read_text())
+    assert index["small_sample"]["flagged"] == {}
+    assert all("small_sample" not in t for t in index["tables"].values())
+    buf = io.StringIO()
+    print_study(many, tmp_path / "out12", console=Console(file=buf, width=200))
+    assert "⚠" not in buf.getvalue()

@@ -4,6 +4,11 @@ Markdown and LaTeX show numbers with 4 significant digits (integers as integers,
 coefficients alike), a missing value as an em dash, and keep the direction arrows of headers
 (LaTeX: ``$\\uparrow$``). Written here rather than through pandas' ``to_markdown`` so the
 output needs no optional dependency and is identical everywhere.
+
+``marks`` (a boolean frame shaped like the table, from
+`visphy_core.analysis.small_sample.marks`) puts a warning beside the marked numbers: ``⚠`` in
+Markdown, ``$^{\\dagger}$`` in LaTeX, with a legend under the table (LaTeX: in the caption).
+The CSV keeps the plain numbers.
 """
 
 from __future__ import annotations
@@ -44,8 +49,19 @@ def fmt(value) -> str:
     return str(value)
 
 
-def to_markdown(df: pd.DataFrame) -> str:
-    """A GitHub-flavoured Markdown table (numbers right-aligned)."""
+def _marked(marks: pd.DataFrame | None, df: pd.DataFrame):
+    """Per row, per column: whether the cell carries the small-sample warning."""
+    if marks is None:
+        return [[False] * len(df.columns) for _ in range(len(df))]
+    m = marks.reindex(index=df.index, columns=df.columns, fill_value=False)
+    return m.fillna(False).astype(bool).to_numpy().tolist()
+
+
+def to_markdown(df: pd.DataFrame, marks: pd.DataFrame | None = None) -> str:
+    """A GitHub-flavoured Markdown table (numbers right-aligned); cells ``marks`` flags get the
+    small-sample warning beside them, and the table its legend."""
+    from visphy_core.analysis.small_sample import LEGEND, MARK
+
     def cell(text: str) -> str:
         return text.replace("|", "\\|").replace("\n", " ")
 
@@ -54,8 +70,12 @@ def to_markdown(df: pd.DataFrame) -> str:
                for c in df.columns]
     lines = ["| " + " | ".join(heads) + " |",
              "|" + "|".join("---:" if n else ":---" for n in numeric) + "|"]
-    for row in df.itertuples(index=False):
-        lines.append("| " + " | ".join(cell(fmt(v)) for v in row) + " |")
+    flagged = _marked(marks, df)
+    for row, flags in zip(df.itertuples(index=False), flagged):
+        lines.append("| " + " | ".join(cell(fmt(v)) + (f" {MARK}" if f else "")
+                                       for v, f in zip(row, flags)) + " |")
+    if any(any(f) for f in flagged):
+        lines += ["", LEGEND]
     return "\n".join(lines) + "\n"
 
 
@@ -75,28 +95,39 @@ def latex_escape(text: str) -> str:
     return out
 
 
-def to_latex(df: pd.DataFrame, caption: str | None = None) -> str:
-    """A booktabs ``tabular`` (inside a ``table`` with a caption when one is given)."""
+def to_latex(df: pd.DataFrame, caption: str | None = None,
+             marks: pd.DataFrame | None = None) -> str:
+    """A booktabs ``tabular`` (inside a ``table`` with a caption when one is given); cells
+    ``marks`` flags get a dagger and the caption (or a line under the table) its legend."""
+    from visphy_core.analysis.small_sample import LATEX_LEGEND, LATEX_MARK
+
     numeric = [pd.api.types.is_numeric_dtype(df[c]) and not pd.api.types.is_bool_dtype(df[c])
                for c in df.columns]
     spec = "".join("r" if n else "l" for n in numeric)
     lines = [rf"\begin{{tabular}}{{{spec}}}", r"\toprule",
              " & ".join(latex_escape(str(c)) for c in df.columns) + r" \\", r"\midrule"]
-    for row in df.itertuples(index=False):
-        lines.append(" & ".join(latex_number(latex_escape(fmt(v))) for v in row) + r" \\")
+    flagged = _marked(marks, df)
+    for row, flags in zip(df.itertuples(index=False), flagged):
+        lines.append(" & ".join(latex_number(latex_escape(fmt(v))) + (LATEX_MARK if f else "")
+                                for v, f in zip(row, flags)) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}"]
+    legend = LATEX_LEGEND if any(any(f) for f in flagged) else ""
     if caption:
-        lines = [r"\begin{table}[t]", r"\centering", *lines,
-                 rf"\caption{{{latex_escape(caption)}}}", r"\end{table}"]
+        text = latex_escape(caption) + (f" ({legend.rstrip('.')})" if legend else "")
+        lines = [r"\begin{table}[t]", r"\centering", *lines, rf"\caption{{{text}}}",
+                 r"\end{table}"]
+    elif legend:
+        lines.append(rf"\par{{\footnotesize {legend}}}")
     return "\n".join(lines) + "\n"
 
 
 def write_table(df: pd.DataFrame, out_dir: Path, name: str,
-                caption: str | None = None) -> list[Path]:
-    """``<name>.csv``, ``<name>.md`` and ``<name>.tex`` under ``out_dir``."""
+                caption: str | None = None, marks: pd.DataFrame | None = None) -> list[Path]:
+    """``<name>.csv``, ``<name>.md`` and ``<name>.tex`` under ``out_dir`` (``marks``: the
+    small-sample warnings of the Markdown and LaTeX versions)."""
     base = out_dir / safe_name(name)
     csv, md, tex = (base.with_name(base.name + ext) for ext in (".csv", ".md", ".tex"))
     df.to_csv(csv, index=False)
-    md.write_text(to_markdown(df))
-    tex.write_text(to_latex(df, caption))
+    md.write_text(to_markdown(df, marks))
+    tex.write_text(to_latex(df, caption, marks))
     return [csv, md, tex]

@@ -6,6 +6,10 @@ ablation its success table, …). ``study=None`` produces everything the data su
 is written as ``<name>.csv``, ``.md`` and ``.tex``, each figure as ``.png`` and ``.svg``; the
 folder also gets ``analysis.md`` (every table in one document, figures linked) and
 ``analysis.json`` (an index: runs, tables, figures, notes).
+
+Numbers computed over fewer than `small_sample.MIN_SCENES` common scenes (Spearman ρ, bootstrap
+intervals, judge agreement) carry a warning in the Markdown and LaTeX tables and a
+``small_sample`` flag in ``analysis.json`` (`visphy_core.analysis.small_sample`).
 """
 
 from __future__ import annotations
@@ -16,7 +20,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from visphy_core.analysis import breakdown, correlation, figures, leaderboard, params, retry
+from visphy_core.analysis import (breakdown, correlation, figures, leaderboard, params, retry,
+                                  small_sample)
 from visphy_core.analysis.bootstrap import RESAMPLES, SEED, bootstrap_table
 from visphy_core.analysis.columns import (MODEL_SUCCESS, VIEWS, has_values, pick_columns,
                                           score_columns, unavailable_reason)
@@ -67,6 +72,9 @@ class StudyOutputs:
     figures: dict[str, list[Path]] = field(default_factory=dict)
     files: list[Path] = field(default_factory=list)
     markdown: str = ""
+    #: per table with numbers over fewer than `small_sample.MIN_SCENES` common scenes, the
+    #: boolean mask of those cells
+    marks: dict[str, pd.DataFrame] = field(default_factory=dict)
 
 
 def _applicable(runs: list[RunData], columns: list[str]) -> tuple[str, ...]:
@@ -181,9 +189,15 @@ def analyse(runs: list[RunData], out_dir: Path, study: str | None = None,
     if "retry" in parts:
         tables["retry"] = retry.retry_table(runs, labels)
 
-    outputs = StudyOutputs(tables=tables)
+    marks = small_sample.marks(tables)
+    if marks:
+        notes.append(f"{small_sample.MARK} marks a number computed over fewer than "
+                     f"{small_sample.MIN_SCENES} common scenes (tables: {', '.join(marks)}): "
+                     "too few to rely on; its n is given beside it.")
+    outputs = StudyOutputs(tables=tables, marks=marks)
     for name, table in tables.items():
-        outputs.files += write_table(table, out_dir, name, caption=_title(name))
+        outputs.files += write_table(table, out_dir, name, caption=_title(name),
+                                     marks=marks.get(name))
     if "boxplots" in parts:
         for col in columns:
             paths = figures.boxplot(runs, labels, col, out_dir, view)
@@ -198,15 +212,20 @@ def analyse(runs: list[RunData], out_dir: Path, study: str | None = None,
             outputs.files += write_table(radar, out_dir, "radar", caption=_title("radar"))
     for paths in outputs.figures.values():
         outputs.files += paths
-    outputs.markdown = _markdown(study, view, tables, outputs.figures, notes, out_dir)
+    outputs.markdown = _markdown(study, view, tables, outputs.figures, notes, out_dir, marks)
     md_path, index_path = out_dir / "analysis.md", out_dir / "analysis.json"
     md_path.write_text(outputs.markdown)
     index = {"study": study, "view": view, "metrics": columns, "parts": list(parts),
              "runs": [{"label": label, "run_dir": str(r.run_dir)}
                       for r, label in zip(runs, labels)],
              "tables": {name: {"title": _title(name), "rows": int(len(t)),
-                               "files": [f"{name}.{e}" for e in ("csv", "md", "tex")]}
+                               "files": [f"{name}.{e}" for e in ("csv", "md", "tex")],
+                               **({"small_sample": small_sample.flags(t, marks[name], name)}
+                                  if name in marks else {})}
                         for name, t in tables.items()},
+             "small_sample": {"min_scenes": small_sample.MIN_SCENES,
+                              "flagged": {name: int(m.to_numpy().any(axis=1).sum())
+                                          for name, m in marks.items()}},
              "figures": {name: [p.name for p in paths]
                          for name, paths in outputs.figures.items()},
              "notes": notes}
@@ -228,7 +247,9 @@ def _title(name: str) -> str:
 
 
 def _markdown(study: str | None, view: str, tables: dict[str, pd.DataFrame],
-              figs: dict[str, list[Path]], notes: list[str], out_dir: Path) -> str:
+              figs: dict[str, list[Path]], notes: list[str], out_dir: Path,
+              marks: dict[str, pd.DataFrame] | None = None) -> str:
+    marks = marks or {}
     parts = [f"# Analysis: {study or 'all applicable tables'}", ""]
     parts += [f"- {n}" for n in notes] + [""]
     for name, table in tables.items():
@@ -237,7 +258,7 @@ def _markdown(study: str | None, view: str, tables: dict[str, pd.DataFrame],
             parts += ["(transposed here: one row per column, one column per run)", "",
                       to_markdown(_transposed(table))]
         else:
-            parts.append(to_markdown(table))
+            parts.append(to_markdown(table, marks.get(name)))
     if figs:
         parts += ["## Figures", ""]
         for name, paths in figs.items():
