@@ -289,3 +289,27 @@ def test_a_binary_dotenv_is_one_line_naming_the_file(tmp_path):
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
     assert lines == [f"error: {home / '.env'}: the .env file is not UTF-8 text (binary or "
                      "another encoding); it should hold lines NAME=value"]
+
+
+def test_a_linked_file_in_a_generated_dataset_is_that_scene_data_error(tmp_path, mini_root,
+                                                                        secret_file):
+    import shutil
+
+    from visphy_plugins.datasets.visphybench.loader import load_generated
+
+    root = tmp_path / mini_root.name
+    shutil.copytree(mini_root, root)
+    scenes = load_generated(root, split="mini", strict=False)
+    bad = scenes[1].scene_id
+    spec = root / "specs" / f"{bad}.json"
+    spec.unlink()
+    spec.symlink_to(secret_file)
+    scenes = {s.scene_id: s for s in load_generated(root, split="mini", strict=False)}
+    assert scenes[bad].load_error.startswith(f"refused to read {spec}: it is a symbolic link")
+    assert all(s.load_error is None for sid, s in scenes.items() if sid != bad)
+    with pytest.raises(files.ForeignFileError):
+        load_generated(root, split="mini", strict=True)
+    (root / "metadata.jsonl").rename(root / "meta.real")
+    (root / "metadata.jsonl").symlink_to(root / "meta.real")
+    with pytest.raises(files.ForeignFileError, match="metadata.jsonl"):
+        load_generated(root, split="mini", strict=False)

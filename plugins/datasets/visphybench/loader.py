@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from visphy_core import files
 from visphy_core.scene import Scene
 from visphy_core.video import ClipInfo
 
@@ -27,6 +28,12 @@ def load_generated(root: Path, split: str | None = None,
     root = Path(root)
     req = _require if strict else (lambda path: path)
     meta_path = _require(root / "metadata.jsonl")
+    # a dataset folder may come from elsewhere: links, special and oversized files are refused
+    refused = files.scan_tree(root)
+    for name in ("metadata.jsonl", "videos", "detection_json", "specs", "trajectories",
+                 "keyframes"):
+        if name in refused:
+            raise files.ForeignFileError(f"refused to read {root / name}: it is {refused[name]}")
     scenes = []
     for lineno, line in enumerate(meta_path.read_text().splitlines(), 1):
         if not line.strip():
@@ -48,6 +55,14 @@ def load_generated(root: Path, split: str | None = None,
             spec_path=root / "specs" / f"{sid}.json",
             trajectory_path=root / "trajectories" / f"{sid}.npz")
         load_error = None
+        bad = [f"refused to read {p}: it is {refused[str(p.relative_to(root))]}"
+               for p in (*paths.values(), *(root / "keyframes" / f"{sid}_frame_{k:02d}.png"
+                                            for k in (1, 10)))
+               if str(p.relative_to(root)) in refused]
+        if bad:
+            if strict:
+                raise files.ForeignFileError(bad[0])
+            load_error = bad[0]
         try:
             clip = ClipInfo(fps=float(meta["fps"]), n_frames=int(meta["n_frames"]),
                             width=int(meta["width"]), height=int(meta["height"]))
@@ -56,7 +71,7 @@ def load_generated(root: Path, split: str | None = None,
             if strict:
                 raise ValueError(f"{meta_path} line {lineno}: bad or missing field "
                                  f"{exc}") from None
-            load_error = f"{meta_path} line {lineno}: bad or missing field {exc}"
+            load_error = load_error or f"{meta_path} line {lineno}: bad or missing field {exc}"
             clip, dim = ClipInfo(fps=0.0, n_frames=0, width=0, height=0), "2d"
         scenes.append(Scene(
             scene_id=sid, dim=dim, clip=clip,
