@@ -82,7 +82,7 @@ def test_default_config_values():
     assert cfg.dataset.name == "mini"
     names = list(cfg.metrics.names)  # the offline suite (conf/metrics/default.yaml)
     assert names[:2] == ["psnr", "ssim"] and {"st_lpips", "flow_epe_dis", "track_pos_err",
-                                               "param_gravity_err", "bertscore"} <= set(names)
+                                               "param_gravity_err", "bertscore_minilm"} <= set(names)
     assert cfg.metrics.spec_track is True and cfg.metrics.weights_dir is None
     assert list(cfg.prompt.frames) == [1, 10] and cfg.prompt.timed is False
 
