@@ -237,6 +237,35 @@ def test_bodies_matched_by_colour_and_floor_synonyms():
     assert values["param_speed_err"] == 0.0 and values["param_mass_ratio_err"] == 0.0
 
 
+def test_bodies_matched_by_a_paler_or_tinted_colour_but_not_another_hue():
+    """S bodies renamed and drawn in the colours models write (the red ball paler and
+    orange-pink (247, 151, 142), the green box 50% paler) still match by colour; a body whose
+    colour is another hue (magenta for the red ball) does not, whatever its position."""
+    gt = gt_3d()
+    s = copy.deepcopy(gt)
+    s["bodies"][0]["id"], s["bodies"][1]["id"] = "ball", "cube"
+    s["bodies"][0]["color_rgb"] = [247, 151, 142]
+    s["bodies"][1]["color_rgb"] = [181, 231, 221]
+    _, rec = run_metrics(gt, spec=s)
+    assert rec["_meta"]["spec_body_match"] == {"red_ball": "ball", "green_box": "cube",
+                                               "black_ramp": "black_ramp"}
+    s["bodies"][0]["color_rgb"] = [255, 0, 255]
+    _, rec = run_metrics(gt, spec=s)
+    assert rec["_meta"]["spec_body_match"] == {"green_box": "cube", "black_ramp": "black_ramp"}
+
+
+def test_two_bodies_of_one_colour_are_told_apart_by_position():
+    gt = gt_3d()
+    gt["bodies"][1]["color_rgb"] = list(gt["bodies"][0]["color_rgb"])  # two red bodies...
+    gt["bodies"][1]["category"] = gt["bodies"][0]["category"]  # ...of one category
+    s = copy.deepcopy(gt)
+    s["bodies"][0]["id"], s["bodies"][1]["id"] = "b", "a"
+    s["bodies"] = [s["bodies"][1], s["bodies"][0], s["bodies"][2]]  # listed the other way
+    _, rec = run_metrics(gt, spec=s)
+    assert rec["_meta"]["spec_body_match"] == {"red_ball": "b", "green_box": "a",
+                                               "black_ramp": "black_ramp"}
+
+
 def test_spec_without_contacts_uses_the_gt_engine_mixing_rule():
     gt = gt_2d()  # Box2D: friction sqrt(a b), restitution max(a, b)
     s = copy.deepcopy(gt)

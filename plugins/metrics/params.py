@@ -14,11 +14,11 @@ Five scene metrics (family ``physics``, lower is better, ``needs`` spec and prog
 =========================  ==================================================================
 
 What is scored: the ground truth's ``ground_truth.identifiable`` (written by the generator,
-`visphy_plugins.datasets.visphybench.identifiable`): ``gravity`` (bool), ``initial_velocity`` (body ids), ``restitution``,
-``friction`` and ``mass_ratio`` (id pairs). A parameter the clip does not reveal is NaN (recorded
-as None, status ``not_revealed``); a revealed one for which the model's reply gives no usable
-value is NaN too (status ``not_determinable``); a pair parameter is the mean over the items the
-model determines (the breakdown counts how many).
+`visphy_plugins.datasets.visphybench.identifiable`): ``gravity`` (bool), ``initial_velocity``
+(body ids), ``restitution``, ``friction`` and ``mass_ratio`` (id pairs). A parameter the clip
+does not reveal is NaN (recorded as None, status ``not_revealed``); a revealed one for which the
+model's reply gives no usable value is NaN too (status ``not_determinable``); a pair parameter
+is the mean over the items the model determines (the breakdown counts how many).
 
 Ground-truth values: ‖world.gravity_m_s2‖; a pair's effective coefficient is the explicit
 ``contacts.pairs`` entry, else ``contacts.default`` (both simulators apply exactly that: Box2D's
@@ -29,8 +29,9 @@ density × area (2D: density_kg_m2 × area_px / px_per_m²; 3D: density_kg_m3 ×
 The model's values come from its scene specification S when S states them, else from a static
 analysis of its program (`plugins/metrics/program_params.py`):
 
-* bodies are matched to the ground truth by id, then by colour (nearest ``color_rgb`` within
-  60, same category and nearest initial position breaking ties); the floor / walls are
+* bodies are matched to the ground truth by id, then by one min-cost assignment over the
+  object tracks' tint-tolerant colour cost (a paler, tinted or shaded ``color_rgb`` matches,
+  another hue does not), the category and the initial position; the floor / walls are
   ``floor`` (3D) and ``wall_bottom|left|right|top`` (2D), also recognised as ``ground``,
   ``plane``, ``bottom_wall``…; program bodies are matched by name (variable, id/name/label
   string, Blender ``obj.name``) against the ids' words (colour + shape, with synonyms);
@@ -79,16 +80,22 @@ import math
 from pathlib import Path
 from typing import Any, Iterable
 
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
 from visphy_core.hookspecs import hookimpl
 from visphy_core.metrics import LOWER, SCENE, Metric, MetricInput
 
+from visphy_plugins.metrics.association import COLOUR_GATE, colour_cost, colour_features
 from visphy_plugins.metrics.program_params import analyse_program, match_name, name_tokens
 
 PARAMS = ("gravity", "restitution", "friction", "mass_ratio", "speed")
 UNITS = {"gravity": "m/s^2", "restitution": "1", "friction": "1", "mass_ratio": "nats",
          "speed": "m/s"}
 EXTRA_KEY = "param_recovery"
-COLOR_TOL = 60.0
+CATEGORY_COST = 0.5            # S body matching: categories differ
+POSITION_SCALE = (64.0, 0.5)   # S body matching: px (2D), m (3D)...
+POSITION_CAP = 1.5             # ...capped: a body placed elsewhere is still found by colour
 MAX_COEF, MAX_G, MAX_SPEED, MAX_MASS = 1e3, 1e4, 1e4, 1e12
 
 #: MISSION §6 item 6: the paper's ground-truth means and GPT-5's mean absolute errors.
@@ -318,8 +325,12 @@ def _position(body: Any, dim: str) -> tuple[float, ...] | None:
 
 
 def match_spec_bodies(gt: dict, spec: Any, dim: str) -> dict[str, dict]:
-    """Ground-truth id -> the S body it corresponds to: same id first, then nearest colour
-    (within `COLOR_TOL`; same category, then nearest initial position, break ties)."""
+    """Ground-truth id -> the S body it corresponds to: same id first; the others by one
+    min-cost assignment over the tint-tolerant colour cost of the object tracks
+    (`plugins/metrics/association.py`: a paler, tinted or shaded version of the colour is close,
+    another hue is not; pairs beyond `COLOUR_GATE` never match), plus `CATEGORY_COST` when the
+    categories differ and the distance of the initial positions over `POSITION_SCALE` (capped
+    at `POSITION_CAP`)."""
     if not isinstance(spec, dict) or not isinstance(spec.get("bodies"), list):
         return {}
     model = [b for b in spec["bodies"][:256] if isinstance(b, dict)]
@@ -332,31 +343,29 @@ def match_spec_bodies(gt: dict, spec: Any, dim: str) -> dict[str, dict]:
                 out[gid] = b
                 used.add(i)
                 break
-    cands = []
-    for gid, gb in gt_bodies.items():
-        if gid in out:
-            continue
-        gc, gp = _color(gb.get("color_rgb")), _position(gb, dim)
-        if gc is None:
-            continue
-        for i, b in enumerate(model):
-            if i in used:
-                continue
-            mc = _color(b.get("color_rgb"))
-            if mc is None:
-                continue
-            dist = math.dist(gc, mc)
-            if dist > COLOR_TOL:
-                continue
-            mp = _position(b, dim)
-            pd = math.dist(gp, mp) if gp is not None and mp is not None and len(gp) == len(
-                mp) else float("inf")
-            cands.append((dist, gb.get("category") != b.get("category"), pd, gid, i))
-    for dist, _cat, _pd, gid, i in sorted(cands, key=lambda c: c[:3]):
-        if gid in out or i in used:
-            continue
-        out[gid] = model[i]
-        used.add(i)
+    rows = [(gid, _color(gb.get("color_rgb"))) for gid, gb in gt_bodies.items() if gid not in out]
+    rows = [(gid, c) for gid, c in rows if c is not None]
+    cols = [(i, _color(b.get("color_rgb"))) for i, b in enumerate(model) if i not in used]
+    cols = [(i, c) for i, c in cols if c is not None]
+    if not rows or not cols:
+        return out
+    colour = colour_cost(colour_features(np.clip([c for _, c in rows], 0, 255)),
+                         colour_features(np.clip([c for _, c in cols], 0, 255)))
+    cost = np.where(colour <= COLOUR_GATE, colour ** 2, np.inf)
+    scale = POSITION_SCALE[dim == "3d"]
+    for r, (gid, _) in enumerate(rows):
+        gb = gt_bodies[gid]
+        gp = _position(gb, dim)
+        for c, (i, _) in enumerate(cols):
+            mp = _position(model[i], dim)
+            if gb.get("category") != model[i].get("category"):
+                cost[r, c] += CATEGORY_COST
+            if gp is not None and mp is not None and len(gp) == len(mp):
+                cost[r, c] += min(math.dist(gp, mp) / scale, POSITION_CAP) ** 2
+    finite = np.where(np.isfinite(cost), cost, 1e9)
+    for r, c in zip(*linear_sum_assignment(finite)):
+        if np.isfinite(cost[r, c]):
+            out[rows[r][0]] = model[cols[c][0]]
     return out
 
 
@@ -661,7 +670,7 @@ class ParamError(Metric):
     kind = SCENE
     needs = ("spec", "program")
     weights = None
-    version = "1"
+    version = "2"  # tint-tolerant matching of S bodies by colour
 
     details_key = "param_recovery"
 
