@@ -78,6 +78,9 @@ def test_every_point_of_the_sweep_composes_and_passes_the_checks(name):
         assert engines == {"threejs", "p5"} and "oracle" in models and len(points) >= 4
     elif name == "cross_engine":
         assert engines == {"threejs", "p5", "svg", "manim", "blender"} and len(models) == 1
+        # the exact and the native oracle on every engine (tests/test_native_reference.py)
+        assert {(c["engine"]["name"], c["model"]["style"]) for c in configs} == \
+            {(e, s) for e in engines for s in ("exact", "native")}
     elif name == "judge_replacement":
         assert all(set(c["judge"]) == {"gemini", "gpt_frames", "qwen_vl", "claude_frames"}
                    for c in configs)
@@ -124,10 +127,12 @@ def _study_dir(home: Path, name: str) -> Path:
 
 @pytest.fixture(scope="module")
 def cross_engine(home):
-    """The cross-engine study, the oracle on two browser engines (a command-line sweep replaces
-    the file's five), three mini scenes, cheap metrics, no tracking."""
-    proc = run_cli("-m", "experiment=cross_engine", "engine=p5,svg", "dataset=mini",
-                   "dataset.limit=3", "tracking=none", "run.progress=false", home=home)
+    """The cross-engine study, the exact oracle on two browser engines (a command-line sweep
+    replaces the file's two oracles and five engines), three mini scenes, cheap metrics, no
+    tracking."""
+    proc = run_cli("-m", "experiment=cross_engine", "model=oracle", "engine=p5,svg",
+                   "dataset=mini", "dataset.limit=3", "tracking=none", "run.progress=false",
+                   home=home)
     return proc, _study_dir(home, "cross_engine")
 
 

@@ -173,6 +173,13 @@ class Engine(ABC):
     def program_from_spec(self, scene: Scene) -> Program:
         """A trusted reference program for a ground-truth scene (oracle, fallback, conformance)."""
 
+    def native_program_from_spec(self, scene: Scene) -> Program:
+        """Optional: a trusted reference program that draws the same ground truth with the
+        engine's own primitives and default anti-aliasing, as a correct model program would
+        (the oracle's ``model.style=native``: the engine's intrinsic ceiling). Raises
+        ``NotImplementedError`` where the engine has none (the default)."""
+        raise NotImplementedError(f"the {self.name} engine has no native reference program")
+
     def close(self) -> None:
         """Release pooled resources (browsers, child processes)."""
 

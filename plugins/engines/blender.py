@@ -74,6 +74,7 @@ from visphy_core.settings import cfg_get
 HERE = Path(__file__).resolve().parent
 RUNNER = HERE / "blender_runner.py"
 TEMPLATE = HERE / "templates" / "blender_replay.py.tmpl"
+NATIVE_TEMPLATE_2D = HERE / "templates" / "blender_native_2d.py.tmpl"
 SETUP_HINT = "Blender venv missing: run scripts/setup_blender.sh"
 RENDER_ENGINES = ("workbench", "cycles", "eevee")
 SCRIPT_NAME = "program.py"
@@ -235,6 +236,19 @@ class BlenderEngine(Engine):
         source = TEMPLATE.read_text().replace(
             "__SCENE_JSON__", repr(json.dumps(payload, separators=(",", ":"))))
         return Program(language=self.language, source=source, spec=spec)
+
+    def native_program_from_spec(self, scene: Scene) -> Program:
+        """2D: flat meshes (a 64-vertex disc on the true radius, rectangles, n-gons) with a
+        Principled-BSDF material, under Workbench's default anti-aliasing
+        (`visphy_plugins.engines.native`). 3D: the exact reference program, which already draws
+        meshes with Blender's renderer (anti-aliased as the ground truth is)."""
+        if scene.dim == "3d":
+            return self.program_from_spec(scene)
+        from visphy_plugins.engines.native import native_payload
+
+        source = NATIVE_TEMPLATE_2D.read_text().replace(
+            "__SCENE_JSON__", repr(json.dumps(native_payload(scene), separators=(",", ":"))))
+        return Program(language=self.language, source=source, spec=scene.spec)
 
     def cache_identity(self) -> str:
         parts = [f"{self.name}@{self.version}", _engine_name(self.cfg)]

@@ -310,6 +310,20 @@ class ManimEngine(Engine):
                                 repr(json.dumps(payload, separators=(",", ":"))))
         return Program(language=self.language, source=source, spec=spec)
 
+    def native_program_from_spec(self, scene: Scene) -> Program:
+        """The same replay drawn as Manim mobjects (Circle, Rectangle, Polygon) by Cairo, with
+        its anti-aliasing (`visphy_plugins.engines.native`); 2D only."""
+        if scene.dim == "3d":
+            raise NotImplementedError(
+                f"{scene.scene_id}: the manim engine has no reference program for 3D scenes; "
+                "use the threejs engine for 3D oracles")
+        from visphy_plugins.engines.native import native_payload
+
+        source = (TEMPLATES / "manim_native_2d.py.tmpl").read_text()
+        source = source.replace("__SCENE_JSON__", repr(json.dumps(native_payload(scene),
+                                                                  separators=(",", ":"))))
+        return Program(language=self.language, source=source, spec=scene.spec)
+
 
 # ------------------------------------------------------------------------------ helpers
 _read_untrusted = read_untrusted

@@ -15,6 +15,7 @@ from visphy_core.engine import Program
 from visphy_core.hookspecs import hookimpl
 from visphy_core.scene import Scene
 from visphy_plugins.engines.browser_base import BrowserEngine, fill_template, replay_payload_2d
+from visphy_plugins.engines.native import native_payload
 
 INSTRUCTIONS_2D = """
 Write a single self-contained HTML file that uses p5.js (version 1.11, global `p5`) to draw and
@@ -84,6 +85,14 @@ class P5Engine(BrowserEngine):
     def program_from_spec(self, scene: Scene) -> Program:
         payload = replay_payload_2d(scene, self.name)
         return Program(language=self.language, source=fill_template("p5_replay_2d.html", payload),
+                       spec=scene.spec)
+
+    def native_program_from_spec(self, scene: Scene) -> Program:
+        """The same replay drawn with p5's circle()/rect()/beginShape() and its default
+        smoothing (`visphy_plugins.engines.native`); 2D only."""
+        replay_payload_2d(scene, self.name)  # NotImplementedError for a 3D scene
+        return Program(language=self.language,
+                       source=fill_template("p5_native_2d.html", native_payload(scene)),
                        spec=scene.spec)
 
 

@@ -14,6 +14,7 @@ from visphy_core.engine import FailureClass, Program, ProgramRejected
 from visphy_core.hookspecs import hookimpl
 from visphy_core.scene import Scene
 from visphy_plugins.engines.browser_base import BrowserEngine, fill_template, replay_payload_2d
+from visphy_plugins.engines.native import native_payload
 
 INSTRUCTIONS_2D = """
 Write a single self-contained HTML file whose body holds one inline `<svg>` element the size of
@@ -66,6 +67,14 @@ class SvgEngine(BrowserEngine):
     def program_from_spec(self, scene: Scene) -> Program:
         payload = replay_payload_2d(scene, self.name)
         return Program(language=self.language, source=fill_template("svg_replay_2d.html", payload),
+                       spec=scene.spec)
+
+    def native_program_from_spec(self, scene: Scene) -> Program:
+        """The same replay as <circle>/<rect>/<polygon> elements with the browser's default
+        (anti-aliased) shape rendering (`visphy_plugins.engines.native`); 2D only."""
+        replay_payload_2d(scene, self.name)  # NotImplementedError for a 3D scene
+        return Program(language=self.language,
+                       source=fill_template("svg_native_2d.html", native_payload(scene)),
                        spec=scene.spec)
 
 

@@ -10,6 +10,7 @@ from visphy_core.hookspecs import hookimpl
 from visphy_core.replay import fill, replay_payload
 from visphy_core.scene import Scene
 from visphy_plugins.engines.browser_base import BrowserEngine
+from visphy_plugins.engines.native import native_payload
 
 TEMPLATES = Path(__file__).with_name("templates")
 
@@ -52,6 +53,15 @@ class ThreeJsEngine(BrowserEngine):
             return Program(language=self.language, source=html, spec=spec)
         html = fill((TEMPLATES / "threejs_replay_2d.html").read_text(), replay_payload(scene))
         return Program(language=self.language, source=html, spec=spec)
+
+    def native_program_from_spec(self, scene: Scene) -> Program:
+        """2D: meshes (CircleGeometry, PlaneGeometry, ShapeGeometry) under an anti-aliased
+        renderer (`visphy_plugins.engines.native`). 3D: the exact reference program, which
+        already draws three.js meshes with the ground truth's own renderer and multisampling."""
+        if scene.dim == "3d":
+            return self.program_from_spec(scene)
+        html = fill((TEMPLATES / "threejs_native_2d.html").read_text(), native_payload(scene))
+        return Program(language=self.language, source=html, spec=scene.spec)
 
 
 @hookimpl
