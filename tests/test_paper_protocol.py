@@ -372,3 +372,18 @@ def test_a_replayed_video_at_a_foreign_rate_is_paired_by_index_in_a_run(tmp_path
     assert info.fps != 35.0
     assert row["score_paper.psnr"] > 35 and row["score_paper.align.offset"] == 0
     assert row["score_psnr"] < row["score_paper.psnr"] - 5
+
+
+def test_paper_costs_do_not_depend_on_the_blas_thread_count():
+    """A Ray or joblib job runs with one BLAS thread: the same clips must give the same bits
+    (BLAS splits long dot products across threads; the costs use numpy's own sums)."""
+    from threadpoolctl import threadpool_limits
+
+    rng = np.random.default_rng(3)
+    a = rng.random((3, 512, 512)) * 0.5
+    b = a + rng.normal(0, 0.01, a.shape)
+    ref = (rng.random((40, 64, 64, 3)) * 255).astype(np.uint8)
+    with threadpool_limits(limits=1):
+        one = (pp.stack_cost(a, b), pp.psnr(ref[0], ref[1]), pp.coarse_vectors(ref, 64))
+    many = (pp.stack_cost(a, b), pp.psnr(ref[0], ref[1]), pp.coarse_vectors(ref, 64))
+    assert one[0] == many[0] and one[1] == many[1] and np.array_equal(one[2], many[2])

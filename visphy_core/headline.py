@@ -65,6 +65,13 @@ class Headline:
         return cls(name=str(node.get("name") or DEFAULT_NAME), components=components,
                    clip=(clip[0], clip[1]))
 
+    @classmethod
+    def for_run(cls, cfg: Any, metrics: Iterable[Metric]) -> "Headline | None":
+        """`from_cfg`, or None when none of its components is among the run's ``metrics``
+        (``metrics.names=[psnr]``: no headline column, ``summary.json`` says why)."""
+        headline = cls.from_cfg(cfg)
+        return headline if headline is not None and headline.metrics_of(metrics) else None
+
     def metrics_of(self, metrics: Iterable[Metric]) -> list[Metric]:
         """The run's metrics that are components (in the components' order)."""
         by_name = {m.name: m for m in metrics}

@@ -267,7 +267,7 @@ def _write_merged(out: Path, cfg: DictConfig, shards: list[Shard],
     cache = Cache(Path(str(cfg.paths.cache_dir)), enabled=False)
     summary = summarise(results, metrics, cache, judges=judges, ledger=ledger,
                         protocol=ScoringProtocol.from_cfg(cfg.metrics),
-                        headline=Headline.from_cfg(cfg.metrics))
+                        headline=Headline.for_run(cfg.metrics, metrics))
     summary.update({
         "status": FINISHED, "run_dir": str(out), "model": cfg.model.name,
         "engine": cfg.engine.name, "dataset": cfg.dataset.name,

@@ -109,7 +109,7 @@ def coarse_vectors(frames: np.ndarray, size: int) -> np.ndarray:
         v = cv2.resize(_gray(f), (size, size), interpolation=cv2.INTER_AREA)
         v = v.reshape(-1).astype(np.float64)
         v -= v.mean()
-        out[k] = v / (np.linalg.norm(v) + 1e-8)
+        out[k] = v / (_norm(v) + 1e-8)
     return out
 
 
@@ -161,6 +161,13 @@ def stack(gray: list[np.ndarray], start: int, window: int) -> np.ndarray:
     return np.stack(part).astype(np.float64) / 255.0
 
 
+def _norm(v: np.ndarray) -> float:
+    """The L2 norm by numpy's own pairwise sum, never BLAS: BLAS splits long dot products
+    across its threads, so the last bits would depend on the thread count (a Ray or joblib
+    worker runs with one thread) and the same clips would not give the same scores."""
+    return float(np.sqrt(np.sum(v * v)))
+
+
 def stack_cost(a: np.ndarray, b: np.ndarray) -> float:
     """Upstream ``evaluate_pair._stack_similarity``: MSE + 0.5·MAE + 0.1·(1 − cosine) of two
     stacks as they are (no centring, no scaling); cosine 0 when the norm product is ≤ 1e-8."""
@@ -168,8 +175,9 @@ def stack_cost(a: np.ndarray, b: np.ndarray) -> float:
     mse = float(np.mean(d * d))
     mae = float(np.mean(np.abs(d)))
     fa, fb = a.reshape(-1), b.reshape(-1)
-    denom = float(np.linalg.norm(fa) * np.linalg.norm(fb))
-    cos = float(np.clip(np.dot(fa, fb) / denom, -1.0, 1.0)) if denom > 1e-8 else 0.0
+    # ‖a‖·‖b‖ as √(Σa²·Σb²): exactly Σa² for identical stacks, so their cosine is exactly 1
+    denom = math.sqrt(float(np.sum(fa * fa)) * float(np.sum(fb * fb)))
+    cos = float(np.clip(float(np.sum(fa * fb)) / denom, -1.0, 1.0)) if denom > 1e-8 else 0.0
     return mse + 0.5 * mae + 0.1 * (1.0 - cos)
 
 
@@ -286,7 +294,7 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
     d = a.astype(np.float64) - b.astype(np.float64)
     if d.size == 0:
         return 0.0
-    mse = float(np.dot(d.reshape(-1), d.reshape(-1))) / d.size
+    mse = float(np.sum(d * d)) / d.size
     if mse <= 1e-10:
         return PSNR_CAP_DB
     return float(10.0 * np.log10(255.0 ** 2 / mse))

@@ -341,10 +341,11 @@ def _rescore_into(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, ch
     before = [r for r in read_results(src / "results.jsonl") if r.scene_id in by_id]
     order = {s.scene_id: i for i, s in enumerate(scenes)}
     before.sort(key=lambda r: order[r.scene_id])
+    metrics = select_metrics(registry, cfg.metrics)
     services = ScoringServices(
-        metrics=select_metrics(registry, cfg.metrics), cache=cache,
+        metrics=metrics, cache=cache,
         protocol=ScoringProtocol.from_cfg(cfg.metrics), clips=None,  # per row: RunDirClips
-        headline=Headline.from_cfg(cfg.metrics),
+        headline=Headline.for_run(cfg.metrics, metrics),
         judges=JudgeCaller(judges, cache, ledger) if judges else None,
         references=ReferenceWriter(cfg.reference, cache, reference_model,
                                    ModelCaller(reference_model, cache, ledger)

@@ -398,7 +398,8 @@ def run_experiment(cfg: DictConfig) -> dict:
     caller = ModelCaller(model, cache, ledger)
     services = SceneServices(
         model=model, caller=caller, engine=engine, metrics=metrics, settings=settings,
-        protocol=ScoringProtocol.from_cfg(cfg.metrics), headline=Headline.from_cfg(cfg.metrics),
+        protocol=ScoringProtocol.from_cfg(cfg.metrics),
+        headline=Headline.for_run(cfg.metrics, metrics),
         cache=cache, judges=JudgeCaller(judges, cache, ledger) if judges else None,
         references=ReferenceWriter(cfg.reference, cache, reference_model,
                                    ModelCaller(reference_model, cache, ledger)

@@ -10,8 +10,10 @@ contract before decoding anything, never follow links, cap file sizes and frame 
 charge the host's reading to the scene's wall-clock deadline.
 
 The end-to-end cases run the render in a child process and read that process' own peak RSS
-(``ru_maxrss`` of RUSAGE_SELF, which excludes the sandboxed renderer), so the host's memory is
-measured, not Blender's.
+(``VmHWM`` of ``/proc/self/status``, which excludes the sandboxed renderer), so the host's
+memory is measured, not Blender's. Not ``ru_maxrss``: Linux carries the parent's peak across
+``fork``/``exec``, so a child of a large pytest worker starts with the worker's peak and any
+growth below it reads as 0.
 """
 
 from __future__ import annotations
@@ -314,7 +316,7 @@ def test_untrusted_videos_decode_within_the_budget(tmp_path):
 #: Runs one render in a fresh interpreter and prints its own peak RSS growth (RUSAGE_SELF:
 #: the sandboxed renderer is a child and is not counted) and the render's wall time.
 CHILD = r'''
-import json, resource, sys, time
+import json, sys, time
 spec = json.loads(sys.argv[1])
 import numpy, PIL.Image, av  # the decoders' own imports belong to the baseline
 from visphy_core.engine import Program, RenderContract
@@ -324,11 +326,16 @@ else:
     from visphy_plugins.engines.manim import ManimEngine as Engine
 engine = Engine(spec["cfg"])
 program = Program("python", open(spec["program"]).read())
-before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+def peak_kb():  # this process' own peak RSS (VmHWM: reset by exec, unlike ru_maxrss)
+    with open("/proc/self/status") as status:
+        return next(int(line.split()[1]) for line in status if line.startswith("VmHWM:"))
+
+
+before = peak_kb()
 start = time.monotonic()
 result = engine.render(program, RenderContract(**spec["contract"]))
 took = time.monotonic() - start
-after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+after = peak_kb()
 print("RESULT " + json.dumps({"failure": result.failure and result.failure.value,
                               "error": result.error, "took": took,
                               "rss_growth_mb": (after - before) / 1024,
@@ -472,12 +479,16 @@ def test_the_child_harness_measures_host_memory(tmp_path):
     path = tmp_path / "bomb.png"
     path.write_bytes(crafted_png(10000, 10000, idat))
     code = textwrap.dedent(f"""
-        import resource, numpy
+        import numpy
         from PIL import Image
-        before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        def peak_kb():
+            with open("/proc/self/status") as status:
+                return next(int(line.split()[1]) for line in status
+                            if line.startswith("VmHWM:"))
+        before = peak_kb()
         with Image.open({str(path)!r}) as im:
             arr = numpy.asarray(im.convert("RGB"))
-        print((resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024)
+        print((peak_kb() - before) / 1024)
     """)
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=120)
