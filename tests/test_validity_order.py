@@ -1,0 +1,311 @@
+"""Validity ordering (issue 21): physics-right clips drawn differently > physics-wrong clips > the
+static and flow_extrapolate baselines (`visphy_plugins.datasets.visphybench.validity_order`; the
+README's table comes from ``benchmarks/validity_study.py --order`` on the test split).
+
+The variants are checked as drawn (repaints touch body pixels only, a removed body is gone, a
+variant that changes nothing is skipped), the ordering on constructed values, and the headline's
+ordering end to end on two hand-made mini scenes (tests/mini_templates.py: one ball dropped at
+rest, one thrown), scored by the headline's components and PSNR only (seconds, not minutes)."""
+
+from __future__ import annotations
+
+import colorsys
+import math
+
+import numpy as np
+import pytest
+
+from mini_templates import mini_specs
+from visphy_core.headline import Headline
+from visphy_core.metrics import HIGHER, LOWER
+from visphy_core.normalisation import twin_spec
+from visphy_plugins.datasets.visphybench import validity_order as vo
+
+RED = (243, 79, 70)
+
+
+@pytest.fixture(scope="module")
+def specs() -> dict[str, dict]:
+    out = {}
+    for spec in mini_specs():
+        out[spec["description"].split()[0] + "_" + str(spec["template_id"])] = spec
+    return out
+
+
+@pytest.fixture(scope="module")
+def jar(specs) -> vo.Truth:
+    """The red ball dropped (at rest) off a bar into a gray jar; a blue ball lies still."""
+    spec = next(s for s in specs.values() if "jar" in s["description"])
+    return vo.Truth.of(spec, vo.Renderer2D())
+
+
+@pytest.fixture(scope="module")
+def thrown(specs) -> vo.Truth:
+    """A thrown red ball knocks a green ball off a gray box."""
+    spec = next(s for s in specs.values() if s["description"].startswith("thrown"))
+    return vo.Truth.of(spec, vo.Renderer2D())
+
+
+def _variant(truth: vo.Truth, name: str) -> np.ndarray:
+    (a,) = [a for a in vo.APPEARANCES if a.name == name and truth.dim in a.dims]
+    return a.make(truth)
+
+
+def _background(truth: vo.Truth) -> np.ndarray:
+    return np.all(truth.frames == np.asarray(truth.spec["render"]["background_rgb"],
+                                             dtype=np.uint8), axis=-1)
+
+
+def _of_colour(frames: np.ndarray, rgb) -> np.ndarray:
+    return np.all(frames == np.asarray(rgb, dtype=np.uint8), axis=-1)
+
+
+# ----------------------------------------------------------------------------- (i) drawing
+def test_pale_and_tint_repaint_every_body_pixel_by_its_colour_and_nothing_else(jar):
+    bg = _background(jar)
+    for name, fn in (("pale", vo.pale_rgb), ("tint+20", lambda c: vo.tint_rgb(c, 20)),
+                     ("tint-20", lambda c: vo.tint_rgb(c, -20))):
+        clip = _variant(jar, name)
+        assert clip.shape == jar.frames.shape
+        assert np.array_equal(clip[bg], jar.frames[bg]), name  # background untouched
+        for rgb in vo.body_colours(jar.spec):                   # each colour → its new colour
+            where = _of_colour(jar.frames, rgb)
+            assert np.all(clip[where] == np.asarray(fn(rgb), dtype=np.uint8)), (name, rgb)
+    assert vo.pale_rgb(RED) == (248, 149, 144)                  # 40 % of the way to white
+    assert vo.pale_rgb((0, 0, 0)) == (102, 102, 102)
+    h0 = colorsys.rgb_to_hsv(*(c / 255 for c in RED))[0]
+    h1 = colorsys.rgb_to_hsv(*(c / 255 for c in vo.tint_rgb(RED, 20)))[0]
+    assert (h1 - h0) % 1.0 == pytest.approx(20 / 360, abs=0.01)
+
+
+def test_the_outline_is_dark_two_pixels_inside_each_body_and_keeps_the_silhouette(jar):
+    import cv2
+
+    clip = _variant(jar, "outline")
+    changed = np.any(clip != jar.frames, axis=-1)
+    assert changed.any() and not (changed & _background(jar)).any()
+    assert np.all(clip[changed] == np.asarray(vo.OUTLINE_RGB, dtype=np.uint8))
+    red = _of_colour(jar.frames[0], RED).astype(np.uint8)
+    inner = cv2.erode(red, np.ones((5, 5), np.uint8)) > 0
+    ring = (red > 0) & ~inner
+    assert np.all(changed[0][ring]) and not changed[0][inner].any()  # a 2-px ring, no more
+    assert np.array_equal(np.any(clip != 255, axis=-1), np.any(jar.frames != 255, axis=-1))
+
+
+def test_antialiasing_mixes_colours_along_edges_only(jar):
+    clip = _variant(jar, "antialias")
+    changed = np.any(clip != jar.frames, axis=-1)
+    assert changed.any()
+    # a pixel whose 5×5 neighbourhood is one colour keeps it (no edge crosses it)
+    f = jar.frames[0].astype(np.int32)
+    code = f[..., 0] * 65536 + f[..., 1] * 256 + f[..., 2]
+    pad = np.pad(code, 2, constant_values=-1)  # an edge may lie on the frame border
+    uniform = np.ones_like(code, dtype=bool)
+    for dy in range(5):
+        for dx in range(5):
+            uniform &= pad[dy:dy + code.shape[0], dx:dx + code.shape[1]] == code
+    assert not changed[0][uniform].any()
+    new = {tuple(c) for c in clip[0][changed[0]]}
+    assert len(new - {tuple(c) for c in f.reshape(-1, 3)}) > 10  # mixed edge colours
+
+
+def test_grow_and_shrink_draw_every_body_ten_percent_larger_or_smaller_at_the_same_place(jar):
+    red0 = _of_colour(jar.frames, RED)
+    for name, k in (("grow", 1 + vo.SIZE), ("shrink", 1 - vo.SIZE)):
+        clip = _variant(jar, name)
+        red = _of_colour(clip, RED)
+        for f in (0, 8, 16):
+            ratio = red[f].sum() / red0[f].sum()
+            if f == 0:  # unoccluded at the start: the area scales by k²
+                assert ratio == pytest.approx(k * k, rel=0.05), (name, ratio)
+            ys, xs = np.nonzero(red0[f])
+            ys2, xs2 = np.nonzero(red[f])
+            if f == 0:  # same centre: the motion is the truth's
+                assert abs(xs.mean() - xs2.mean()) < 0.5 and abs(ys.mean() - ys2.mean()) < 0.5
+    assert vo.scaled_shape({"type": "circle", "radius_px": 10.0}, 1.1)["radius_px"] == 11.0
+    part = vo.scaled_shape({"type": "compound", "parts": [
+        {"shape": {"type": "box", "size_m": [1.0, 2.0, 3.0]}, "offset_m": [0.0, 1.0, 0.0]}]},
+        0.9)["parts"][0]
+    assert part["shape"]["size_m"] == pytest.approx([0.9, 1.8, 2.7])
+    assert part["offset_m"] == pytest.approx([0.0, 0.9, 0.0])
+
+
+# ---------------------------------------------------------------------------- (ii) physics
+def _edit(name: str, truth: vo.Truth):
+    (iv,) = [iv for iv in vo.INTERVENTIONS if iv.name == name]
+    return iv.edit(truth.spec, truth)
+
+
+def test_interventions_change_the_named_parameter(jar, thrown):
+    g = _edit("gravity_x2", jar)[0]["world"]["gravity_m_s2"]
+    assert g[1] == pytest.approx(2 * jar.spec["world"]["gravity_m_s2"][1])
+    up = _edit("restitution+0.3", jar)[0]
+    down = _edit("restitution-0.3", jar)[0]
+    for spec, want in ((up, 0.5), (down, 0.0)):       # PHYRE's 0.2 ± 0.3, clamped at 0
+        values = [m["restitution"] for m in vo._materials(spec)]
+        assert values and all(v == pytest.approx(want) for v in values)
+    high = vo.with_material(jar.spec, "restitution", lambda e: 0.9)
+    lo, hi = vo.RESTITUTION_RANGE
+    clamp = vo.with_material(high, "restitution", lambda e: min(hi, max(lo, e + 0.3)))
+    assert all(m["restitution"] == 0.98 for m in vo._materials(clamp))
+    assert all(m["friction"] == pytest.approx(0.125)
+               for m in vo._materials(_edit("friction_x0.25", jar)[0]))
+    # a ball at rest is kicked; a thrown ball is thrown faster or mirrored, never kicked
+    assert vo.action_body(jar.spec) == "red_ball"
+    kicked, what = _edit("kick", jar)
+    red = next(b for b in kicked["bodies"] if b["id"] == "red_ball")
+    assert abs(red["velocity"]["vx_px_s"]) == vo.KICK_PX_S and "kicked" in what
+    assert _edit("speed_x1.5", jar)[0] is None and _edit("kick", thrown)[0] is None
+    v0 = next(b for b in thrown.spec["bodies"] if b["id"] == "red_ball")["velocity"]
+    fast = next(b for b in _edit("speed_x1.5", thrown)[0]["bodies"] if b["id"] == "red_ball")
+    flip = next(b for b in _edit("mirror", thrown)[0]["bodies"] if b["id"] == "red_ball")
+    assert fast["velocity"]["vx_px_s"] == pytest.approx(1.5 * v0["vx_px_s"])
+    assert fast["velocity"]["vy_px_s"] == pytest.approx(1.5 * v0["vy_px_s"])
+    assert flip["velocity"]["vx_px_s"] == pytest.approx(-v0["vx_px_s"])
+    assert flip["velocity"]["vy_px_s"] == pytest.approx(v0["vy_px_s"])
+
+
+def test_the_removed_body_is_absent_and_a_clip_equal_to_the_truth_is_skipped(thrown):
+    # the thrown ball knocks the green ball off the box: two movers, the second is removed
+    assert vo.removed_body(thrown) == "green_ball"
+    noop = vo.Intervention("noop", lambda spec, truth: (spec, "nothing changed"))
+    skipped: dict[str, str] = {}
+    (gone,) = [c for c in vo.make_clips(thrown, (vo.WRONG,), skipped, interventions=[
+        noop, *[iv for iv in vo.INTERVENTIONS if iv.name == "remove"]])]
+    assert skipped == {"noop": "nothing changed: the clip equals the truth"}
+    green = next(b["color_rgb"] for b in thrown.spec["bodies"] if b["id"] == "green_ball")
+    assert _of_colour(thrown.frames, green).any(axis=(1, 2)).all()
+    assert not _of_colour(gone.frames, green).any()          # absent from every frame
+    assert gone.missing == ["green_ball"] and gone.deviation >= vo.VISIBLE_PX
+
+
+def test_the_baselines_are_the_first_frame_held_and_the_models_own_extrapolation(thrown,
+                                                                                monkeypatch):
+    from visphy_plugins.models import baselines
+
+    still = vo.static_clip(thrown.frames)
+    assert np.array_equal(still, np.repeat(thrown.frames[:1], len(thrown.frames), axis=0))
+    calls = []
+
+    def spy(first, second, a, b, contract):
+        calls.append((first, second, a, b, contract))
+        return "frames", "flow"
+
+    monkeypatch.setattr(baselines, "extrapolate", spy)   # the model's own function
+    assert vo.flow_clip(thrown.frames, 5.0) == "frames"
+    ((first, second, a, b, contract),) = calls
+    assert (a, b) == (1, 10) and np.array_equal(first, thrown.frames[0])
+    assert np.array_equal(second, thrown.frames[9])      # key frames 1 and 10 (1-based)
+    assert (contract.fps, contract.n_frames, contract.width, contract.height) == (5.0, 17, 512,
+                                                                                  512)
+    twin = twin_spec(thrown.spec)
+    assert np.array_equal(vo.twin_clip(thrown), vo.Renderer2D().draw(
+        twin, vo.Renderer2D().simulate(twin)))
+
+
+# ------------------------------------------------------------------------------- ordering
+def test_the_ordering_by_means_and_strictly():
+    assert vo.order_of([0.9, 0.8], [0.5, 0.6], [0.1, 0.2], HIGHER) == (True, True)
+    # means ordered (0.65 > 0.4 > 0.2), but one (ii) clip beats one (i) clip
+    assert vo.order_of([0.9, 0.4], [0.5, 0.3], [0.1, 0.2], HIGHER) == (True, False)
+    # a baseline above the (ii) mean: neither
+    assert vo.order_of([0.9], [0.5, 0.3], [0.45, 0.0], HIGHER) == (False, False)
+    # lower is better: the same comparisons on the negated values
+    assert vo.order_of([1.0, 2.0], [5.0, 6.0], [9.0, 8.0], LOWER) == (True, True)
+    assert vo.order_of([1.0, 2.0], [5.0, 6.0], [9.0, 5.8], LOWER) == (True, False)
+    assert vo.order_of([1.0], [1.0], [0.0, 0.0], HIGHER) == (False, False)   # a tie
+    assert vo.order_of([1.0, None], [0.5], [0.0, 0.1], HIGHER) == (True, True)
+    assert vo.order_of([1.0], [0.5], [0.0, None], HIGHER) is None  # a baseline undefined
+    assert vo.order_of([None], [0.5], [0.0, 0.1], HIGHER) is None
+
+
+class _M:
+    def __init__(self, name, family, direction):
+        self.name, self.family, self.direction = name, family, direction
+        self.score_range = (0.0, 1.0) if direction == HIGHER else (0.0, math.inf)
+
+
+def _scene(sid, values: dict[str, dict[str, float]], headline: dict[str, float]):
+    kinds = {"pale": vo.RIGHT, "grow": vo.RIGHT, "gravity": vo.WRONG, "remove": vo.WRONG,
+             "static": vo.STATIC, "flow_extrapolate": vo.FLOW}
+    clips = [vo.ClipScore(n, k, "", {m: v[n] for m, v in values.items()}, headline[n],
+                          deviation=9.0 if k == vo.WRONG else None)
+             for n, k in kinds.items()]
+    return vo.SceneOrder(sid, "2d", clips, {}, {}, {}, 0.0)
+
+
+def test_the_summary_counts_scenes_pools_families_and_places_the_headline():
+    metrics = [_M("iou", "mask", HIGHER), _M("err", "mask", LOWER), _M("psnr", "pixel", HIGHER)]
+    names = ("pale", "grow", "gravity", "remove", "static", "flow_extrapolate")
+
+    def row(*v):
+        return dict(zip(names, v))
+
+    a = _scene("a", {"iou": row(1, .9, .5, .4, 0, .1), "err": row(0, 1, 5, 6, 9, 8),
+                     "psnr": row(30, 25, 35, 33, 20, 21)},
+               row(1.0, 0.9, 0.5, 0.3, 0.0, 0.05))
+    b = _scene("b", {"iou": row(1, .3, .5, .2, 0, .1), "err": row(0, 1, 5, 6, 9, None),
+                     "psnr": row(30, 29, 28, 27, 26, 25)},
+               row(0.95, 0.85, 0.6, 0.3, 0.0, 0.2))
+    table = vo.summarise_order([a, b], metrics)
+    assert (table["iou"]["scenes"], table["iou"]["ordered_means"],
+            table["iou"]["ordered_strict"]) == (2, 2, 1)    # b: grow (0.3) < gravity (0.5)
+    assert table["err"]["scenes"] == 1                        # b's flow has no value
+    assert table["psnr"]["ordered_means"] == 1                # a: the wrong clips are sharper
+    assert table["iou"]["mean_right"] == pytest.approx((0.95 + 0.65) / 2)
+    fam = table["family:mask"]
+    assert (fam["scenes"], fam["ordered_means"], fam["ordered_strict"]) == (3, 3, 2)
+    assert fam["mean_right"] is None and fam["metrics"] == ["iou", "err"]
+    head = table["headline"]
+    assert head["name"] == Headline().name and head["share_means"] == 1.0
+    assert head["share_strict"] == 1.0
+    place = vo.headline_placement([a, b])
+    assert place["kinds"][vo.STATIC]["mean"] == 0 and place["static_zero"] == 2
+    assert place["flow_below_every_right"] == 2
+    assert place["variants"]["wrong:remove"]["mean"] == pytest.approx(0.3)
+    assert a.clips[2].visible(9.0) and not a.clips[2].visible(10.0) and a.clips[0].visible(1e9)
+    # only clearly wrong clips: a (ii) clip that departs by 9 px counts up to 9 px
+    assert vo.summarise_order([a, b], [], min_px=9.0)["headline"]["scenes"] == 2
+    assert vo.summarise_order([a, b], [], min_px=10.0)["headline"]["scenes"] == 0
+    again = vo.SceneOrder.from_json(a.to_json())
+    assert again == a
+    why = vo.strict_breakers([a, b])
+    assert why["scenes"] == 2 and why["right_vs_wrong"] == 0 and why["wrong_vs_baselines"] == 0
+    bad = vo.strict_breakers([a, b], lambda c: c.scores["iou"])   # b: grow 0.3 < gravity 0.5
+    assert (bad["right_vs_wrong"], bad["right_low"], bad["wrong_high"]) == (1, {"grow": 1},
+                                                                           {"gravity": 1})
+    same_size = vo.without_variants([a, b], ["grow"])
+    assert [c.name for c in same_size[1].clips] == ["pale", "gravity", "remove", "static",
+                                                    "flow_extrapolate"]
+    assert vo.summarise_order(same_size, metrics)["iou"]["ordered_strict"] == 2
+
+
+# ------------------------------------------------------------------------ end to end (mini)
+def test_on_mini_scenes_the_headline_orders_the_four_kinds(jar, thrown):
+    """The headline orders (i) > (ii) > (iii), (iv) by means on both scenes (it ranks a
+    still clip at exactly 0 and the flow extrapolation below every physics-right clip); PSNR
+    need not: a re-simulated clip with the truth's colours can be sharper than a repaint."""
+    from visphy_core.plugins import get_registry
+
+    registry = get_registry()
+    names = ("psnr", "spatiotemporal_iou", "weighted_spatial_iou", "track_pos_err")
+    metrics = vo.frame_metrics(registry.get("metrics", n) for n in names)
+    assert [m.name for m in metrics] == list(names)
+    results = [vo.score_truth(t, metrics) for t in (jar, thrown)]
+    for res in results:
+        kinds = {c.kind for c in res.clips}
+        assert kinds == set(vo.KINDS), res.skipped
+        assert len([c for c in res.clips if c.kind == vo.RIGHT]) == 7
+        assert res.twin and res.floor
+    table = vo.summarise_order(results, metrics)
+    head = table["headline"]
+    assert head["scenes"] == 2 and head["share_means"] == 1.0, head
+    place = vo.headline_placement(results)
+    assert place["static_zero"] == 2 and place["flow_below_every_right"] == 2
+    assert place["kinds"][vo.RIGHT]["mean"] > 0.8
+    assert place["kinds"][vo.WRONG]["mean"] < place["kinds"][vo.RIGHT]["mean"] - 0.2
+    # observed: PSNR puts the (ii) clips above the (i) clips on average on both scenes (a
+    # re-simulated clip keeps the truth's colours; a repaint or a 10 % larger body costs more
+    # dB than a ball that lands elsewhere), so it orders neither
+    assert table["psnr"]["share_means"] == 0.0, table["psnr"]
+    assert table["psnr"]["mean_wrong"] > table["psnr"]["mean_right"]
