@@ -127,12 +127,15 @@ def order_study(catalogue: dict, every: int, dims: tuple[str, ...], checkpoint: 
                 res = vo.SceneOrder.from_json(json.loads(line))
                 done[res.scene_id] = res
 
-    def save(res) -> None:
+    t0 = time.perf_counter()
+    fresh = []
+
+    def save(res) -> None:  # the checkpoint writer; counts the scenes this run scores
+        fresh.append(res.scene_id)
         if checkpoint:
             with open(checkpoint, "a") as fh:
                 fh.write(json.dumps(res.to_json()) + "\n")
 
-    t0 = time.perf_counter()
     results = vo.run_order_study(
         specs, metrics, dims=dims, done=done, on_scene=save,
         progress=(lambda s: print(f"  {s}", file=sys.stderr, flush=True)) if progress else None)
@@ -148,9 +151,11 @@ def order_study(catalogue: dict, every: int, dims: tuple[str, ...], checkpoint: 
         alternatives[label]["same_size"] = {k: v for k, v in row.items() if k != "placement"}
     breakers = vo.strict_breakers(results)
     skipped: dict[str, int] = {}
+    unchanged: dict[str, int] = {}
     for res in results:
-        for name in res.skipped:
-            skipped[name] = skipped.get(name, 0) + 1
+        for name, why in res.skipped.items():
+            into = unchanged if why.endswith("the clip equals the truth") else skipped
+            into[name] = into.get(name, 0) + 1
     counts = {k: sum(1 for r in results for c in r.clips if c.kind == k) for k in vo.KINDS}
     scene_s = {d: [r.seconds for r in results if r.dim == d] for d in dims}
 
@@ -160,7 +165,7 @@ def order_study(catalogue: dict, every: int, dims: tuple[str, ...], checkpoint: 
           f"(iii) {counts['static']}, (iv) {counts['flow']}; "
           + ", ".join(f"{d} {sum(v):.0f} s ({sum(v) / len(v):.0f} s a scene)"
                       for d, v in scene_s.items() if v)
-          + f"; wall {wall:.0f} s)\n")
+          + f"; this run scored {len(fresh)} of them in {wall:.0f} s)\n")
     print("Ordered: in the score's good direction, *means* = mean over (i) > mean over (ii) > "
           "max((iii), (iv)); *strict* = every (i) > every (ii) > both (iii) and (iv). A family "
           "pools its metrics' (scene, metric) cases.\n")
@@ -220,14 +225,19 @@ def order_study(catalogue: dict, every: int, dims: tuple[str, ...], checkpoint: 
           + " (lowest (ii): " + ", ".join(f"{k} {v}" for k, v in breakers["wrong_low"].items())
           + "; best baseline: "
           + ", ".join(f"{k} {v}" for k, v in breakers["baseline_high"].items()) + ").")
+    if unchanged:
+        print("\n(ii) variants skipped because their clip equals the truth (scenes): "
+              + ", ".join(f"{k} {v}" for k, v in sorted(unchanged.items())))
     if skipped:
-        print("\nSkipped (ii) variants (scenes): "
+        print("\n(ii) variants that do not apply (scenes; speed and mirror need a thrown body, "
+              "kick one at rest) or failed: "
               + ", ".join(f"{k} {v}" for k, v in sorted(skipped.items())))
     return {"scenes": [r.scene_id for r in results], "wall_s": round(wall, 1),
             "scene_seconds": {d: round(sum(v), 1) for d, v in scene_s.items()},
             "table": table, "placement": placement,
             "sensitivity": {str(k): v for k, v in sensitivity.items()},
-            "alternatives": alternatives, "skipped": skipped, "strict_breakers": breakers,
+            "alternatives": alternatives, "skipped": skipped, "unchanged": unchanged,
+            "strict_breakers": breakers, "scored_this_run": fresh,
             "results": [r.to_json() for r in results]}
 
 
