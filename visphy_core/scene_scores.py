@@ -206,9 +206,7 @@ def _normalise(scene: Scene, reference: np.ndarray, services: ScoringServices, s
     except ReferenceClipUnavailable as exc:
         unavailable(str(exc))
         return None
-    if frozen is None:
-        with tempfile.TemporaryDirectory(prefix="visphy-frozen-") as tmp:
-            frozen = frozen_clip(scene, contract, Path(tmp) / "frozen.mp4")
+    frozen = _frozen(scene, contract, frozen)
     plain = ScoringProtocol(unaligned=True, aligned=False, paper=False)
     ceiling, why_c = score_scene(scene, reference, twin, metrics, None, None,
                                  services.cache, protocol=plain)
@@ -236,6 +234,15 @@ def _normalise(scene: Scene, reference: np.ndarray, services: ScoringServices, s
             {k: v for k, v in ceiling.items() if k not in why_c})
 
 
+def _frozen(scene: Scene, contract: RenderContract, frozen: np.ndarray | None) -> np.ndarray:
+    """``frozen`` (the run's fallback clip, when the scene fell back), else the frozen clip made
+    now through the run's codec (`frozen_clip`) in a scratch folder."""
+    if frozen is not None:
+        return frozen
+    with tempfile.TemporaryDirectory(prefix="visphy-frozen-") as tmp:
+        return frozen_clip(scene, contract, Path(tmp) / "frozen.mp4")
+
+
 def _headline(scene: Scene, reference: np.ndarray, generated: np.ndarray | None,
               services: ScoringServices, scene_dir: Path, result: "SceneResult",
               contract: RenderContract, frozen: np.ndarray | None,
@@ -253,9 +260,7 @@ def _headline(scene: Scene, reference: np.ndarray, generated: np.ndarray | None,
     floor, twin = anchors if anchors is not None else ({}, {})
     missing = [m for m in components if m.name not in floor]
     if missing:
-        if frozen is None:
-            with tempfile.TemporaryDirectory(prefix="visphy-frozen-") as tmp:
-                frozen = frozen_clip(scene, contract, Path(tmp) / "frozen.mp4")
+        frozen = _frozen(scene, contract, frozen)
         plain = ScoringProtocol(unaligned=True, aligned=False, paper=False)
         more, _ = score_scene(scene, reference, frozen, missing, None, None, services.cache,
                               protocol=plain)
