@@ -93,9 +93,13 @@ def clip_2d(spec: dict) -> np.ndarray:
 
 
 def scene_of(spec: dict) -> Scene:
-    """A `Scene` for a generated 2D spec held in memory (no files: the study renders itself)."""
+    """A `Scene` for a generated spec held in memory, 2D or 3D (no files: the studies render
+    themselves)."""
     w = spec["world"]
-    width, height = w["units"]["canvas_px"]
+    if spec["dim"] == "2d":
+        width, height = w["units"]["canvas_px"]
+    else:
+        width, height = spec["camera"]["width"], spec["camera"]["height"]
     scene = Scene(scene_id=spec["scene_id"], dim=spec["dim"],
                   clip=ClipInfo(fps=float(w["video_fps"]), n_frames=int(w["n_frames"]),
                                 width=int(width), height=int(height)),

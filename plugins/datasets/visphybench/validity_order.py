@@ -74,9 +74,8 @@ import numpy as np
 from visphy_core.cache import Cache
 from visphy_core.headline import Headline, scene_headline
 from visphy_core.metrics import HIGHER, SCENE, Metric
-from visphy_core.scene import Scene
 from visphy_core.scoring import ScoringProtocol, score_scene
-from visphy_core.video import ClipInfo
+from visphy_plugins.datasets.visphybench.validity import scene_of
 
 RIGHT, WRONG, STATIC, FLOW = "right", "wrong", "static", "flow"
 KINDS = {RIGHT: "(i) physics right, drawn differently", WRONG: "(ii) physics wrong",
@@ -671,21 +670,6 @@ def twin_clip(truth: Truth) -> np.ndarray:
     from visphy_core.normalisation import twin_spec
 
     return truth.rollout(twin_spec(truth.spec))
-
-
-def scene_of(spec: dict) -> Scene:
-    """A `Scene` for a generated spec held in memory (2D or 3D; no files)."""
-    w = spec["world"]
-    if spec["dim"] == "2d":
-        width, height = w["units"]["canvas_px"]
-    else:
-        width, height = spec["camera"]["width"], spec["camera"]["height"]
-    scene = Scene(scene_id=spec["scene_id"], dim=spec["dim"],
-                  clip=ClipInfo(fps=float(w["video_fps"]), n_frames=int(w["n_frames"]),
-                                width=int(width), height=int(height)),
-                  video_path=Path("/nonexistent"), template_id=spec.get("template_id"))
-    scene.__dict__["spec"] = spec  # the frozen dataclass's cached_property slot
-    return scene
 
 
 # ----------------------------------------------------------------------------- scoring
