@@ -154,7 +154,7 @@ def visphy_home(tmp_path, mini_root) -> Path:
 FAST_METRICS = ("metrics.names=[psnr,ssim]", "metrics.spec_track=false",
                 "metrics.variance_norm=false")
 SUBCOMMANDS = ("plugins", "setup", "build-dataset", "normalise", "render", "metrics",
-               "intervene", "rate", "score", "analyse", "merge")
+               "intervene", "rate", "score", "analyse", "merge", "ground-truth")
 
 
 def with_fast_metrics(args: tuple[str, ...]) -> tuple[str, ...]:

@@ -329,5 +329,15 @@ def test_two_judges_from_the_command_line_score_every_scene(tmp_path):
             assert metrics[f"usage.{stage}.{key}"] == pytest.approx(summary["usage"][stage][key])
     assert metrics["usage.generate.calls"] == 2 and metrics["usage.generate.cost_usd"] > 0
     assert metrics["judge.gemini.n_valid"] == 2 and metrics["judge.gpt_frames.n_invalid"] == 0
+    # each stage's wall seconds: in every row, summed in the summary, logged to MLflow
+    stages = summary["stage_seconds"]
+    for name in ("model_latency_s", "render_wall_s", "scoring_wall_s", "judge_wall_s"):
+        # both scenes got the same program: the second render is a cache hit, not counted
+        values = [r[name] for r in rows if not (name == "render_wall_s" and r["render_cached"])]
+        assert all(v is not None and v > 0 for v in values) and values, name
+        assert stages[name]["n"] == len(values)
+        assert stages[name]["total"] == pytest.approx(sum(values), abs=2e-3)
+        assert metrics[f"seconds.{name}"] == pytest.approx(stages[name]["total"])
+        assert metrics[f"seconds.{name}.per_scene"] == pytest.approx(stages[name]["mean"])
     assert tags["visphy.prompt_version"] == ",".join(summary["prompt_versions"])
     _no_secret_anywhere(home)

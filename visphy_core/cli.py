@@ -5,6 +5,8 @@ Subcommands:
   metrics        list installed metrics: direction, family, kind, weights, availability here
   setup          install the vendored JavaScript libraries (npm ci into the asset cache)
   build-dataset  generate VisPhyBench: build-dataset [--split S] [--seed N] [--data-dir DIR]
+  ground-truth   a dataset's normalisation anchors and twin renders ahead of any run, into
+                 paths.ground_truth_dir: ground-truth [--workers N] [dataset=… engine=… …]
   normalise      resample a foreign video to a reference clip: normalise IN --like REF -o OUT
   render         extract, render and score one reply: render REPLY --engine E --scene ID
   intervene      change physical parameters, re-simulate, render side by side:
@@ -280,10 +282,17 @@ def cmd_merge(argv: list[str]) -> int:
     return merge(argv)
 
 
+def cmd_ground_truth(argv: list[str]) -> int:
+    from visphy_core.cli_ground_truth import cmd_ground_truth as ground_truth
+
+    return ground_truth(argv)
+
+
 SUBCOMMANDS = {"plugins": cmd_plugins, "setup": cmd_setup, "build-dataset": cmd_build_dataset,
                "normalise": cmd_normalise, "render": cmd_render, "metrics": cmd_metrics,
                "intervene": cmd_intervene, "rate": cmd_rate, "score": cmd_score,
-               "analyse": cmd_analyse, "report": cmd_report, "merge": cmd_merge}
+               "analyse": cmd_analyse, "report": cmd_report, "merge": cmd_merge,
+               "ground-truth": cmd_ground_truth}
 
 
 def run_hydra(argv: list[str]) -> int:

@@ -38,6 +38,9 @@ class PathsConfig:
     data_dir: str = MISSING
     runs_dir: str = MISSING
     cache_dir: str = MISSING
+    # the ground-truth store (visphy_core/ground_truth.py): normalisation anchors and twin
+    # renders, shared by every run of the data dir; null: none (anchors in the run cache only)
+    ground_truth_dir: Optional[str] = MISSING
 
 
 @dataclass

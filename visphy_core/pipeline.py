@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import threading
+import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, 
                                 RenderFlag, RenderResult, classify_frames)
 from visphy_core.errors import UserError
 from visphy_core.extract import extract_analysis, extract_spec
+from visphy_core.ground_truth import writable
 from visphy_core.generation import ModelCaller
 from visphy_core.judging import JudgeCaller
 from visphy_core.metrics import Metric
@@ -60,6 +62,12 @@ class SceneResult:
     render_cached: bool = False
     render_wall_s: float | None = None
     model_latency_s: float = 0.0
+    # seconds of wall time in the score stage (reference-program renders inside it excluded:
+    # they are ``reference_render_wall_s``) and in the judge stage; None: the stage did not run
+    # (``scoring_``, not ``score_``: every ``score_*`` column of a row is a score)
+    scoring_wall_s: float | None = None
+    reference_render_wall_s: float | None = None
+    judge_wall_s: float | None = None
     cost_usd: float = 0.0
     model_calls: int = 0                 # calls actually sent to the model (cache misses)
     infra_retries: int = 0               # renders repeated after an infra_error
@@ -152,6 +160,11 @@ def _safe_render(engine: Engine, program: Program, contract: RenderContract) -> 
                             error=_one_line(f"{type(exc).__name__}: {exc}")[:2000])
 
 
+def render_key(engine: Engine, program: Program, contract: RenderContract) -> str:
+    """The render cache's key: everything that determines a render's frames."""
+    return content_key("render", engine.cache_identity(), program.digest, contract.key())
+
+
 def render_cached(engine: Engine, program: Program, contract: RenderContract,
                   cache: Cache, memo: dict[str, RenderOutcome] | None = None) -> RenderOutcome:
     """Render through the content-addressed cache.
@@ -166,7 +179,7 @@ def render_cached(engine: Engine, program: Program, contract: RenderContract,
     text and logs are redacted before they are cached. The render's flags and its partial clip
     (``partial.mp4``: the frames before a runtime error) are cached with it and replayed.
     """
-    key = content_key("render", engine.cache_identity(), program.digest, contract.key())
+    key = render_key(engine, program, contract)
 
     def parse(entry: Path) -> RenderOutcome:
         meta = read_json(entry / "meta.json")
@@ -289,33 +302,47 @@ class SceneServices:
     protocol: ScoringProtocol = field(default_factory=ScoringProtocol)
     progress: StageEvents = field(default_factory=StageEvents)
     headline: Headline | None = None
+    ground_truth: Cache | None = None   # the ground-truth store (`visphy_core.ground_truth`)
 
     def scoring(self, renders: dict[str, RenderOutcome] | None = None) -> ScoringServices:
         """The scoring half (`visphy_core.scene_scores`): reference-program clips rendered by
         this run's engine (``renders``: the scene's clips so far, `render_cached`'s memo)."""
         return ScoringServices(metrics=self.metrics, cache=self.cache, protocol=self.protocol,
                                clips=EngineReferenceClips(self.engine, self.cache,
-                                                          self.progress, renders),
+                                                          self.progress, renders,
+                                                          self.ground_truth),
                                judges=self.judges, references=self.references,
-                               progress=self.progress, headline=self.headline)
+                               progress=self.progress, headline=self.headline,
+                               ground_truth=self.ground_truth)
 
 
 class EngineReferenceClips:
     """`visphy_core.scene_scores.ReferenceClips` of a run: the engine's trusted reference
     program renders S and the twin (through the render cache) into the scene's folder. Each
-    render goes through the ``render`` stage (the run's render lane)."""
+    render goes through the ``render`` stage (the run's render lane). The twin's render goes to
+    the ground-truth store when there is one (``ground_truth``), so later runs find it there."""
 
     def __init__(self, engine: Engine, cache: Cache, progress: StageEvents | None = None,
-                 renders: dict[str, RenderOutcome] | None = None):
+                 renders: dict[str, RenderOutcome] | None = None,
+                 ground_truth: Cache | None = None):
         self.engine = engine
         self.cache = cache
         self.progress = progress or StageEvents()
         self.renders = renders
+        self.twin_cache = ground_truth if writable(ground_truth) else cache
+        self.stores = [c for c in (ground_truth, cache) if c is not None]
+        self._twins: dict[str, Program] = {}
+        self.render_s = 0.0  # wall seconds spent rendering (or reading back) clips here
 
-    def _render(self, scene: Scene, program: Program, contract: RenderContract
-                ) -> RenderOutcome:
-        with self.progress.stage("render", scene.scene_id):
-            return render_cached(self.engine, program, contract, self.cache, self.renders)
+    def _render(self, scene: Scene, program: Program, contract: RenderContract,
+                cache: Cache | None = None) -> RenderOutcome:
+        start = time.perf_counter()  # waiting for the render lane included
+        try:
+            with self.progress.stage("render", scene.scene_id):
+                return render_cached(self.engine, program, contract, cache or self.cache,
+                                     self.renders)
+        finally:
+            self.render_s += time.perf_counter() - start
 
     def spec_replay(self, scene: Scene, spec: dict, contract: RenderContract,
                     scene_dir: Path) -> np.ndarray:
@@ -331,18 +358,37 @@ class EngineReferenceClips:
         _write(scene_dir / "spec_video.mp4", outcome.video_path.read_bytes())
         return outcome.frames
 
-    def twin(self, scene: Scene, contract: RenderContract, scene_dir: Path) -> np.ndarray:
-        try:
-            program = self.engine.program_from_spec(twin_scene(scene))
-        except (SpecTrackError, ValueError, NotImplementedError) as exc:
-            raise ReferenceClipUnavailable(
-                f"normalisation: no twin of the ground truth: {_one_line(str(exc))}") from None
-        outcome = self._render(scene, program, contract)
+    def _twin_program(self, scene: Scene) -> Program:
+        if scene.scene_id not in self._twins:
+            try:
+                self._twins[scene.scene_id] = self.engine.program_from_spec(twin_scene(scene))
+            except (SpecTrackError, ValueError, NotImplementedError) as exc:
+                raise ReferenceClipUnavailable(
+                    f"normalisation: no twin of the ground truth: {_one_line(str(exc))}"
+                ) from None
+        return self._twins[scene.scene_id]
+
+    def twin_identity(self, scene: Scene, contract: RenderContract) -> str:
+        return render_key(self.engine, self._twin_program(scene), contract)
+
+    def copy_twin(self, scene: Scene, contract: RenderContract, scene_dir: Path) -> bool:
+        key = self.twin_identity(scene, contract)
+        for store in self.stores:
+            entry = store.get("render", key)
+            if entry is not None and (entry / "video.mp4").is_file():
+                _write(scene_dir / "twin_video.mp4", (entry / "video.mp4").read_bytes())
+                return True
+        return False
+
+    def twin(self, scene: Scene, contract: RenderContract, scene_dir: Path | None
+             ) -> np.ndarray:
+        outcome = self._render(scene, self._twin_program(scene), contract, self.twin_cache)
         if outcome.failure is not None:
             raise ReferenceClipUnavailable(
                 f"normalisation: the reference program failed to render the twin: "
                 f"{outcome.failure.value} {_one_line(outcome.error or '')}")
-        _write(scene_dir / "twin_video.mp4", outcome.video_path.read_bytes())
+        if scene_dir is not None:
+            _write(scene_dir / "twin_video.mp4", outcome.video_path.read_bytes())
         return outcome.frames
 
 

@@ -50,6 +50,7 @@ from visphy_core.scene_scores import (ReferenceClipUnavailable, ScoringServices,
 from visphy_core.scoring import ScoringProtocol, select_metrics
 from visphy_core.usage import UsageLedger
 from visphy_core.paper_protocol import frames_needed
+from visphy_core.ground_truth import open_store, store_path
 from visphy_core.video import decode_video, load_clip_for
 
 #: Written anew by re-scoring (the rest of a run directory is carried over as it is).
@@ -78,6 +79,12 @@ class RunDirClips:
         raise ReferenceClipUnavailable(
             "re-scoring renders nothing and the run has no spec_video.mp4 for this scene (its "
             "spec track was off): start a new run with metrics.spec_track=true")
+
+    def twin_identity(self, scene: Scene, contract: RenderContract) -> None:
+        return None  # the run dir holds the twin's frames, not what made them
+
+    def copy_twin(self, scene: Scene, contract: RenderContract, scene_dir: Path) -> bool:
+        return (scene_dir / "twin_video.mp4").is_file()
 
     def twin(self, scene: Scene, contract: RenderContract, scene_dir: Path) -> np.ndarray:
         path = scene_dir / "twin_video.mp4"
@@ -346,6 +353,7 @@ def _rescore_into(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, ch
         metrics=metrics, cache=cache,
         protocol=ScoringProtocol.from_cfg(cfg.metrics), clips=None,  # per row: RunDirClips
         headline=Headline.for_run(cfg.metrics, metrics),
+        ground_truth=open_store(store_path(cfg, _data_dir(cfg)), enabled=bool(cfg.run.cache)),
         judges=JudgeCaller(judges, cache, ledger) if judges else None,
         references=ReferenceWriter(cfg.reference, cache, reference_model,
                                    ModelCaller(reference_model, cache, ledger)

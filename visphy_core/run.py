@@ -50,6 +50,7 @@ from visphy_core.usage import CostCapReached, UsageLedger
 from visphy_core.run_dir import (COST_CAP, FAILED, FINISHED, INTERRUPTED, RUNNING, RunLock,
                                   config_hash, find_resumable, new_run_dir, read_rows)
 from visphy_core.scene import Scene
+from visphy_core.ground_truth import open_store, store_path
 from visphy_core.heap import release_free_memory
 from visphy_core.scheduler import (SceneScheduler, StageGates, pin_torch_threads,
                                    resolve_workers)
@@ -250,7 +251,27 @@ def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache,
         "spec_track": _count_states(r.spec_track for r in results),
         "judges": _judge_columns(results, judges or []),
         "usage": ledger.totals() if ledger is not None else {},
+        "stage_seconds": stage_seconds(results),
     }
+
+
+#: Per-stage wall seconds of a row, summed in the summary (``stage_seconds``).
+STAGE_FIELDS = ("model_latency_s", "render_wall_s", "reference_render_wall_s",
+                "scoring_wall_s", "judge_wall_s")
+
+
+def stage_seconds(results: list[SceneResult]) -> dict[str, dict[str, float | int]]:
+    """Each stage's wall seconds summed over the scenes where it ran this time (a cached
+    render's recorded time is not counted), with the count and the mean per such scene. With
+    several workers the stages of different scenes overlap: the sums exceed the run's wall."""
+    out: dict[str, dict[str, float | int]] = {}
+    for name in STAGE_FIELDS:
+        values = [float(getattr(r, name)) for r in results if getattr(r, name) is not None
+                  and not (name == "render_wall_s" and r.render_cached)
+                  and not (name == "model_latency_s" and r.model_calls == 0)]
+        out[name] = {"total": round(sum(values), 3), "n": len(values),
+                     "mean": round(sum(values) / len(values), 4) if values else None}
+    return out
 
 
 def _count_states(states) -> dict[str, int]:
@@ -400,6 +421,7 @@ def run_experiment(cfg: DictConfig) -> dict:
         model=model, caller=caller, engine=engine, metrics=metrics, settings=settings,
         protocol=ScoringProtocol.from_cfg(cfg.metrics),
         headline=Headline.for_run(cfg.metrics, metrics),
+        ground_truth=open_store(store_path(cfg, data_dir), enabled=bool(cfg.run.cache)),
         cache=cache, judges=JudgeCaller(judges, cache, ledger) if judges else None,
         references=ReferenceWriter(cfg.reference, cache, reference_model,
                                    ModelCaller(reference_model, cache, ledger)

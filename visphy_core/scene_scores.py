@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import json
 import tempfile
+import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from visphy_core.ground_truth import scene_anchors
 from visphy_core.headline import Headline, scene_headline
 from visphy_core.files import atomic_write
 from visphy_core.cache import Cache, content_key
@@ -70,8 +72,19 @@ class ReferenceClips(Protocol):
                     scene_dir: Path) -> np.ndarray:
         """S simulated and replayed (``spec_video.mp4``); raises `ReferenceClipUnavailable`."""
 
-    def twin(self, scene: Scene, contract: RenderContract, scene_dir: Path) -> np.ndarray:
-        """The ground truth's twin (``twin_video.mp4``); raises `ReferenceClipUnavailable`."""
+    def twin(self, scene: Scene, contract: RenderContract, scene_dir: Path | None
+             ) -> np.ndarray:
+        """The ground truth's twin (written to ``scene_dir/twin_video.mp4`` when a folder is
+        given); raises `ReferenceClipUnavailable`."""
+
+    def twin_identity(self, scene: Scene, contract: RenderContract) -> str | None:
+        """What the twin's frames are a function of (its render key), without rendering it;
+        None when only its content can say (`visphy_core.ground_truth`). Raises
+        `ReferenceClipUnavailable` when there is no twin to be had."""
+
+    def copy_twin(self, scene: Scene, contract: RenderContract, scene_dir: Path) -> bool:
+        """``scene_dir/twin_video.mp4`` from a stored render of the twin, without rendering
+        or decoding; False when none is stored."""
 
 
 @dataclass
@@ -87,6 +100,9 @@ class ScoringServices:
     references: ReferenceWriter | None = None
     progress: StageEvents = field(default_factory=StageEvents)
     headline: Headline | None = None
+    #: the ground-truth store (`visphy_core.ground_truth`): normalisation anchors and the
+    #: twin's render, shared by every run of the data dir; None: the run cache only
+    ground_truth: Cache | None = None
 
 
 def score_columns_of(services: ScoringServices) -> list[str]:
@@ -110,6 +126,8 @@ def score_outputs(scene: Scene, reference: np.ndarray, generated: np.ndarray | N
     The scoring is one ``score`` stage and the judges come last, in a ``judge`` stage of their
     own: a run's worker gives its slot back while the judges answer."""
     with services.progress.stage("score", scene.scene_id):
+        start = time.perf_counter()  # once the stage is entered (a worker slot is free)
+        rendered = getattr(services.clips, "render_s", 0.0)
         own: dict[str, float | None] = {}
         if generated is not None:
             own = _score(scene, reference, generated, analysis, spec, services, scene_dir,
@@ -128,9 +146,14 @@ def score_outputs(scene: Scene, reference: np.ndarray, generated: np.ndarray | N
         if services.headline is not None:
             _headline(scene, reference, generated, services, scene_dir, result, contract,
                       frozen, anchors)
+        references = getattr(services.clips, "render_s", 0.0) - rendered
+        result.reference_render_wall_s = round(references, 4)
+        result.scoring_wall_s = round(time.perf_counter() - start - references, 4)
     if generated is not None and services.judges is not None:
         with services.progress.stage("judge", scene.scene_id):
+            start = time.perf_counter()
             _judge(scene, reference, generated, services, scene_dir, result)
+            result.judge_wall_s = round(time.perf_counter() - start, 4)
 
 
 #: What a frame or sequence metric may read besides the two clips for `_spec_track` to reuse
@@ -202,16 +225,13 @@ def _normalise(scene: Scene, reference: np.ndarray, services: ScoringServices, s
             result.unavailable[norm_column(col)] = why
 
     try:
-        twin = services.clips.twin(scene, contract, scene_dir)
+        found = scene_anchors(scene, reference, metrics, services.clips, contract,
+                              services.cache, services.ground_truth, scene_dir, frozen=frozen)
     except ReferenceClipUnavailable as exc:
         unavailable(str(exc))
         return None
-    frozen = _frozen(scene, contract, frozen)
-    plain = ScoringProtocol(unaligned=True, aligned=False, paper=False)
-    ceiling, why_c = score_scene(scene, reference, twin, metrics, None, None,
-                                 services.cache, protocol=plain)
-    floor, why_f = score_scene(scene, reference, frozen, metrics, None, None, services.cache,
-                               protocol=plain)
+    floor, ceiling = found.floor, found.ceiling
+    why_f, why_c = found.why_floor, found.why_ceiling
     anchors = {}
     for col in targets:
         base = col[len(SPEC_PREFIX):] if col.startswith(SPEC_PREFIX) else col
@@ -226,15 +246,23 @@ def _normalise(scene: Scene, reference: np.ndarray, services: ScoringServices, s
         anchors[base] = {"floor": floor.get(base), "ceiling": ceiling.get(base)}
         if reason and not col.startswith(SPEC_PREFIX):
             anchors[base]["undefined"] = reason
+    twin_file = scene_dir / "twin_video.mp4"
     write_artifact(scene_dir / "normalisation.json", json.dumps(
-        {"perturbation": perturbation(), "twin_video": "twin_video.mp4",
+        {"perturbation": perturbation(),
+         "twin_video": twin_file.name if twin_file.is_file() else None,
+         "twin_key": found.twin_key,
          "floor": "the first key frame held (the fallback clip)",
-         "pairing": "visphy (unaligned)", "anchors": anchors}, indent=1))
+         "pairing": "visphy (unaligned)",
+         "anchors_from": ("computed now" if found.computed else "stored")
+         + (f" ({found.computed} value(s) scored now)" if found.computed else
+            " (ground-truth store or cache: nothing scored now)"),
+         "anchors": anchors}, indent=1))
     return ({k: v for k, v in floor.items() if k not in why_f},
             {k: v for k, v in ceiling.items() if k not in why_c})
 
 
-def _frozen(scene: Scene, contract: RenderContract, frozen: np.ndarray | None) -> np.ndarray:
+def frozen_frames(scene: Scene, contract: RenderContract,
+                  frozen: np.ndarray | None = None) -> np.ndarray:
     """``frozen`` (the run's fallback clip, when the scene fell back), else the frozen clip made
     now through the run's codec (`frozen_clip`) in a scratch folder."""
     if frozen is not None:
@@ -260,11 +288,10 @@ def _headline(scene: Scene, reference: np.ndarray, generated: np.ndarray | None,
     floor, twin = anchors if anchors is not None else ({}, {})
     missing = [m for m in components if m.name not in floor]
     if missing:
-        frozen = _frozen(scene, contract, frozen)
-        plain = ScoringProtocol(unaligned=True, aligned=False, paper=False)
-        more, _ = score_scene(scene, reference, frozen, missing, None, None, services.cache,
-                              protocol=plain)
-        floor = {**floor, **more}
+        found = scene_anchors(scene, reference, missing, services.clips, contract,
+                              services.cache, services.ground_truth, None, ceiling=False,
+                              frozen=frozen)
+        floor = {**floor, **{k: v for k, v in found.floor.items() if k not in found.why_floor}}
     value, details = scene_headline(headline, services.metrics, result.scores, floor, twin)
     result.scores[headline.name] = value
     if value is None:

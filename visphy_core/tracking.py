@@ -273,6 +273,10 @@ def summary_metrics(summary: dict) -> dict[str, float]:
     for key, judge in (summary.get("judges") or {}).items():
         out[f"judge.{key}.n_valid"] = float(judge["n_valid"])
         out[f"judge.{key}.n_invalid"] = float(judge["n_invalid"])
+    for stage, totals in (summary.get("stage_seconds") or {}).items():
+        out[f"seconds.{stage}"] = float(totals.get("total") or 0)
+        if totals.get("mean") is not None:
+            out[f"seconds.{stage}.per_scene"] = float(totals["mean"])
     return out
 
 

@@ -86,8 +86,12 @@ class OracleModel(Model):
         except (ValueError, NotImplementedError) as exc:
             return ModelResponse(text="", error=f"oracle: {exc}")
         spec = request.scene.spec or {}
+        # the program's block holds its source exactly (a newline is added only where the
+        # source lacks one): what the engine extracts is the reference program itself, so the
+        # spec track's replay of S is the same render (`render_cached`'s memo), not another
+        end = "" if program.source.endswith("\n") else "\n"
         text = (f"{describe_spec(spec)}\n\n```json\n{json.dumps(spec, indent=1)}\n```\n\n"
-                f"```{program.language}\n{program.source}\n```\n")
+                f"```{program.language}\n{program.source}{end}```\n")
         return ModelResponse(text=text, usage={}, cost_usd=0.0,
                              latency_s=time.perf_counter() - start)
 
