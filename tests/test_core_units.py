@@ -159,3 +159,35 @@ def test_cfg_get_reads_any_node_and_falls_back_on_absent_or_none():
         a = 2
 
     assert cfg_get(Obj(), "a") == 2 and cfg_get(Obj(), "z", "d") == "d"
+
+
+def test_a_sequence_metric_is_computed_once_for_pairings_with_the_same_pairs(tmp_path,
+                                                                             mini_scenes):
+    """The aligned pairing at offset 0 has the unaligned pairing's pairs: one computation, the
+    same value in both columns; a clip whose best offset is not 0 is computed per pairing."""
+    from visphy_core.metrics import SEQUENCE, Metric
+    from visphy_core.scoring import ScoringProtocol, score_scene
+
+    class Counting(Metric):
+        name, kind = "counting", SEQUENCE
+
+        def __init__(self):
+            self.calls = []
+
+        def compute_sequence(self, inp, alignment):
+            self.calls.append(alignment.pairs())
+            return float(len(self.calls))
+
+    scene = mini_scenes[0]
+    reference = scene.reference_frames()
+    protocol = ScoringProtocol(unaligned=True, aligned=True, paper=False)
+    metric = Counting()
+    scores, _ = score_scene(scene, reference, reference.copy(), [metric], None, None,
+                            Cache(tmp_path / "a"), protocol=protocol)
+    assert len(metric.calls) == 1 and scores["counting"] == scores["counting.aligned"] == 1.0
+    late = np.concatenate([reference[:1]] * 3 + [reference[:-3]])  # three frames late
+    metric = Counting()
+    scores, _ = score_scene(scene, reference, late, [metric], None, None,
+                            Cache(tmp_path / "b"), protocol=protocol)
+    assert len(metric.calls) == 2 and metric.calls[0] != metric.calls[1]
+    assert scores["counting"] == 1.0 and scores["counting.aligned"] == 2.0

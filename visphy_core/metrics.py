@@ -81,7 +81,9 @@ class Metric(ABC):
         raise NotImplementedError
 
     def compute_sequence(self, inp: MetricInput, alignment: "Alignment") -> float:
-        """kind ``sequence``: one value from the paired sequences."""
+        """kind ``sequence``: one value from the paired sequences. It may depend on the
+        alignment's pairs (``ref_idx``, ``gen_idx``) only: two pairings with the same pairs
+        share one computation."""
         raise NotImplementedError
 
     def compute(self, inp: MetricInput) -> float:
