@@ -125,3 +125,13 @@ def test_stored_anchors_are_served_and_keyed_by_what_determines_them(tmp_path, m
     assert frozen_identity(scene, longer) != ident
     # the time limit does not change a clip
     assert frozen_identity(scene, RenderContract.for_scene(scene, timeout_s=5.0)) == ident
+
+
+def test_the_subcommand_reports_bad_overrides_in_one_line(tmp_path):
+    from conftest import run_cli
+
+    proc = run_cli("ground-truth", "engine=nope", home=tmp_path, check=False)
+    assert proc.returncode == 2
+    (line,) = proc.stderr.strip().splitlines()
+    assert line.startswith("error: ") and "engine" in line
+    assert "ground-truth" in run_cli("ground-truth", "--help", home=tmp_path).stdout

@@ -106,11 +106,14 @@ def prepare(overrides: list[str], workers: int = 2, progress: bool = True) -> in
             done += 1
             computed += found.computed
 
-    with Progress(disable=not progress, transient=True) as bar:
-        task = bar.add_task("ground truth", total=len(scenes))
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            for _ in pool.map(lambda s: (one(s), bar.advance(task)), scenes):
-                pass
+    try:
+        with Progress(disable=not progress, transient=True) as bar:
+            task = bar.add_task("ground truth", total=len(scenes))
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                for _ in pool.map(lambda s: (one(s), bar.advance(task)), scenes):
+                    pass
+    finally:
+        engine.close()  # the browser pool and its processes: no survivors
     for scene_id, why in failed:
         print(f"{scene_id}: no ground-truth artefacts: {why}", file=sys.stderr)
     print(f"ground truth of {done}/{len(scenes)} scene(s) for {engine.cache_identity()} × "
