@@ -336,6 +336,12 @@ class FSIM(_PiqMetric):
     name = "fsim"
 
     def frame_features(self, frames: np.ndarray) -> list[tuple]:
+        """One frame at a time: every operation is per frame (the values are the batch's, bit
+        for bit), and a frame's 16 filter responses (8 MiB at 256²) stay in the CPU's caches,
+        where a batch of four does not (measured: about half the CPU time per frame)."""
+        return [f for i in range(len(frames)) for f in self._frame_features(frames[i:i + 1])]
+
+    def _frame_features(self, frames: np.ndarray) -> list[tuple]:
         import piq
         from piq.functional import gradient_map, rgb2yiq, scharr_filter
 
@@ -760,7 +766,9 @@ class STLPIPS(_NetMetric):
                                   verbose=False)
         _load_strict(model, _torch_load(files.paths[0]), f"ST-LPIPS ({files.paths[0]})",
                      _lins_alias)
-        return model
+        # the frames come channels-last (`_tensor`), so oneDNN runs channels-last: weights in
+        # that layout are not reordered on every call (same values, bit for bit)
+        return model.to(memory_format=_torch.torch().channels_last)
 
     def forward(self, model, x, y):
         return model(x, y)
@@ -768,9 +776,15 @@ class STLPIPS(_NetMetric):
     per_frame_features = True
 
     def features(self, model, x) -> list:
+        """One frame at a time (channels-last): a frame's activations stay in the CPU's caches
+        (measured: about 0.75× the CPU time per frame of a batch of four; the same values, bit
+        for bit)."""
         from stlpips_pytorch import utils
 
-        return _lpips_features(model, x, utils.normalize_tensor)
+        t = _torch.torch()
+        x = x.contiguous(memory_format=t.channels_last)
+        return [f for i in range(len(x))
+                for f in _lpips_features(model, x[i:i + 1], utils.normalize_tensor)]
 
     def combine(self, model, fx: tuple, fy: tuple):
         return _lpips_combine(model, fx, fy)

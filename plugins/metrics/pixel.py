@@ -124,9 +124,48 @@ def ssim_frame(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.mean([ssim_channel(x, y) for x, y in zip(_channels(a), _channels(b))]))
 
 
-def _moments_into(frame: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """``frame``'s local mean and variance of each of its four channels into ``m`` (4×2×H×W
-    float32: one array, one allocation; fresh memory is paid in page faults, per page)."""
+_LUMA = (np.float32(0.299), np.float32(0.587), np.float32(0.114))
+
+
+class _Planes:
+    """One frame's Y, R, G, B float32 planes (4×H×W) and a scratch plane, reused from frame
+    to frame: a fresh megabyte array costs more in page faults than the arithmetic on it."""
+
+    def __init__(self, shape: tuple[int, int]):
+        self.shape = shape
+        self.p = np.empty((4, *shape), np.float32)
+        self.t = np.empty(shape, np.float32)
+
+    def load(self, frame: np.ndarray) -> np.ndarray:
+        """`_channels` of ``frame`` into the planes, bit for bit (the same float32 operations
+        in the same order: (0.299 R + 0.587 G) + 0.114 B)."""
+        p, t = self.p, self.t
+        for c, plane in enumerate(cv2.split(np.ascontiguousarray(frame[..., :3]))):
+            p[c + 1] = plane
+        np.multiply(p[1], _LUMA[0], out=p[0])
+        np.multiply(p[2], _LUMA[1], out=t)
+        p[0] += t
+        np.multiply(p[3], _LUMA[2], out=t)
+        p[0] += t
+        return p
+
+    def moments(self, m: np.ndarray) -> np.ndarray:
+        """The loaded frame's local mean and variance of each channel into ``m`` (4×2×H×W
+        float32), as `_moments` computes them."""
+        p, t = self.p, self.t
+        for c in range(4):
+            cv2.sepFilter2D(p[c], -1, _KERNEL, _KERNEL, dst=m[c, 0],
+                            borderType=cv2.BORDER_REFLECT)
+            np.multiply(p[c], p[c], out=t)
+            cv2.sepFilter2D(t, -1, _KERNEL, _KERNEL, dst=m[c, 1], borderType=cv2.BORDER_REFLECT)
+            np.multiply(m[c, 0], m[c, 0], out=t)
+            m[c, 1] -= t
+        return m
+
+
+def _reference_moments_into(frame: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """The previous per-frame moments (fresh arrays for every operation): `_Planes.moments`
+    must equal it bit for bit (tests/test_metric_fast_paths.py)."""
     for c, x in enumerate(_channels(frame)):
         cv2.sepFilter2D(x, -1, _KERNEL, _KERNEL, dst=m[c, 0], borderType=cv2.BORDER_REFLECT)
         cv2.sepFilter2D(x * x, -1, _KERNEL, _KERNEL, dst=m[c, 1], borderType=cv2.BORDER_REFLECT)
@@ -134,8 +173,20 @@ def _moments_into(frame: np.ndarray, m: np.ndarray) -> np.ndarray:
     return m
 
 
+def _moments_into(frame: np.ndarray, m: np.ndarray, planes: _Planes | None = None
+                  ) -> np.ndarray:
+    """``frame``'s local mean and variance of each of its four channels into ``m`` (4×2×H×W
+    float32: one array, one allocation; fresh memory is paid in page faults, per page)."""
+    planes = planes if planes is not None and planes.shape == frame.shape[:2] \
+        else _Planes(frame.shape[:2])
+    planes.load(frame)
+    return planes.moments(m)
+
+
 def _frame_moments(frames: np.ndarray) -> list[np.ndarray]:
-    return [_moments_into(f, np.empty((4, 2, *f.shape[:2]), np.float32)) for f in frames]
+    planes = _Planes(frames.shape[1:3]) if len(frames) else None
+    return [_moments_into(f, np.empty((4, 2, *f.shape[:2]), np.float32), planes)
+            for f in frames]
 
 
 class PSNR(Metric):
@@ -167,6 +218,7 @@ class SSIM(Metric):
             return np.zeros(0)
         h, w = np.shape(reference)[1:3]
         work = _Work((h, w))
+        pa, pb = _Planes((h, w)), _Planes((h, w))
         keep = 2 * n * 4 * 2 * h * w * 4 <= _torch.FRAME_CACHE_BYTES
         if not keep:
             ma, mb = (np.empty((4, 2, h, w), np.float32) for _ in range(2))
@@ -176,12 +228,14 @@ class SSIM(Metric):
             if keep:
                 m_ref = _torch.per_frame(ref, ("ssim", "reference"), _frame_moments)
                 m_gen = _torch.per_frame(gen, ("ssim", "generated"), _frame_moments)
-            else:
-                m_ref = (_moments_into(a, ma) for a in ref)
-                m_gen = (_moments_into(b, mb) for b in gen)
-            for a, b, sa, sb in zip(ref, gen, m_ref, m_gen):
-                vals = [_ssim_map_mean(x, y, *ca, *cb, work=work)
-                        for x, y, ca, cb in zip(_channels(a), _channels(b), sa, sb)]
+            for i, (a, b) in enumerate(zip(ref, gen)):
+                xa, xb = pa.load(a), pb.load(b)
+                if keep:
+                    sa, sb = m_ref[i], m_gen[i]
+                else:
+                    sa, sb = pa.moments(ma), pb.moments(mb)
+                vals = [_ssim_map_mean(xa[c], xb[c], *sa[c], *sb[c], work=work)
+                        for c in range(4)]
                 out.append(float(np.mean(vals)))
         return np.array(out)
 

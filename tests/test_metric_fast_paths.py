@@ -1,0 +1,220 @@
+"""The metrics' fast paths against the implementations they replaced (kept as references).
+
+Each fast path of the default offline suite is compared with its reference on frames that look
+like the benchmark's renders — a 2D scene (PHYRE's flat palette, anti-aliased bodies moving
+between frames, codec-like blur and noise) and a 3D one (sky and floor gradients, Lambert-shaded
+spheres with soft shadows) — at 512², the benchmark's size, and at an odd size. Tolerances
+(absolute, on the metric's value):
+
+=============  ==========  =========================================================  ========
+metric         tolerance   fast path                                                  version
+=============  ==========  =========================================================  ========
+``ssim``       0 (bit)     Y/R/G/B planes and moments in reused work arrays            1
+``fsim``       0 (bit)     per-frame features one frame at a time                      1
+``st_lpips``   0 (bit)     channels-last weights, one frame at a time                  1
+=============  ==========  =========================================================  ========
+
+Every test fails when the fast path drifts from its reference by more than the tolerance
+(`test_the_comparisons_can_fail` checks that the comparison itself catches a small change).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from visphy_plugins.metrics import _torch as _T
+from visphy_plugins.metrics import pixel
+
+torch = pytest.importorskip("torch")
+piq = pytest.importorskip("piq")
+
+from visphy_plugins.metrics import perceptual as P  # noqa: E402
+
+
+# ----------------------------------------------------------------------------- frames
+def _supersampled(draw, size: int, ss: int = 3) -> np.ndarray:
+    """``draw(yy, xx)`` → float RGB at ``ss``× the size, area-averaged down (anti-aliasing)."""
+    yy, xx = np.mgrid[:size * ss, :size * ss] / ss
+    big = draw(yy, xx)
+    return big.reshape(size, ss, size, ss, 3).mean((1, 3))
+
+
+def _codec(img: np.ndarray, seed: int) -> np.ndarray:
+    """Mild blur and noise, as an H.264 round trip leaves on flat renders."""
+    import cv2
+
+    out = cv2.GaussianBlur(img.astype(np.float32), (0, 0), 0.6)
+    out += np.random.default_rng(seed).normal(0, 1.5, out.shape).astype(np.float32)
+    return np.clip(np.round(out), 0, 255).astype(np.uint8)
+
+
+def frames_2d(n: int, size: int = 512, seed: int = 0) -> np.ndarray:
+    """A PHYRE-like 2D clip: white background, black floor and bar, a red ball falling and a
+    green and a blue body, moving from frame to frame."""
+    s = size / 512
+    out = []
+    for k in range(n):
+        def draw(yy, xx, k=k):
+            img = np.empty((*yy.shape, 3))
+            img[:] = (255, 255, 255)
+            img[yy > 470 * s] = (0, 0, 0)
+            bar = (np.abs(yy - 300 * s) < 6 * s) & (xx > 60 * s) & (xx < 330 * s)
+            img[bar] = (0, 0, 0)
+            cy = (80 + 22 * k + 3 * seed) * s
+            img[(xx - 200 * s) ** 2 + (yy - cy) ** 2 < (28 * s) ** 2] = (240, 70, 60)
+            img[(np.abs(xx - (380 - 6 * k) * s) < 30 * s) & (np.abs(yy - 420 * s) < 50 * s)] \
+                = (90, 200, 100)
+            img[(xx - (120 + 9 * k) * s) ** 2 + (yy - 440 * s) ** 2 < (30 * s) ** 2] \
+                = (60, 110, 230)
+            return img
+        out.append(_codec(_supersampled(draw, size), seed * 100 + k))
+    return np.stack(out)
+
+
+def frames_3d(n: int, size: int = 512, seed: int = 0) -> np.ndarray:
+    """A three.js-like 3D clip: sky gradient, a lit floor, two shaded spheres with shadows."""
+    yy, xx = np.mgrid[:size, :size] / size
+    out = []
+    for k in range(n):
+        img = np.empty((size, size, 3))
+        sky = yy < 0.55
+        img[sky] = (np.array([150, 190, 235]) * (1 - 0.4 * yy[sky])[:, None])
+        floor = ~sky
+        img[floor] = (np.array([185, 202, 210]) * (0.6 + 0.5 * yy[floor])[:, None])
+        for (cx, cy, r, rgb) in (((0.3 + 0.03 * k, 0.5 - 0.02 * k + 0.01 * seed, 0.12,
+                                   (230, 60, 50))),
+                                 ((0.7 - 0.02 * k, 0.62, 0.09, (60, 120, 230)))):
+            shadow = ((xx - cx - 0.05) / (1.2 * r)) ** 2 + ((yy - 0.78) / (0.3 * r)) ** 2 < 1
+            img[shadow & floor] *= 0.55
+            d2 = ((xx - cx) ** 2 + (yy - cy) ** 2) / r ** 2
+            disk = d2 < 1
+            nz = np.sqrt(np.clip(1 - d2, 0, 1))
+            shade = 0.25 + 0.75 * np.clip(0.5 * nz + 0.5 * ((cx - xx) + (cy - yy)) / r * 0.7,
+                                           0, 1)
+            img[disk] = np.array(rgb) * shade[disk][:, None]
+        out.append(_codec(img, 1000 + seed * 100 + k))
+    return np.stack(out)
+
+
+@pytest.fixture(scope="module")
+def clips() -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """(reference, generated) pair batches: 2D and 3D at 512², a generated clip two frames
+    late with a different seed, and repeated frames (as the scorer's pairings have)."""
+    r2, g2 = frames_2d(6), frames_2d(8, seed=1)[2:]
+    r3, g3 = frames_3d(5), frames_3d(7, seed=1)[2:]
+    return {"2d": (r2[[0, 1, 2, 3, 4, 5, 1]], g2[[0, 1, 2, 3, 4, 5, 2]]),
+            "3d": (r3[[0, 1, 2, 3, 4]], g3[[1, 0, 2, 4, 3]]),
+            "odd 2d": (frames_2d(3, 203)[:, :, :177], frames_2d(3, 203, seed=2)[:, :, :177])}
+
+
+@pytest.fixture(autouse=True)
+def fresh_frame_cache():
+    _T.clear_frame_cache()
+    yield
+    _T.clear_frame_cache()
+
+
+def close(ours, reference, atol: float) -> bool:
+    ours, reference = np.asarray(ours, np.float64), np.asarray(reference, np.float64)
+    return ours.shape == reference.shape and bool(
+        np.all(np.abs(ours - reference) <= atol) and np.isfinite(ours).all())
+
+
+def test_the_comparisons_can_fail(clips):
+    """The helpers catch a change of one unit in the last place (what a tolerance of 0 means)
+    and a NaN."""
+    ref, gen = clips["2d"]
+    value = pixel.SSIM().pair_values(ref[:2], gen[:2])
+    assert close(value, value, 0.0)
+    assert not close(np.nextafter(value, 2.0), value, 0.0)
+    assert not close(value + 2e-6, value, 1e-6)
+    assert not close(np.full_like(value, np.nan), value, 1.0)
+
+
+# ----------------------------------------------------------------------------- SSIM
+@pytest.mark.parametrize("case", ["2d", "3d", "odd 2d"])
+def test_ssim_moments_equal_the_reference_bit_for_bit(clips, case):
+    for frame in clips[case][0][:3]:
+        h, w = frame.shape[:2]
+        ours = pixel._moments_into(frame, np.empty((4, 2, h, w), np.float32))
+        theirs = pixel._reference_moments_into(frame, np.empty((4, 2, h, w), np.float32))
+        assert np.array_equal(ours, theirs)
+        planes = pixel._Planes((h, w))
+        assert all(np.array_equal(p, c) for p, c in zip(planes.load(frame),
+                                                          pixel._channels(frame)))
+
+
+@pytest.mark.parametrize("case", ["2d", "3d", "odd 2d"])
+def test_ssim_fast_path_equals_ssim_frame_bit_for_bit(clips, case, monkeypatch):
+    """Both paths (moments kept in the per-frame cache, or computed pair by pair into reused
+    arrays when a batch would not fit) give `ssim_frame`'s values, bit for bit."""
+    ref, gen = clips[case]
+    expected = [pixel.ssim_frame(a, b) for a, b in zip(ref, gen)]
+    assert close(pixel.SSIM().pair_values(ref, gen), expected, 0.0)
+    assert _T._frames_bytes > 0  # kept
+    monkeypatch.setattr(_T, "FRAME_CACHE_BYTES", 1)
+    _T.clear_frame_cache()
+    assert close(pixel.SSIM().pair_values(ref, gen), expected, 0.0)
+    assert _T._frames_bytes == 0  # pair by pair
+
+
+# ----------------------------------------------------------------------------- FSIM
+@pytest.mark.parametrize("case", ["2d", "3d", "odd 2d"])
+def test_fsim_features_one_frame_at_a_time_equal_the_batch(clips, case):
+    metric = P.FSIM()
+    frames = clips[case][0][:4]
+    with torch.inference_mode():
+        ours = metric.frame_features(frames)
+        theirs = metric._frame_features(frames)  # the previous path: the batch at once
+    assert len(ours) == len(theirs) == len(frames)
+    for fo, ft in zip(ours, theirs):
+        assert all(torch.equal(a, b) for a, b in zip(fo, ft))
+
+
+@pytest.mark.parametrize("case", ["2d", "3d"])
+def test_fsim_equals_piq(clips, case):
+    ref, gen = clips[case]
+    ours = P.FSIM().pair_values(ref[:3], gen[:3])
+    x = torch.from_numpy(ref[:3]).permute(0, 3, 1, 2).float() / 255
+    y = torch.from_numpy(gen[:3]).permute(0, 3, 1, 2).float() / 255
+    with torch.inference_mode():
+        theirs = piq.fsim(x, y, data_range=1.0, reduction="none").double().numpy()
+    assert close(ours, theirs, 1e-6)
+
+
+# ----------------------------------------------------------------------------- ST-LPIPS
+def _stlpips_reference(metric, ref: np.ndarray, gen: np.ndarray) -> np.ndarray:
+    """The previous computation: the net's weights in torch's default layout, the features of
+    each side's batch (chunks of four frames) at once."""
+    from stlpips_pytorch import utils
+
+    model = copy.deepcopy(metric.model()).to(memory_format=torch.contiguous_format)
+    assert model.net.slice1[0].weight.is_contiguous()
+    out = []
+    with torch.inference_mode():
+        for s in range(0, len(ref), P.CHUNK):
+            fx = P._lpips_features(model, metric._tensor(ref[s:s + P.CHUNK]),
+                                   utils.normalize_tensor)
+            fy = P._lpips_features(model, metric._tensor(gen[s:s + P.CHUNK]),
+                                   utils.normalize_tensor)
+            out += [float(P._lpips_combine(model, a, b)) for a, b in zip(fx, fy)]
+    return np.array(out)
+
+
+@pytest.mark.parametrize("case", ["2d", "3d", "odd 2d"])
+def test_st_lpips_fast_path_equals_the_reference(clips, case):
+    metric = P.STLPIPS()
+    assert metric.unavailable_reason() is None
+    assert metric.model().net.slice1[0].weight.is_contiguous(
+        memory_format=torch.channels_last)
+    ref, gen = clips[case]
+    ours = metric.pair_values(ref, gen)
+    assert close(ours, _stlpips_reference(metric, ref, gen), 0.0)
+    with torch.inference_mode():  # and the package's own forward, pair by pair
+        direct = [float(metric.forward(metric.model(), metric._tensor(a[None]),
+                                       metric._tensor(b[None])).flatten()[0])
+                  for a, b in zip(ref, gen)]
+    assert close(ours, direct, 1e-6)
