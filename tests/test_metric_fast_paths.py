@@ -10,7 +10,8 @@ spheres with soft shadows) — at 512², the benchmark's size, and at an odd siz
 metric         tolerance   fast path                                                  version
 =============  ==========  =========================================================  ========
 ``ssim``       0 (bit)     Y/R/G/B planes and moments in reused work arrays            1
-``fsim``       0 (bit)     per-frame features one frame at a time                      1
+``fsim``       0 (bit)     per frame: OpenCV scaling/pooling, phase congruency one      1
+                           orientation at a time in reused buffers
 ``st_lpips``   0 (bit)     channels-last weights, one frame at a time                  1
 =============  ==========  =========================================================  ========
 
@@ -168,10 +169,43 @@ def test_fsim_features_one_frame_at_a_time_equal_the_batch(clips, case):
     frames = clips[case][0][:4]
     with torch.inference_mode():
         ours = metric.frame_features(frames)
-        theirs = metric._frame_features(frames)  # the previous path: the batch at once
+        theirs = metric._reference_frame_features(frames)  # the previous path: the batch
     assert len(ours) == len(theirs) == len(frames)
     for fo, ft in zip(ours, theirs):
         assert all(torch.equal(a, b) for a, b in zip(fo, ft))
+
+
+@pytest.mark.parametrize("size", [64, 131, 256])
+def test_fsim_phase_congruency_fast_is_piqs_bit_for_bit(size):
+    from piq.fsim import _phase_congruency
+
+    d = P._defaults(piq.fsim)
+    frames = np.concatenate([frames_2d(2, size), frames_3d(2, size)])
+    x = (torch.from_numpy(frames).permute(0, 3, 1, 2).float() * 1.0)[:, :1]
+    with torch.inference_mode():
+        bank = P._fsim_filters(x, d)
+        theirs = _phase_congruency(x, bank[0], d["scales"], d["orientations"], d["k"])
+        ours = torch.cat([P._phase_congruency_fast(x[i:i + 1], bank, d["scales"],
+                                                   d["orientations"], d["k"])
+                          for i in range(len(x))])
+        assert torch.equal(ours, theirs)
+        # a batch too
+        assert torch.equal(P._phase_congruency_fast(x, bank, d["scales"], d["orientations"],
+                                                    d["k"]), theirs)
+
+
+def test_fsim_input_is_torchs_bit_for_bit(clips):
+    """The look-up table and OpenCV's 2×2 area resize give torch's ×255 and avg_pool2d."""
+    t = torch
+    for frame in (clips["2d"][0][0], clips["3d"][1][2], clips["odd 2d"][0][1],
+                  np.random.default_rng(0).integers(0, 256, (517, 515, 3), np.uint8)):
+        x = P._torch.to_tensor(frame[None]) / float(1.0) * 255
+        x = t.nn.functional.avg_pool2d(x, max(1, round(min(x.shape[-2:]) / 256)))
+        ours = P._fsim_input(frame)
+        assert ours.shape == x.shape and ours.stride() == x.stride()
+        assert torch.equal(ours, x)
+    assert P._fsim_input(frame.astype(np.float32)) is None
+    assert P._fsim_input(np.zeros((900, 900, 3), np.uint8)) is None  # pooled by 4
 
 
 @pytest.mark.parametrize("case", ["2d", "3d"])
