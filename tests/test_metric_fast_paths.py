@@ -12,6 +12,8 @@ metric         tolerance   fast path                                            
 ``ssim``       0 (bit)     Y/R/G/B planes and moments in reused work arrays            1
 ``fsim``       0 (bit)     per frame: OpenCV scaling/pooling, phase congruency one      1
                            orientation at a time in reused buffers
+``vsi``        1e-6        per frame: look-up scalings, SDSP's constant maps once,      1
+                           LMN of the pooled frame (measured |Δ| < 1e-7)
 ``st_lpips``   0 (bit)     channels-last weights, one frame at a time                  1
 =============  ==========  =========================================================  ========
 
@@ -217,6 +219,59 @@ def test_fsim_equals_piq(clips, case):
     with torch.inference_mode():
         theirs = piq.fsim(x, y, data_range=1.0, reduction="none").double().numpy()
     assert close(ours, theirs, 1e-6)
+
+
+# ----------------------------------------------------------------------------- VSI
+#: VSI's fast path pools the frame before its LMN conversion (piq converts, then pools: both
+#: linear, so only float32 rounding differs); measured |Δ| on VSI values below 1e-7
+VSI_ATOL = 1e-6
+
+
+@pytest.mark.parametrize("case", ["2d", "3d", "odd 2d"])
+def test_vsi_features_equal_the_reference(clips, case):
+    """The saliency map bit for bit; the LMN maps and L's gradient within float32 rounding
+    of the pooled frame's values (up to 255: an ulp is 3e-5): 1e-4 absolute."""
+    metric = P.VSI()
+    frames = clips[case][0][:3]
+    with torch.inference_mode():
+        ours = metric.frame_features(frames)
+        theirs = metric._reference_frame_features(frames)
+    for fo, ft in zip(ours, theirs):
+        assert torch.equal(fo[0], ft[0])  # saliency
+        for a, b in zip(fo[1:], ft[1:]):
+            assert a.shape == b.shape
+            assert float((a - b).abs().max()) <= 1e-4
+
+
+@pytest.mark.parametrize("case", ["2d", "3d", "odd 2d"])
+def test_vsi_equals_piq_and_the_reference(clips, case):
+    ref, gen = clips[case]
+    metric = P.VSI()
+    ours = metric.pair_values(ref, gen)
+    x = torch.from_numpy(np.ascontiguousarray(ref)).permute(0, 3, 1, 2).float() / 255
+    y = torch.from_numpy(np.ascontiguousarray(gen)).permute(0, 3, 1, 2).float() / 255
+    with torch.inference_mode():
+        theirs = piq.vsi(x, y, data_range=1.0, reduction="none").double().numpy()
+        before = []
+        for a, b in zip(ref, gen):
+            fa = metric._reference_frame_features(a[None])[0]
+            fb = metric._reference_frame_features(b[None])[0]
+            before.append(float(metric.combine(fa, fb)))
+    assert close(ours, theirs, VSI_ATOL)
+    assert close(ours, before, VSI_ATOL)
+
+
+def test_vsi_sdsp_is_piqs_bit_for_bit(clips):
+    from piq.vsi import sdsp
+
+    d = P._defaults(piq.vsi)
+    for frames in (clips["2d"][0][:2], clips["odd 2d"][1][:2]):
+        x = P._torch.to_tensor(frames) * 255. / float(1.0)
+        with torch.inference_mode():
+            theirs = sdsp(x, data_range=255, omega_0=d["omega_0"], sigma_f=d["sigma_f"],
+                          sigma_d=d["sigma_d"], sigma_c=d["sigma_c"])
+            ours = P._sdsp(x / float(255) * 255, d)
+        assert torch.equal(ours, theirs)
 
 
 # ----------------------------------------------------------------------------- ST-LPIPS
