@@ -15,6 +15,8 @@ metric         tolerance   fast path                                            
 ``vsi``        1e-6        per frame: look-up scalings, SDSP's constant maps once,      1
                            LMN of the pooled frame (measured |Δ| < 1e-7)
 ``st_lpips``   0 (bit)     channels-last weights, one frame at a time                  1
+``st_lpips``   1e-3        opt-in bfloat16 (``VISPHY_STLPIPS_BF16=1``; identity       1
+ (bf16)                    ``…/bf16``): measured |Δ| ≤ 4.8e-4
 =============  ==========  =========================================================  ========
 
 Every test fails when the fast path drifts from its reference by more than the tolerance
@@ -307,3 +309,32 @@ def test_st_lpips_fast_path_equals_the_reference(clips, case):
                                        metric._tensor(b[None])).flatten()[0])
                   for a, b in zip(ref, gen)]
     assert close(ours, direct, 1e-6)
+
+
+#: bfloat16 ST-LPIPS (opt-in, ``VISPHY_STLPIPS_BF16=1``): measured on 15 scenes of the
+#: benchmark's sub split (12 2D, 3 3D; 24 pairs each), |Δ| ≤ 4.8e-4 on values up to 0.24
+#: (≤ 0.7 % of values above 1e-3)
+STLPIPS_BF16_ATOL = 1e-3
+
+
+def test_st_lpips_bf16_is_opt_in_within_its_tolerance(clips, monkeypatch):
+    metric = P.STLPIPS()
+    monkeypatch.delenv(P.STLPIPS_BF16_ENV, raising=False)
+    assert metric.precision() == "fp32"
+    fp32_identity = metric.identity()
+    ref, gen = clips["2d"]
+    fp32 = metric.pair_values(ref, gen)
+    monkeypatch.setenv(P.STLPIPS_BF16_ENV, "1")
+    assert metric.precision() == "bf16"
+    assert metric.identity() != fp32_identity and "/bf16" in metric.identity()
+    hits = _T.frame_cache_stats["hits"]
+    bf16 = metric.pair_values(ref, gen)  # never served the fp32 features of the cache
+    assert _T.frame_cache_stats["hits"] - hits == 2  # its own repeats only (frame 1, 2)
+    assert close(bf16, fp32, STLPIPS_BF16_ATOL)
+    assert not np.array_equal(bf16, fp32)  # it did run in bfloat16
+    assert close(metric.pair_values(ref, gen), bf16, 0.0)  # repeatable
+    monkeypatch.setenv(P.STLPIPS_BF16_ENV, "0")
+    assert metric.identity() == fp32_identity
+    monkeypatch.setenv(P.STLPIPS_BF16_ENV, "maybe")
+    with pytest.raises(ValueError, match=P.STLPIPS_BF16_ENV):
+        metric.precision()
