@@ -11,6 +11,11 @@ needs is free:
   scoring and gives it back when it next waits on a provider (a repair call, its judges) or
   finishes. Only slot holders hold rendered clips and metric buffers, so slots bound memory as
   well as CPU; scenes waiting on a provider hold at most their decoded ground truth.
+* **scoring memory**: what a scene holds while it scores grows with its clip (frames × width
+  × height: its ground truth, clip, twin, still and paper clips, and the metrics' buffers), so
+  the scenes scoring at once may hold at most `SCORE_PIXELS` clip pixels in all; a scene whose
+  clip is larger scores alone. Two 3D scenes (75 frames of 512²) do not score side by side; a
+  3D scene and 2D scenes (17 frames) do.
 * **the render lane**: one render at a time (the process's browser pool prepares and restarts
   pages for one page at a time, and Chromium's GPU process runs WebGL serially anyway), and the
   first render of each scene in scene order (a turnstile), so the engine sees the programs in
@@ -41,6 +46,7 @@ from typing import Callable, Iterator, Sequence, TypeVar
 
 from visphy_core.console import StageEvents
 from visphy_core.errors import ConfigError
+from visphy_core.heap import BudgetTrim, limit_arenas
 
 log = logging.getLogger("visphy.scheduler")
 
@@ -54,6 +60,15 @@ WORKER_MEMORY_BYTES = 1536 * 2**20
 BASE_MEMORY_BYTES = 1536 * 2**20
 #: torch's intra-op threads (`visphy_plugins.metrics._torch`), pinned by `pin_torch_threads`.
 TORCH_THREADS_ENV = "VISPHY_TORCH_THREADS"
+#: Clip pixels (frames × width × height, summed over the scenes in the ``score`` stage) that
+#: may be scored at once: ``$VISPHY_SCORE_MPX`` million, else this. Measured (oracle × threejs,
+#: default suite, 2 workers): a 3D scene (75 frames of 512², 19.7 M pixels) holds about
+#: 0.35 GiB while it scores (its ground truth, clip, twin, still and paper clips, 59 MB each,
+#: and the largest metric's buffers, up to 0.2 GiB), a 2D scene (17 frames, 4.5 M) about a
+#: quarter of that; two 3D scenes scoring at once were the run's peak. 32 M lets a 3D scene
+#: score beside 2D scenes, never beside another 3D scene.
+SCORE_PIXELS = 32_000_000
+SCORE_PIXELS_ENV = "VISPHY_SCORE_MPX"
 #: How often a waiting scene looks whether the run was cancelled (seconds).
 POLL_S = 0.2
 
@@ -105,6 +120,31 @@ def resolve_workers(value: object) -> int:
     return number
 
 
+def score_pixels() -> int:
+    """`SCORE_PIXELS`, or ``$VISPHY_SCORE_MPX`` million when set (``0``: no limit)."""
+    raw = os.environ.get(SCORE_PIXELS_ENV, "").strip()
+    if not raw:
+        return SCORE_PIXELS
+    try:
+        value = float(raw)
+    except ValueError:
+        value = -1.0
+    if value < 0:
+        raise ConfigError(f"${SCORE_PIXELS_ENV}={raw} is not valid: a number of million clip "
+                          "pixels ≥ 0 (0: no limit)")
+    return int(value * 1_000_000)
+
+
+def clip_pixels(item: object) -> int:
+    """Frames × width × height of a scene's clip (its ``clip``: `visphy_core.video.ClipInfo`);
+    0 for an item without one."""
+    clip = getattr(item, "clip", None)
+    try:
+        return max(0, int(clip.n_frames) * int(clip.width) * int(clip.height))
+    except (AttributeError, TypeError, ValueError):
+        return 0
+
+
 def pin_torch_threads() -> str:
     """Fix torch's intra-op threads for this process before any metric imports torch: the
     value of ``$VISPHY_TORCH_THREADS`` when set, else 1 (written to the environment).
@@ -112,7 +152,12 @@ def pin_torch_threads() -> str:
     Why: torch splits reductions between its threads, so the last bits of FSIM, VSI or ST-LPIPS
     change with the thread count; a thread count that followed ``run.workers`` would make the
     scores depend on it. One thread per worker is also the fast setting where workers fill the
-    cores. Returns the value in force."""
+    cores. Returns the value in force.
+
+    Also caps glibc's arenas (`visphy_core.heap.limit_arenas`): it must happen before the run's
+    threads start, as this does, and one arena lets a scene's thread reuse what the scenes
+    before it freed on other threads."""
+    limit_arenas()
     value = os.environ.setdefault(TORCH_THREADS_ENV, "1")
     import sys
 
@@ -162,6 +207,8 @@ class _SceneState:
     render_turn: bool = False     # it passed the render turnstile
     call_turn: bool = False       # it passed the call turnstile
     scoring: int = 0              # depth of "score" stages it is in
+    pixels: int = 0               # its clip's pixels (`clip_pixels`): its scoring memory
+    scores_now: bool = False      # it counts in the scoring memory
 
 
 class StageGates(StageEvents):
@@ -179,6 +226,9 @@ class StageGates(StageEvents):
         self._call_lock = threading.Lock() if serial_calls else None
         self._call_turn = Turnstile() if serial_calls else None
         self._local = threading.local()
+        self.score_pixels = score_pixels()
+        self._score_cond = threading.Condition()
+        self._scoring: dict[int, int] = {}  # scene index -> its pixels, while it scores
 
     # -- events pass through
     def begin(self, stage: str, scene_id: str) -> None:
@@ -191,19 +241,26 @@ class StageGates(StageEvents):
         self.inner.scene_finished(scene_id)
 
     # -- a worker's scene
-    def bind(self, index: int, scene_id: str) -> None:
-        """The calling thread carries scene ``index`` (its position in the run) from now on."""
-        self._local.scene = _SceneState(index, scene_id)
+    def bind(self, index: int, scene_id: str, pixels: int = 0) -> None:
+        """The calling thread carries scene ``index`` (its position in the run) from now on;
+        ``pixels``: its clip's (`clip_pixels`), what it may hold while it scores."""
+        self._local.scene = _SceneState(index, scene_id, pixels=max(0, int(pixels)))
 
     def unbind(self) -> None:
         """The scene is over (finished, failed or cancelled): give back what it holds."""
         me: _SceneState | None = getattr(self._local, "scene", None)
         if me is None:
             return
+        self._leave_scoring(me)
         self._release_slot(me)
         self._pass_render_turn(me)
         self._pass_call_turn(me)
         self._local.scene = None
+
+    def scoring_now(self) -> dict[int, int]:
+        """The scenes in the ``score`` stage now: index -> clip pixels."""
+        with self._score_cond:
+            return dict(self._scoring)
 
     def cancel(self) -> None:
         """Close the run: every scene is abandoned at its next stage entrance."""
@@ -233,6 +290,7 @@ class StageGates(StageEvents):
             return
         self.check()
         held: list[threading.Lock] = []
+        counted = False  # a "score" stage entered (its depth counted)
         try:
             if stage == "generate":
                 self._enter_generate(me, held)
@@ -246,7 +304,10 @@ class StageGates(StageEvents):
             elif stage == "score":
                 self._pass_render_turn(me)
                 self._take_slot(me)
+                if not me.scoring:
+                    self._enter_scoring(me)
                 me.scoring += 1
+                counted = True
             elif stage == "judge":
                 self._pass_render_turn(me)
                 self._release_slot(me)
@@ -261,8 +322,10 @@ class StageGates(StageEvents):
                 self._pass_call_turn(me)
             elif stage == "render" and not me.scoring:
                 self._pass_render_turn(me)
-            elif stage == "score":
+            elif stage == "score" and counted:
                 me.scoring -= 1
+                if not me.scoring:
+                    self._leave_scoring(me)
 
     def _enter_generate(self, me: _SceneState, held: list) -> None:
         """A model call: no slot is kept while the provider answers; a repair call gives up the
@@ -275,6 +338,27 @@ class StageGates(StageEvents):
                 self._call_turn.wait(me.index, self.cancelled)
             self._acquire(self._call_lock)
             held.append(self._call_lock)
+
+    def _enter_scoring(self, me: _SceneState) -> None:
+        """Wait until the scenes scoring now leave room for this scene's clip (`SCORE_PIXELS`
+        in all), or none scores; then count it in."""
+        with self._score_cond:
+            while True:
+                if self.cancelled.is_set():
+                    raise SceneCancelled()
+                if not (self._scoring and self.score_pixels and
+                        sum(self._scoring.values()) + me.pixels > self.score_pixels):
+                    break
+                self._score_cond.wait(POLL_S)
+            self._scoring[me.index] = me.pixels
+            me.scores_now = True
+
+    def _leave_scoring(self, me: _SceneState) -> None:
+        if me.scores_now:
+            me.scores_now = False
+            with self._score_cond:
+                self._scoring.pop(me.index, None)
+                self._score_cond.notify_all()
 
     def _acquire(self, lock) -> None:
         while not lock.acquire(timeout=POLL_S):
@@ -316,6 +400,10 @@ class SceneScheduler:
 
     ``on_dispatch(i)`` runs when item ``i`` is taken (the run's prefetch). An outcome is what
     ``process`` returned, or the exception it raised (a `SceneCancelled` scene has none).
+
+    While the scenes run, ``trim`` (`visphy_core.heap.BudgetTrim`) hands the allocator's free
+    pages back whenever the process is above its memory budget (the run also trims after each
+    scene); it stops with `results` or `cancel`.
     """
 
     def __init__(self, items: Sequence[T], key: Callable[[T], str], process: Callable[[T], object],
@@ -335,6 +423,8 @@ class SceneScheduler:
         self._draining = False
         self._alive = 0
         self._started = False
+        #: trims the allocator's free pages while the process is above its memory budget
+        self.trim = BudgetTrim()
 
     def _worker(self) -> None:
         try:
@@ -354,7 +444,7 @@ class SceneScheduler:
                     except Exception as exc:  # noqa: BLE001 - a hint ahead, never the scene
                         log.warning("on_dispatch(%d) failed: %s: %s", index,
                                     type(exc).__name__, exc)
-                self.gates.bind(index, self.key(item))
+                self.gates.bind(index, self.key(item), clip_pixels(item))
                 try:
                     outcome: object = self.process(item)
                 except SceneCancelled:
@@ -373,6 +463,7 @@ class SceneScheduler:
 
     def _start(self) -> None:
         self._started = True
+        self.trim.start()
         for n in range(self.threads):
             with self._cond:
                 self._alive += 1
@@ -383,23 +474,26 @@ class SceneScheduler:
         After `drain`, only the items already taken come (then the iteration ends)."""
         if not self._started:
             self._start()
-        while True:
-            with self._cond:
-                while self._next_yield not in self._outcomes:
-                    if self.gates.cancelled.is_set():
-                        return  # the scenes in flight are abandoned
-                    if self._next_yield >= (self._next_dispatch if self._draining
-                                            else len(self.items)):
-                        return
-                    if self._alive == 0:
-                        raise RuntimeError(f"scene {self.key(self.items[self._next_yield])} "
-                                           "was taken by a worker that is gone")
-                    self._cond.wait(POLL_S)
-                index = self._next_yield
-                outcome = self._outcomes.pop(index)
-                self._next_yield += 1
-                self._cond.notify_all()
-            yield self.items[index], outcome
+        try:
+            while True:
+                with self._cond:
+                    while self._next_yield not in self._outcomes:
+                        if self.gates.cancelled.is_set():
+                            return  # the scenes in flight are abandoned
+                        if self._next_yield >= (self._next_dispatch if self._draining
+                                                else len(self.items)):
+                            return
+                        if self._alive == 0:
+                            raise RuntimeError(f"scene {self.key(self.items[self._next_yield])}"
+                                               " was taken by a worker that is gone")
+                        self._cond.wait(POLL_S)
+                    index = self._next_yield
+                    outcome = self._outcomes.pop(index)
+                    self._next_yield += 1
+                    self._cond.notify_all()
+                yield self.items[index], outcome
+        finally:
+            self.trim.stop()
 
     def join(self, timeout_s: float) -> int:
         """Wait up to ``timeout_s`` for the worker threads to end (after `cancel`, each ends at
@@ -421,3 +515,4 @@ class SceneScheduler:
         """Take no further item and abandon the ones in flight (at their next stage)."""
         self.drain()
         self.gates.cancel()
+        self.trim.stop()

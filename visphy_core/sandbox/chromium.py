@@ -83,6 +83,26 @@ def write_seccomp_filter(directory: Path) -> Path:
     return path
 
 
+#: /bin/sh lines for a launcher, before its ``exec``: Chromium honours only the last
+#: ``--disable-features`` (and ``--enable-features``) of its command line, and Playwright passes
+#: its own list before the pool's arguments, so each list is merged into one switch (all the
+#: values, in order) at the end of ``"$@"``: Playwright's features and the pool's alike apply.
+MERGE_FEATURES_SH = """dis=""; ena=""
+for a in "$@"; do
+  case "$a" in
+    --disable-features=*) dis="${dis:+$dis,}${a#--disable-features=}";;
+    --enable-features=*) ena="${ena:+$ena,}${a#--enable-features=}";;
+  esac
+done
+for a in "$@"; do
+  shift
+  case "$a" in --disable-features=*|--enable-features=*) ;; *) set -- "$@" "$a";; esac
+done
+if [ -n "$dis" ]; then set -- "$@" "--disable-features=$dis"; fi
+if [ -n "$ena" ]; then set -- "$@" "--enable-features=$ena"; fi
+"""
+
+
 def bwrap_launcher(bwrap: str, executable: str, profile: Path) -> str:
     """The body of a /bin/sh launcher that execs ``executable "$@"`` under bubblewrap as uid
     65534, with the seccomp filter. ``profile`` (Chromium's HOME, owned by 65534) is bound
@@ -108,7 +128,7 @@ def bwrap_launcher(bwrap: str, executable: str, profile: Path) -> str:
     q = " ".join
     return f"""#!/bin/sh
 echo $$ > "$VISPHY_CHROMIUM_PIDFILE"
-udd=""
+{MERGE_FEATURES_SH}udd=""
 for a in "$@"; do case "$a" in --user-data-dir=*) udd="${{a#--user-data-dir=}}";; esac; done
 extra=""
 if [ -n "$udd" ]; then
