@@ -151,8 +151,9 @@ class BudgetTrim:
     ``every_s`` seconds, at most one trim every `MIN_WAIT_S` (the pages it gives back are faulted
     in again by the next allocations). A trim that gives back less than `SMALL` bytes (what is
     resident is in use) doubles the wait before the next one, up to `MAX_WAIT_S`; one that
-    gives back more resets it. `start` does nothing (returns False) without glibc, Linux's RSS, a budget, or
-    with ``VISPHY_MALLOC_TRIM=0``. ``trims`` and ``returned`` (bytes) count what it did."""
+    gives back more resets it. `start` does nothing (returns False) without glibc, Linux's
+    RSS, a budget, or with ``VISPHY_MALLOC_TRIM=0``. ``trims`` and ``returned`` (bytes) count
+    what it did."""
 
     SMALL = 32 * 2**20
     MIN_WAIT_S = 1.0
