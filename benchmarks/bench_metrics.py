@@ -20,6 +20,13 @@ what another scene or metric computed).
 Timings on a shared machine: run the before and after in the same go, several repeats
 (``--repeat``: each scene scored that many times, the median kept).
 
+Threads: torch's intra-op threads are set as a run sets them (`visphy_core.scheduler.
+pin_torch_threads`: ``$VISPHY_TORCH_THREADS``, else 1), so the figures are what a run's scoring
+costs; ``--torch-threads N`` overrides. (Before, the bench took every core this process may
+use: with two threads on two cores that other processes keep busy, each of FSIM's, VSI's and
+ST-LPIPS' thousands of small operations waits for its slower thread, and the CPU seconds of the
+torch metrics measured 3–10× those of one thread.)
+
 ``--floor`` also prints the arithmetic floor of the learned perceptual metric: ST-LPIPS'
 floating-point operations per frame at its working size (counted by torch's
 ``FlopCounterMode`` on the real net), the throughput this machine's torch reaches on it
@@ -34,6 +41,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import time
 from pathlib import Path
@@ -57,7 +65,15 @@ def main() -> None:
                         help="score each scene this many times and keep the median")
     parser.add_argument("--floor", action="store_true",
                         help="also print ST-LPIPS' GFLOP per frame and the seconds they floor")
+    parser.add_argument("--torch-threads", type=int, default=None,
+                        help="torch's intra-op threads (default: as a run sets them, "
+                             "$VISPHY_TORCH_THREADS or 1)")
     args = parser.parse_args()
+    if args.torch_threads is not None:
+        os.environ["VISPHY_TORCH_THREADS"] = str(max(1, args.torch_threads))
+    from visphy_core.scheduler import pin_torch_threads
+
+    pin_torch_threads()  # before any metric imports torch, as `visphy run` does
 
     from omegaconf import OmegaConf
 

@@ -338,3 +338,23 @@ def test_st_lpips_bf16_is_opt_in_within_its_tolerance(clips, monkeypatch):
     monkeypatch.setenv(P.STLPIPS_BF16_ENV, "maybe")
     with pytest.raises(ValueError, match=P.STLPIPS_BF16_ENV):
         metric.precision()
+
+
+@pytest.mark.parametrize("name", ["fsim", "vsi"])
+def test_fsim_vsi_run_on_one_thread_whatever_the_process_count(clips, name):
+    """Per frame and per pair the piq metrics run on one torch thread (too small to share):
+    the values are the same at any process thread count, and the count is restored."""
+    metric = {"fsim": P.FSIM, "vsi": P.VSI}[name]()
+    ref, gen = clips["3d"]
+    _T.torch()  # (its first call sets the process's count)
+    before = torch.get_num_threads()
+    values = {}
+    try:
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            _T.clear_frame_cache()
+            values[n] = metric.pair_values(ref[:3], gen[:3])
+            assert torch.get_num_threads() == n
+    finally:
+        torch.set_num_threads(before)
+    assert close(values[2], values[1], 0.0)

@@ -330,9 +330,14 @@ class _PiqMetric(Metric):
         raise NotImplementedError
 
     def pair_values(self, reference: np.ndarray, generated: np.ndarray) -> np.ndarray:
+        """One torch thread, whatever the process's count: per frame and per pair this is
+        hundreds of operations on 256² maps, too small to share (with two threads on this
+        project's two shared cores a scene's FSIM and VSI measured 2–10× the CPU seconds of
+        one thread, noisily: each operation's threads wait for the slower one). The values
+        then no longer depend on the thread count either."""
         t = _torch.torch()
         out = []
-        with t.inference_mode():
+        with t.inference_mode(), _torch.threads(1):
             ns = (self.name, str(_torch.device()))
             for s in range(0, len(reference), CHUNK):
                 f_ref = _torch.per_frame(reference[s:s + CHUNK], ns + ("reference",),
