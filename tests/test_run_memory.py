@@ -314,9 +314,40 @@ def test_a_scene_waiting_for_scoring_memory_is_abandoned_on_cancel(monkeypatch):
     assert outcome == {"b": "cancelled"} and gates.scoring_now() == {}
 
 
+def test_3d_scenes_in_flight_are_fewer_than_the_threads(monkeypatch):
+    """Scenes hold their decoded ground truth from their start: with 3D clips, no more of them
+    are taken than `INFLIGHT_PIXELS` allows, though threads are free (and without the limit
+    they are)."""
+    from visphy_core.console import StageEvents
+    from visphy_core.scheduler import INFLIGHT_PIXELS_ENV, SceneScheduler, StageGates
+
+    def run(limit: str) -> tuple[int, int]:
+        monkeypatch.setenv(INFLIGHT_PIXELS_ENV, limit)
+        gates = StageGates(StageEvents(), 2)
+        seen: list[dict] = []
+        box: list[SceneScheduler] = []
+
+        def process(scene):
+            for _ in range(4):
+                seen.append(box[0].inflight_now())
+                time.sleep(0.05)
+            return scene.scene_id
+
+        box.append(SceneScheduler([_Scene(f"3d-{i}", _Clip(75)) for i in range(8)],
+                                  key=lambda s: s.scene_id, process=process, gates=gates))
+        assert [o for _, o in box[0].results()] == [f"3d-{i}" for i in range(8)]
+        assert box[0].threads == 5 and box[0].inflight_now() == {}
+        return max(len(s) for s in seen), max(sum(s.values()) for s in seen)
+
+    most, pixels = run("64")
+    assert most == 3 and pixels <= 64_000_000
+    assert run("0")[0] == 5
+
+
 def test_clip_pixels_and_the_limit_setting(monkeypatch):
     from visphy_core.errors import ConfigError
-    from visphy_core.scheduler import SCORE_PIXELS_ENV, clip_pixels, score_pixels
+    from visphy_core.scheduler import (INFLIGHT_PIXELS_ENV, SCORE_PIXELS_ENV, clip_pixels,
+                                       inflight_pixels, score_pixels)
 
     assert clip_pixels(_Scene("s", _Clip(17))) == 17 * 512 * 512
     assert clip_pixels(object()) == 0
@@ -325,6 +356,9 @@ def test_clip_pixels_and_the_limit_setting(monkeypatch):
     monkeypatch.setenv(SCORE_PIXELS_ENV, "-1")
     with pytest.raises(ConfigError, match=SCORE_PIXELS_ENV):
         score_pixels()
+    monkeypatch.setenv(INFLIGHT_PIXELS_ENV, "many")
+    with pytest.raises(ConfigError, match=INFLIGHT_PIXELS_ENV):
+        inflight_pixels()
 
 
 # ------------------------------------------------------------------ Chromium and its driver

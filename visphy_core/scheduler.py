@@ -16,6 +16,9 @@ needs is free:
   the scenes scoring at once may hold at most `SCORE_PIXELS` clip pixels in all; a scene whose
   clip is larger scores alone. Two 3D scenes (75 frames of 512²) do not score side by side; a
   3D scene and 2D scenes (17 frames) do.
+* **scenes in flight**: a scene decodes its ground truth as it starts and holds it while it
+  waits; the scenes taken by the threads may hold at most `INFLIGHT_PIXELS` clip pixels in
+  all (`SceneScheduler`), so 3D scenes wait fewer at a time than 2D scenes.
 * **the render lane**: one render at a time (the process's browser pool prepares and restarts
   pages for one page at a time, and Chromium's GPU process runs WebGL serially anyway), and the
   first render of each scene in scene order (a turnstile), so the engine sees the programs in
@@ -69,6 +72,13 @@ TORCH_THREADS_ENV = "VISPHY_TORCH_THREADS"
 #: score beside 2D scenes, never beside another 3D scene.
 SCORE_PIXELS = 32_000_000
 SCORE_PIXELS_ENV = "VISPHY_SCORE_MPX"
+#: Clip pixels of the scenes in flight (taken by a worker thread, not finished), in all:
+#: ``$VISPHY_INFLIGHT_MPX`` million, else this. A scene decodes its ground truth as it starts
+#: and holds it while it waits for its reply, the render lane or a slot: measured with the
+#: oracle in the 3D part of the split, three scenes waited so, 56 MB each. 64 M keeps 3D
+#: scenes to three in flight (the two slot holders and the next), 2D scenes to the threads.
+INFLIGHT_PIXELS = 64_000_000
+INFLIGHT_PIXELS_ENV = "VISPHY_INFLIGHT_MPX"
 #: How often a waiting scene looks whether the run was cancelled (seconds).
 POLL_S = 0.2
 
@@ -120,19 +130,28 @@ def resolve_workers(value: object) -> int:
     return number
 
 
-def score_pixels() -> int:
-    """`SCORE_PIXELS`, or ``$VISPHY_SCORE_MPX`` million when set (``0``: no limit)."""
-    raw = os.environ.get(SCORE_PIXELS_ENV, "").strip()
+def _pixels_setting(env: str, default: int) -> int:
+    raw = os.environ.get(env, "").strip()
     if not raw:
-        return SCORE_PIXELS
+        return default
     try:
         value = float(raw)
     except ValueError:
         value = -1.0
     if value < 0:
-        raise ConfigError(f"${SCORE_PIXELS_ENV}={raw} is not valid: a number of million clip "
-                          "pixels ≥ 0 (0: no limit)")
+        raise ConfigError(f"${env}={raw} is not valid: a number of million clip pixels ≥ 0 "
+                          "(0: no limit)")
     return int(value * 1_000_000)
+
+
+def score_pixels() -> int:
+    """`SCORE_PIXELS`, or ``$VISPHY_SCORE_MPX`` million when set (``0``: no limit)."""
+    return _pixels_setting(SCORE_PIXELS_ENV, SCORE_PIXELS)
+
+
+def inflight_pixels() -> int:
+    """`INFLIGHT_PIXELS`, or ``$VISPHY_INFLIGHT_MPX`` million when set (``0``: no limit)."""
+    return _pixels_setting(INFLIGHT_PIXELS_ENV, INFLIGHT_PIXELS)
 
 
 def clip_pixels(item: object) -> int:
@@ -401,7 +420,9 @@ class SceneScheduler:
     ``on_dispatch(i)`` runs when item ``i`` is taken (the run's prefetch). An outcome is what
     ``process`` returned, or the exception it raised (a `SceneCancelled` scene has none).
 
-    While the scenes run, ``trim`` (`visphy_core.heap.BudgetTrim`) hands the allocator's free
+    A thread takes the next scene only while the scenes in flight leave room for its clip
+    (`INFLIGHT_PIXELS`), or none is in flight. While the scenes run, ``trim``
+    (`visphy_core.heap.BudgetTrim`) hands the allocator's free
     pages back whenever the process is above its memory budget (the run also trims after each
     scene); it stops with `results` or `cancel`.
     """
@@ -415,6 +436,9 @@ class SceneScheduler:
         self.gates = gates
         self.threads = min(scene_threads(gates.workers), max(1, len(self.items)))
         self.window = max(window or 0, 4 * gates.workers + 4, self.threads)
+        self.inflight_pixels = inflight_pixels()
+        self._pixels = [clip_pixels(item) for item in self.items]
+        self._inflight: dict[int, int] = {}  # scene index -> its clip pixels, while in flight
         self.on_dispatch = on_dispatch
         self._cond = threading.Condition()
         self._next_dispatch = 0
@@ -431,12 +455,14 @@ class SceneScheduler:
             while True:
                 with self._cond:
                     while (not self._draining and self._next_dispatch < len(self.items)
-                           and self._next_dispatch >= self._next_yield + self.window):
+                           and (self._next_dispatch >= self._next_yield + self.window
+                                or self._no_room(self._next_dispatch))):
                         self._cond.wait(POLL_S)
                     if self._draining or self._next_dispatch >= len(self.items):
                         return
                     index = self._next_dispatch
                     self._next_dispatch += 1
+                    self._inflight[index] = self._pixels[index]
                 item = self.items[index]
                 if self.on_dispatch is not None:
                     try:
@@ -453,6 +479,9 @@ class SceneScheduler:
                     outcome = exc
                 finally:
                     self.gates.unbind()
+                    with self._cond:
+                        self._inflight.pop(index, None)
+                        self._cond.notify_all()
                 with self._cond:
                     self._outcomes[index] = outcome
                     self._cond.notify_all()
@@ -460,6 +489,16 @@ class SceneScheduler:
             with self._cond:
                 self._alive -= 1
                 self._cond.notify_all()
+
+    def _no_room(self, index: int) -> bool:
+        """Whether scene ``index`` must wait for the scenes in flight (`INFLIGHT_PIXELS`)."""
+        return bool(self.inflight_pixels and self._inflight and
+                    sum(self._inflight.values()) + self._pixels[index] > self.inflight_pixels)
+
+    def inflight_now(self) -> dict[int, int]:
+        """The scenes in flight now: index -> clip pixels."""
+        with self._cond:
+            return dict(self._inflight)
 
     def _start(self) -> None:
         self._started = True
