@@ -96,11 +96,10 @@ with it by tests/test_metric_fast_paths.py on 2D- and 3D-like renders):
   numpy's selection (`_phase_congruency_fast`: the same operations in the same order as
   `_phase_congruency`, the same median element).
   Previous path: `FSIM._reference_frame_features`.
-* VSI (|Δ| ≤ 2.4e-7 measured, 1e-6 tested): one frame at a time; the scalings by look-up
-  tables; piq's SDSP with its log-Gabor filter and centre-bias map built once (`_sdsp`, bit
-  for bit); the LMN channels of the padded, pooled frame (OpenCV's pad, area resize and
-  colour transform) where piq pools the LMN channels of the frame (all linear: float32
-  rounding only). Previous path: `VSI._reference_frame_features`.
+* VSI (bit for bit): one frame at a time; the scalings by look-up tables; piq's SDSP with its
+  log-Gabor filter and centre-bias map built once (`_sdsp`); the LMN channels' replicate pad
+  and 2×2 pooling by OpenCV (the same floats as torch's on this layout). Previous path:
+  `VSI._reference_frame_features`.
 * ST-LPIPS (bit for bit): the net's weights channels-last (the frames arrive channels-last, so
   oneDNN reordered the weights on every call) and one frame at a time. Its convolutions then
   run at the float32 peak of this machine's cores (≈ 240 GFLOP/s a core, ≈ 10 GFLOP a 256²
@@ -626,7 +625,6 @@ def _phase_congruency(x, bank: tuple, scales: int, orientations: int, k: float):
 
 #: piq's RGB → LMN matrix (`piq.functional.rgb2lmn`)
 _RGB_TO_LMN = ((0.06, 0.63, 0.27), (0.30, 0.04, -0.35), (0.34, -0.6, 0.17))
-_RGB_TO_LMN_F32 = np.array(_RGB_TO_LMN, np.float32)  # (the float32 values piq multiplies by)
 _SDSP_MAPS: dict[tuple, Any] = {}
 
 
@@ -679,10 +677,12 @@ class VSI(_PiqMetric):
     def frame_features(self, frames: np.ndarray) -> list[tuple]:
         """`_reference_frame_features` one frame at a time: the ×255 scalings by look-up
         tables (the same floats), piq's SDSP with its constant maps (log-Gabor filter, centre
-        bias) built once per size (`_sdsp`: the same values, bit for bit), and the LMN
-        channels of the padded and pooled frame by OpenCV (piq converts, then pads and pools:
-        all linear, so only float32 rounding differs: a few 1e-5 on LMN values in the
-        hundreds, at most a few 1e-7 on VSI). Measured: about 0.65× the CPU time per frame."""
+        bias) built once per size (`_sdsp`), and the LMN channels padded and pooled by OpenCV
+        (its area resize is torch's 2×2 mean on this layout): every value bit for bit.
+        (Pooling the frame before the LMN conversion, both linear, would save another 1.5 ms
+        a frame but moves LMN by an ulp, and VSI's |s_c|^0.02 turns that into up to 1.4e-5
+        on noise frames, where s_c crosses 0.) Measured: about 0.75× the CPU time per
+        frame."""
         import piq
         from piq.functional import gradient_map, scharr_filter
 
@@ -700,15 +700,18 @@ class VSI(_PiqMetric):
             rgb = np.ascontiguousarray(frame[..., :3])
             x1 = t.from_numpy(cv2.LUT(rgb, _scale_lut("vsi_sdsp"))).to(_torch.device())
             vs_x = _sdsp(x1[None].permute(0, 3, 1, 2), d)
-            x = cv2.LUT(rgb, _scale_lut("vsi"))
+            x = t.from_numpy(cv2.LUT(rgb, _scale_lut("vsi"))).to(_torch.device())[None]
+            weights = t.tensor(_RGB_TO_LMN, dtype=x.dtype, device=x.device).t()
+            x_lmn = t.matmul(x, weights)  # piq's rgb2lmn (on the same N×H×W×3 layout)
             if kernel_size == 2:  # replicate pad of 1 at the top and left, then 2×2 means
                 vs_x = t.nn.functional.avg_pool2d(
                     t.nn.functional.pad(vs_x, pad=[1, 0, 1, 0], mode="replicate"), 2)
-                x = cv2.copyMakeBorder(x, 1, 0, 1, 0, cv2.BORDER_REPLICATE)
-                x = cv2.resize(x[:(h + 1) // 2 * 2, :(w + 1) // 2 * 2], ((w + 1) // 2,
-                               (h + 1) // 2), interpolation=cv2.INTER_AREA)
-            x = cv2.transform(np.ascontiguousarray(x), _RGB_TO_LMN_F32)  # piq's rgb2lmn
-            x_lmn = t.from_numpy(x).to(_torch.device())[None].permute(0, 3, 1, 2)
+                lmn = cv2.copyMakeBorder(x_lmn[0].cpu().numpy(), 1, 0, 1, 0,
+                                         cv2.BORDER_REPLICATE)
+                lmn = cv2.resize(lmn[:(h + 1) // 2 * 2, :(w + 1) // 2 * 2],
+                                 ((w + 1) // 2, (h + 1) // 2), interpolation=cv2.INTER_AREA)
+                x_lmn = t.from_numpy(np.ascontiguousarray(lmn)).to(_torch.device())[None]
+            x_lmn = x_lmn.permute(0, 3, 1, 2)
             sch = scharr_filter(device=x_lmn.device, dtype=x_lmn.dtype)
             gm_x = gradient_map(x_lmn[:, :1], t.stack([sch, sch.transpose(1, 2)]))
             out += _split(vs_x, gm_x, x_lmn[:, 1:2], x_lmn[:, 2:])
