@@ -14,7 +14,8 @@ Prints machine info (cores, CPU model, load average at start and end: the machin
 shared, and then wall figures are upper bounds while CPU seconds still count the work), then the
 run's wall time, CPU seconds (user + system of the run and every process under it: Chromium,
 Playwright's driver; sampled per process, see `TreeMemory`), CPU seconds per scene, peak RSS
-(the sum over the process tree, sampled every 0.2 s, and the run's Python process alone), the
+(the sum over the process tree, sampled every 0.2 s, the run's Python process alone, and the
+rest of the tree: Chromium's processes and Playwright's driver), the
 seconds each stage took (summed over scenes: with several workers they overlap) and the render
 wall time per clip from the rows.
 """
@@ -99,7 +100,7 @@ class TreeMemory:
 
     def __init__(self, pid: int, every_s: float = 0.2):
         self.pid, self.every_s = pid, every_s
-        self.peak_tree = self.peak_main = 0
+        self.peak_tree = self.peak_main = self.peak_others = 0
         self._ticks: dict[tuple[int, int], int] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._sample, daemon=True)
@@ -114,8 +115,10 @@ class TreeMemory:
                     started, ticks = cpu[pid]
                     self._ticks[(pid, started)] = ticks
                 todo += tree.get(pid, [])
+            main = _rss(self.pid)
             self.peak_tree = max(self.peak_tree, total)
-            self.peak_main = max(self.peak_main, _rss(self.pid))
+            self.peak_main = max(self.peak_main, main)
+            self.peak_others = max(self.peak_others, total - main)
             self._stop.wait(self.every_s)
 
     @property
@@ -204,6 +207,7 @@ def run_once(*, dataset: str, scene_ids: list[str] | None, limit: int | None, mo
         "wall_s_per_scene": round(wall / n, 2) if n else None,
         "peak_rss_tree_gib": round(memory.peak_tree / 2**30, 2),
         "peak_rss_run_gib": round(memory.peak_main / 2**30, 2),
+        "peak_rss_others_gib": round(memory.peak_others / 2**30, 2),
         "stages_s": parse_stages(err),
         "render_wall_s_median": round(statistics.median(renders), 2) if renders else None,
         "model_success": summary["model_success"],
@@ -247,7 +251,8 @@ def main(argv: list[str] | None = None) -> None:
           f"{figures['workers']}")
     print(f"wall {figures['wall_s']} s ({figures['wall_s_per_scene']} s/scene) · CPU "
           f"{figures['cpu_s']} s ({figures['cpu_s_per_scene']} s/scene) · peak RSS "
-          f"{figures['peak_rss_tree_gib']} GiB (tree), {figures['peak_rss_run_gib']} GiB (run)")
+          f"{figures['peak_rss_tree_gib']} GiB (tree), {figures['peak_rss_run_gib']} GiB (run), "
+          f"{figures['peak_rss_others_gib']} GiB (the rest: Chromium, Playwright's driver)")
     print("stages (s, summed over scenes): " + ", ".join(
         f"{k} {v}" for k, v in figures["stages_s"].items()))
     print(f"render wall per clip, median: {figures['render_wall_s_median']} s")

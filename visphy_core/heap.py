@@ -29,9 +29,10 @@ buffers of one to a few hundred megabytes. Three things kept memory that no scen
   (``MALLOC_MMAP_THRESHOLD_=262144``) held 2.9 GiB but cost 39 % more wall time in page faults.
 
   Between two scenes' ends, `BudgetTrim` (a thread the scene scheduler runs) trims whenever
-  the process's RSS goes above a budget (``VISPHY_RSS_BUDGET_MB``, default
-  `DEFAULT_BUDGET_MB`): a scene's freed buffers are faulted in again by the next one, so the
-  trim costs time, and it is paid only above the budget.
+  the process's RSS is above a budget (``VISPHY_RSS_BUDGET_MB``, default
+  `DEFAULT_BUDGET_MB`) and grew by `BudgetTrim.STEP` since the last trim: a scene's freed
+  buffers are faulted in again by the next one, so a trim costs time, and it is paid only
+  above the budget.
 
 Nothing here changes a value that any computation sees. Where the C library is not glibc (musl,
 macOS) the allocator settings do nothing; ``VISPHY_MALLOC_TRIM=0`` turns every trim off.
@@ -146,22 +147,26 @@ def budget_bytes() -> int:
 
 
 class BudgetTrim:
-    """A daemon thread that returns the allocator's free pages (``malloc_trim``) whenever this
-    process's RSS is above ``budget`` bytes (default `budget_bytes`), looking every
-    ``every_s`` seconds, at most one trim every `MIN_WAIT_S` (the pages it gives back are faulted
-    in again by the next allocations). A trim that gives back less than `SMALL` bytes (what is
-    resident is in use) doubles the wait before the next one, up to `MAX_WAIT_S`; one that
-    gives back more resets it. `start` does nothing (returns False) without glibc, Linux's
-    RSS, a budget, or with ``VISPHY_MALLOC_TRIM=0``. ``trims`` and ``returned`` (bytes) count
-    what it did."""
+    """A daemon thread that returns the allocator's free pages (``malloc_trim``) when this
+    process's RSS is above ``budget`` bytes (default `budget_bytes`) and has grown by ``step``
+    bytes (default `STEP`) since the last trim (or since the lowest RSS seen after it); it
+    looks every ``every_s`` seconds and trims at most once every `MIN_WAIT_S`. Between two
+    trims the RSS thus stays within ``step`` of what the last one left, which is what was in
+    use then; a trim that finds little to give back (what is resident is in use) is not
+    repeated until the RSS grows again. The pages a trim gives back are faulted in again by
+    later allocations: that is its cost, paid only above the budget. `start` does nothing
+    (returns False) without glibc, Linux's RSS, a budget, or with ``VISPHY_MALLOC_TRIM=0``.
+    ``looks``, ``trims`` and ``returned`` (bytes) count what it did."""
 
-    SMALL = 32 * 2**20
+    STEP = 128 * 2**20
     MIN_WAIT_S = 1.0
-    MAX_WAIT_S = 8.0
 
-    def __init__(self, budget: int | None = None, every_s: float = 0.2):
+    def __init__(self, budget: int | None = None, every_s: float = 0.2,
+                 step: int | None = None):
         self.budget = budget_bytes() if budget is None else int(budget)
         self.every_s = every_s
+        self.step = self.STEP if step is None else int(step)
+        self.looks = 0
         self.trims = 0
         self.returned = 0
         self._stop = threading.Event()
@@ -188,16 +193,19 @@ class BudgetTrim:
         return self._thread is not None and self._thread.is_alive()
 
     def _watch(self) -> None:
-        wait = self.MIN_WAIT_S
+        low: int | None = None  # the lowest RSS since the last trim
         next_at = 0.0
         while not self._stop.wait(self.every_s):
             rss = rss_bytes()
-            if rss is None or rss <= self.budget or time.monotonic() < next_at:
+            self.looks += 1
+            if rss is None:
+                continue
+            low = rss if low is None else min(low, rss)
+            if rss <= self.budget or rss - low < self.step or time.monotonic() < next_at:
                 continue
             _trim()
             after = rss_bytes() or rss
             self.trims += 1
             self.returned += max(0, rss - after)
-            wait = (self.MIN_WAIT_S if rss - after >= self.SMALL
-                    else min(2 * wait, self.MAX_WAIT_S))
-            next_at = time.monotonic() + wait
+            low = after
+            next_at = time.monotonic() + self.MIN_WAIT_S
