@@ -25,6 +25,14 @@ kept only when its frames fit in the cache (a 2D pairing's 17 pairs: 270 MiB); a
 3D scene's 75 pairs, whose frames no later pairing asks for again) is computed pair by pair
 into reused arrays. The values are bit for bit those of `ssim_frame` either way (the same
 float32 operations in the same order). PSNR is a mean of squared differences: nothing to share.
+
+Fast path (issue 22): each frame's Y, R, G, B planes and its moments are computed into reused
+work arrays (`_Planes`: a fresh megabyte array per operation cost as much in page faults as
+the arithmetic; ``0.299 * r + …`` alone allocated five), bit for bit the previous per-frame
+moments (`_reference_moments_into`, compared by tests/test_metric_fast_paths.py). What is left
+is mostly the 20 blurs a pair needs where nothing repeats (a 3D scene): about 0.2 ms each at
+512², in cache; a strip-by-strip version that keeps a pair's maps in the CPU's caches was
+measured at only 0.92× and not kept.
 """
 
 from __future__ import annotations
