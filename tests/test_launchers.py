@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from visphy_core.run import STAGE_FIELDS
+
 from conftest import FAST_METRICS, run_cli
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
@@ -20,7 +22,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.browser]
 SWEEP = ("-m", "engine=threejs,p5", "dataset=mini", "dataset.limit=1", *FAST_METRICS,
          "run.progress=false")
 #: Fields of a row that depend on when and where it was made, not on what it is.
-VOLATILE = {"render_wall_s", "model_latency_s", "response_cached", "render_cached"}
+VOLATILE = {*STAGE_FIELDS, "response_cached", "render_cached"}
 
 
 def _multirun(home: Path, *launcher: str) -> tuple[dict, str]:

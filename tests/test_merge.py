@@ -11,15 +11,17 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+
+from visphy_core.run import STAGE_FIELDS
 import yaml
 
 from conftest import FAST_METRICS, run_cli
 
 BASE = ("dataset=tiny", "model=static", *FAST_METRICS, "run.progress=false", "run.cache=false")
 #: Fields that depend on when a row was made, not on what it is.
-VOLATILE = {"render_wall_s", "model_latency_s"}
+VOLATILE = set(STAGE_FIELDS)  # wall seconds of each stage: never equal across runs
 #: Summary keys that name where and when, or that only a merged run has.
-OWN = {"run_dir", "mlflow", "merged_from"}
+OWN = {"run_dir", "mlflow", "merged_from", "stage_seconds"}  # stage_seconds: wall times
 
 
 def _rows(run_dir: Path) -> list[dict]:

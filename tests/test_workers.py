@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+
+from visphy_core.run import STAGE_FIELDS
 from rich.console import Console
 
 from conftest import REPO, run_cli
@@ -26,7 +28,7 @@ from visphy_core.scheduler import (SceneCancelled, SceneScheduler, StageGates, r
 # --------------------------------------------------------------------------- one vs two workers
 
 #: Row fields that may differ between two runs of the same command: timings and cache flags.
-VARYING = ("render_wall_s", "model_latency_s", "render_cached", "response_cached")
+VARYING = (*STAGE_FIELDS, "render_cached", "response_cached")
 #: Per-scene files whose bytes must not depend on the number of workers.
 SCENE_FILES = ("scores.json", "frames_meta.json", "normalisation.json", "metric_details.json",
                "spec_validation.json", "render.log", "render.attempt2.log")
