@@ -62,9 +62,13 @@ ARENAS_ENV = "VISPHY_MALLOC_ARENAS"
 DEFAULT_ARENAS = 1
 #: the RSS (MiB) above which `BudgetTrim` hands free pages back (``0``: never)
 BUDGET_ENV = "VISPHY_RSS_BUDGET_MB"
-#: The run's own process at rest holds about 1.2–1.4 GiB (Python, torch and its libraries, the
-#: metric models, the per-frame cache); with Chromium beside it (1.1 GiB), a 3 GiB run.
-DEFAULT_BUDGET_MB = 1536
+#: The run's own process at rest holds about 1.3 GiB (Python, torch and its libraries, the
+#: metric models, a 128 MiB per-frame cache); Chromium and Playwright's driver beside it peak
+#: at 1.1–1.2 GiB. Measured (oracle × threejs, default suite, 2 workers, 21 scenes, 3 of them
+#: 3D, per-frame cache 128 MiB, a busy machine): the run process peaked at 2.10 GiB without the
+#: budget and 1.87 with it (tree 3.11 → 2.91 GiB), for +10 % CPU: the pages a trim returns are
+#: faulted in again (106 trims returned 20 GiB in all).
+DEFAULT_BUDGET_MB = 1600
 #: mallopt's parameter number for the arena limit (malloc.h: ``M_ARENA_MAX``)
 _M_ARENA_MAX = -8
 
