@@ -409,7 +409,7 @@ def test_per_frame_cache_dedupes_keeps_sides_apart_and_stays_in_its_budget(monke
     with pytest.raises(ValueError, match=_T.FRAME_CACHE_ENV):
         _T._cache_bytes()
     monkeypatch.delenv(_T.FRAME_CACHE_ENV)
-    assert _T._cache_bytes() == 384 * 2**20
+    assert _T._cache_bytes() == 128 * 2**20
 
 
 # ----------------------------------------------------------------------------- ST-LPIPS
