@@ -553,20 +553,8 @@ def _phase_congruency_fast(x, bank: tuple, scales: int, orientations: int, k: fl
         even.add_(odd).sub_(a)
         t.sum(even, dim=1, keepdim=True, out=energy[:, o])
     abs_eo = an[:, :, :1].reshape(N, O, 1, 1, H * W)
-    median_e2n = _lower_median(abs_eo ** 2)
-    mean_e2n = - median_e2n / math.log(0.5)
-    noise_power = mean_e2n / em_n
-    noise_energy2 = 2 * noise_power * sum_an2 + 4 * noise_power * sum_ai_aj
-    tau = t.sqrt(noise_energy2 / 2)
-    noise_energy = tau * math.sqrt(math.pi / 2)
-    moise_energy_sigma = t.sqrt((2 - math.pi / 2) * tau ** 2)
-    T = noise_energy + k * moise_energy_sigma
-    T = T / 1.7
-    energy = t.max(energy - T, t.zeros_like(T))
-    energy_all = energy.sum(dim=[1, 2]) + EPS
-    an_all = an.sum(dim=[1, 2]) + EPS
-    result_pc = energy_all / an_all
-    return result_pc.unsqueeze(1)
+    return _thresholded_congruency(energy, an, _lower_median(abs_eo ** 2), em_n, sum_an2,
+                                   sum_ai_aj, k, EPS)
 
 
 def _lower_median(x):
@@ -607,7 +595,18 @@ def _phase_congruency(x, bank: tuple, scales: int, orientations: int, k: float):
     energy = (even * mean_e + odd * mean_o - t.abs(even * mean_o - odd * mean_e)).sum(
         dim=2, keepdim=True)
     abs_eo = an[:, :, :1].reshape(N, orientations, 1, 1, H * W)  # piq recomputes it
-    median_e2n = t.median(abs_eo ** 2, dim=-1, keepdim=True).values
+    return _thresholded_congruency(
+        energy, an, t.median(abs_eo ** 2, dim=-1, keepdim=True).values, em_n, sum_an2,
+        sum_ai_aj, k, EPS)
+
+
+def _thresholded_congruency(energy, an, median_e2n, em_n, sum_an2, sum_ai_aj, k: float,
+                            EPS: float):
+    """piq's phase congruency from the local energy on: the noise threshold estimated from
+    the smallest scale's median squared amplitude (``median_e2n``), the energy above it, over
+    the summed amplitudes. Shared by the fast path and the reference one, operation for
+    operation."""
+    t = _torch.torch()
     mean_e2n = - median_e2n / math.log(0.5)
     noise_power = mean_e2n / em_n
     noise_energy2 = 2 * noise_power * sum_an2 + 4 * noise_power * sum_ai_aj
