@@ -42,6 +42,8 @@ UNALIGNED = ScoringProtocol(unaligned=True, aligned=False, paper=False)
 
 
 def _materials(spec: dict) -> Iterable[dict]:
+    """Every material of ``spec``: each body's own, the default contact's and each pair's
+    (also used by `validity_order`)."""
     for b in spec["bodies"]:
         if "material" in b:
             yield b["material"]

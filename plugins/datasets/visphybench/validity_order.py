@@ -75,7 +75,7 @@ from visphy_core.cache import Cache
 from visphy_core.headline import Headline, scene_headline
 from visphy_core.metrics import HIGHER, SCENE, Metric
 from visphy_core.scoring import ScoringProtocol, score_scene
-from visphy_plugins.datasets.visphybench.validity import scene_of
+from visphy_plugins.datasets.visphybench.validity import _materials, scene_of
 
 RIGHT, WRONG, STATIC, FLOW = "right", "wrong", "static", "flow"
 KINDS = {RIGHT: "(i) physics right, drawn differently", WRONG: "(ii) physics wrong",
@@ -356,14 +356,6 @@ class Intervention:
 
     name: str
     edit: Edit
-
-
-def _materials(spec: dict) -> Iterable[dict]:
-    for b in spec["bodies"]:
-        if "material" in b:
-            yield b["material"]
-    yield spec["contacts"]["default"]
-    yield from spec["contacts"]["pairs"]
 
 
 def with_material(spec: dict, key: str, fn: Callable[[float], float]) -> dict:
