@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from visphy_core.cache import Cache, content_key
+from visphy_core.cache import Cache, CorruptEntry, content_key, read_json
 from visphy_core.metrics import SCENE, Metric
 
 if TYPE_CHECKING:
@@ -133,19 +133,21 @@ class _Values:
         self.write = store if writable(store) else cache
 
     def get(self, key: str) -> dict | None:
-        for c in self.read:
-            entry = c.get("anchor", key)
-            if entry is not None:
-                try:
-                    value = json.loads((entry / "value.json").read_text())
-                    if "value" in value:
-                        return value
-                except (OSError, ValueError):
-                    c.drop("anchor", entry, "unreadable value.json")
+        for c in self.read:  # an unparseable entry is dropped and missed (`Cache.load`)
+            value = c.load("anchor", key, _parse)
+            if value is not None:
+                return value
         return None
 
     def put(self, key: str, value: float | None, why: str | None) -> None:
         self.write.put("anchor", key, {"value.json": json.dumps({"value": value, "why": why})})
+
+
+def _parse(entry: Path) -> dict:
+    value = read_json(entry / "value.json")
+    if not isinstance(value, dict) or "value" not in value:
+        raise CorruptEntry(f"{entry / 'value.json'}: no value")
+    return value
 
 
 def scene_anchors(scene: "Scene", reference: np.ndarray, metrics: list[Metric],
