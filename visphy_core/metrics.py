@@ -70,9 +70,11 @@ class Metric(ABC):
         return None
 
     def identity(self) -> str:
-        """What changes a value: class, version and (for loaded models) the weights' digest.
-        Part of every cached score's key."""
-        ident = f"{type(self).__module__}.{type(self).__qualname__}@{self.version}"
+        """What changes a value: the registered name, class, version and (for loaded models)
+        the weights' digest. Part of every cached score's key. The class's module is not part
+        of it (names are unique in the registry), so moving a metric to another module keeps
+        its cached scores and ground-truth anchors."""
+        ident = f"{self.name}:{type(self).__qualname__}@{self.version}"
         return ident if self.max_pairs is None else f"{ident}/max_pairs={self.max_pairs}"
 
     # ----------------------------------------------------------------- the three kinds
