@@ -20,7 +20,7 @@ what another scene or metric computed).
 Timings on a shared machine: run the before and after in the same go, several repeats
 (``--repeat``: each scene scored that many times, the median kept).
 
-Threads: torch's intra-op threads are set as a run sets them (`visphy_core.scheduler.
+Threads: torch's intra-op threads are set as a run sets them (`visphy_core.execute.scheduler.
 pin_torch_threads`: ``$VISPHY_TORCH_THREADS``, else 1), so the figures are what a run's scoring
 costs; ``--torch-threads N`` overrides. (Before, the bench took every core this process may
 use: with two threads on two cores that other processes keep busy, each of FSIM's, VSI's and
@@ -71,17 +71,17 @@ def main() -> None:
     args = parser.parse_args()
     if args.torch_threads is not None:
         os.environ["VISPHY_TORCH_THREADS"] = str(max(1, args.torch_threads))
-    from visphy_core.scheduler import pin_torch_threads
+    from visphy_core.execute.scheduler import pin_torch_threads
 
     pin_torch_threads()  # before any metric imports torch, as `visphy run` does
 
     from omegaconf import OmegaConf
 
     from visphy_plugins.datasets.visphybench.build import build_dataset
-    from visphy_core.cache import Cache
+    from visphy_core.infra.cache import Cache
     from visphy_plugins.datasets.visphybench.loader import load_generated
-    from visphy_core.plugins import get_registry
-    from visphy_core.scoring import ScoringProtocol, alignments, score_scene
+    from visphy_core.api.registry import get_registry
+    from visphy_core.scoring.score import ScoringProtocol, alignments, score_scene
 
     if args.metrics:
         names = args.metrics.split(",")

@@ -156,8 +156,8 @@ def load_scenes(data_dir: Path, n_3d: int, pool) -> tuple[list, list]:
 
 def bench_group(engine, scenes, paths: dict, repeats: int, gap_s: float, cpu: TreeCpu) -> dict:
     """Render every scene ``repeats`` times with each path (blocks alternate between paths)."""
-    from visphy_core.engine import RenderContract
-    from visphy_core.video import decode_video, encode_video, frame_digest
+    from visphy_core.api.engine import RenderContract
+    from visphy_core.infra.video import decode_video, encode_video, frame_digest
     from visphy_plugins.engines.browser_base import classify_capture
 
     programs = [(s, engine.program_from_spec(s), RenderContract.for_scene(s)) for s in scenes]

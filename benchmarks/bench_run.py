@@ -137,8 +137,8 @@ class TreeMemory:
 def split_ids(dataset: str, home: Path) -> list[str]:
     """The scene ids of a dataset config's split, in its order (the data must be built)."""
     sys.path.insert(0, str(REPO))
-    from visphy_core.config_check import compose
-    from visphy_core.dataset import load_dataset
+    from visphy_core.config.check import compose
+    from visphy_core.execute.datasets import load_dataset
 
     cfg = compose([f"dataset={dataset}"])
     return [s.scene_id for s in load_dataset(cfg.dataset, home / "data", progress=False)]

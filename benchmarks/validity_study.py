@@ -56,7 +56,7 @@ def _fmt(v, decimals: int | None = None) -> str:
 
 def perturbation(specs: list[dict], per_param: int, progress: bool) -> tuple[dict, list]:
     from visphy_plugins.datasets.visphybench.validity import PARAMS, run_study, summarise
-    from visphy_core.plugins import get_registry
+    from visphy_core.api.registry import get_registry
 
     registry = get_registry()
     metrics = [registry.get("metrics", n) for n in sorted(registry.metrics)]
@@ -97,7 +97,7 @@ def default_suite() -> list:
     that run here."""
     import yaml
 
-    from visphy_core.plugins import get_registry
+    from visphy_core.api.registry import get_registry
     from visphy_plugins.datasets.visphybench.validity_order import frame_metrics
 
     names = yaml.safe_load((REPO / "conf" / "metrics" / "default.yaml").read_text())["names"]

@@ -18,7 +18,7 @@ def main() -> None:
     parser.add_argument("--n3d", type=int, default=4)
     args = parser.parse_args()
 
-    from visphy_core.video import decode_video
+    from visphy_core.infra.video import decode_video
     from visphy_plugins.datasets.visphybench.build import build_dataset
     from visphy_plugins.datasets.visphybench.loader import load_generated
     from visphy_plugins.datasets.visphybench.preview import write_contact_sheet

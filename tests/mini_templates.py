@@ -19,7 +19,7 @@ import numpy as np
 
 from visphy_plugins.physics.box2d import Rollout, simulate_2d
 from visphy_plugins.datasets.visphybench.raster2d import PALETTE, body_mask
-from visphy_core.spec2d import (
+from visphy_core.spec.spec2d import (
     PHYRE_PROFILE,
     category_of,
     shape_area_centroid,

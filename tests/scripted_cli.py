@@ -15,8 +15,8 @@ import os
 import sys
 import time
 
-from visphy_core.hookspecs import hookimpl
-from visphy_core.model import ModelResponse
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.model import ModelResponse
 
 BROKEN = ("```html\n<html><body><canvas id='c'></canvas><script>undefinedFunction();</script>"
           "</body></html>\n```")
@@ -25,8 +25,8 @@ BROKEN = ("```html\n<html><body><canvas id='c'></canvas><script>undefinedFunctio
 def main(argv: list[str]) -> int:
     from visphy_plugins.models.oracle import OracleModel
 
-    from visphy_core.cli import main as cli_main
-    from visphy_core.plugins import get_plugin_manager, get_registry
+    from visphy_core.cli.main import main as cli_main
+    from visphy_core.api.registry import get_plugin_manager, get_registry
 
     script = json.loads(os.environ.get("VISPHY_SCRIPT", "{}"))
     delay = float(os.environ.get("VISPHY_MODEL_DELAY", "0"))

@@ -28,7 +28,7 @@ from visphy_plugins.datasets.visphybench.templates_2d import (
     flight_path,
 )
 from visphy_plugins.physics.box2d import simulate_2d
-from visphy_core.spec2d import CATEGORIES
+from visphy_core.spec.spec2d import CATEGORIES
 
 SLOTS = [(t, v) for t in TEMPLATES_2D for v in range(t.n_variants)]
 AREA_SAMPLE = SLOTS[::4]

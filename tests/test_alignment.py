@@ -1,5 +1,5 @@
-"""Temporal alignment (`visphy_core.alignment`) and the scoring protocols built on it
-(`visphy_core.scoring`): injected offsets are recovered exactly, identical clips align at 0 with
+"""Temporal alignment (`visphy_core.scoring.alignment`) and the scoring protocols built on it
+(`visphy_core.scoring.score`): injected offsets are recovered exactly, identical clips align at 0 with
 Align-Err 0, and each pairing's columns are the means over exactly its pairs."""
 
 from __future__ import annotations
@@ -9,14 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from visphy_core.alignment import (EVERY_FRAME, PAPER, AlignParams, align, gray_features,
+from visphy_core.scoring.alignment import (EVERY_FRAME, PAPER, AlignParams, align, gray_features,
                                    unaligned)
-from visphy_core import paper_protocol
-from visphy_core.cache import Cache
-from visphy_core.config_check import ConfigError, check_overrides
-from visphy_core.metrics import LOWER, SCENE, Metric, MetricInput
-from visphy_core.scene import ClipInfo, Scene
-from visphy_core.scoring import ScoringProtocol, score_columns, score_scene
+from visphy_core.scoring import paper_protocol
+from visphy_core.infra.cache import Cache
+from visphy_core.config.check import ConfigError, check_overrides
+from visphy_core.api.metrics import LOWER, SCENE, Metric, MetricInput
+from visphy_core.api.scene import ClipInfo, Scene
+from visphy_core.scoring.score import ScoringProtocol, score_columns, score_scene
 from visphy_plugins.metrics.pixel import PSNR, SSIM, psnr_frame
 
 
@@ -64,7 +64,7 @@ def textured_clip(n: int, size: int = 96, seed: int = 0) -> np.ndarray:
 
 @pytest.mark.parametrize("k", [-9, -6, -3, 0, 3, 6, 9])
 def test_paper_search_on_every_third_frame_recovers_offsets(k):
-    # upstream's rules (visphy_core.paper_protocol): recovered where the raw cost of a wrong
+    # upstream's rules (visphy_core.scoring.paper_protocol): recovered where the raw cost of a wrong
     # pairing exceeds the penalty; small objects on white are not (tests/test_paper_protocol.py)
     ref = textured_clip(75, seed=3)
     gen = delayed(ref, k)

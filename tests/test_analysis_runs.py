@@ -257,7 +257,7 @@ def test_the_analyse_command_prints_and_writes(study):
 
 
 def test_the_analyse_command_says_what_is_wrong_in_one_line(study, capsys):
-    from visphy_core.cli import main
+    from visphy_core.cli.main import main
 
     assert main(["analyse", str(study["root"] / "replies")]) == 2
     err = capsys.readouterr().err

@@ -23,7 +23,7 @@ from visphy_core.analysis.export import to_latex, to_markdown
 from visphy_core.analysis.human import read_ratings, summarise_ratings
 from visphy_core.analysis.load import RunData, find_runs, label_runs, load_run, load_runs
 from visphy_core.analysis.study import STUDIES, analyse
-from visphy_core.errors import UserError
+from visphy_core.api.errors import UserError
 
 NAN = math.nan
 DIRECTIONS = {"psnr": "higher", "flow_epe_dis": "lower", "param_gravity_err": "lower",

@@ -8,10 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
-from visphy_core.model import ImageInput, ModelRequest, OutputContract
-from visphy_core.plugins import get_registry
-from visphy_core.video import decode_video, resize_with_padding
-from visphy_core.png import decode_png, png_bytes
+from visphy_core.api.model import ImageInput, ModelRequest, OutputContract
+from visphy_core.api.registry import get_registry
+from visphy_core.infra.video import decode_video, resize_with_padding
+from visphy_core.infra.png import decode_png, png_bytes
 from visphy_plugins.models.baselines import (FlowExtrapolateModel, StaticModel,
                                              extrapolate, key_frame_index,
                                              static_frames)

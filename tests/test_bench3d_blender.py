@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from visphy_core.engine import RenderContract
+from visphy_core.api.engine import RenderContract
 from visphy_plugins.engines.blender import BlenderEngine, find_blender_python
 
 pytestmark = [pytest.mark.blender, pytest.mark.skipif(find_blender_python() is None,
@@ -21,8 +21,8 @@ def engine():
 
 
 def _scene(tmp_path, opacity: float | None, antialias: bool):
-    from visphy_core.scene import Scene
-    from visphy_core.video import ClipInfo
+    from visphy_core.api.scene import Scene
+    from visphy_core.infra.video import ClipInfo
 
     cam = {"type": "perspective", "fov_deg": 45.0, "near": 0.1, "far": 100.0,
            "position": [7.0, 6.2, 8.2], "look_at": [0.0, 1.2, 0.0], "up": [0.0, 1.0, 0.0],

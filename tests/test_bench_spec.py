@@ -1,4 +1,4 @@
-"""Scene-spec schema (`visphy_core.spec2d`): accepts the mini scenes, rejects bad specs with a
+"""Scene-spec schema (`visphy_core.spec.spec2d`): accepts the mini scenes, rejects bad specs with a
 one-line message naming the scene and the JSON path of the problem, and the category rule."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import copy
 
 import pytest
 
-from visphy_core.spec2d import category_of, validate_spec
+from visphy_core.spec.spec2d import category_of, validate_spec
 from mini_templates import mini_specs
 
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from visphy_plugins.datasets.visphybench.raster2d import PALETTE, body_mask
-from visphy_core.spec2d import shape_area_centroid
+from visphy_core.spec.spec2d import shape_area_centroid
 from mini_templates import mini_scenes
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from visphy_core.engine import FailureClass, Program, RenderContract
-from visphy_core.video import frame_digest
+from visphy_core.api.engine import FailureClass, Program, RenderContract
+from visphy_core.infra.video import frame_digest
 
 pytestmark = pytest.mark.browser
 

@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from visphy_core.cache import Cache, content_key
-from visphy_core.engine import (Engine, FailureClass, Program, RenderContract, RenderResult)
-from visphy_core.pipeline import render_cached
+from visphy_core.infra.cache import Cache, content_key
+from visphy_core.api.engine import (Engine, FailureClass, Program, RenderContract, RenderResult)
+from visphy_core.execute.pipeline import render_cached
 
 
 # --------------------------------------------------------------------------- unit level
@@ -59,7 +59,7 @@ def test_damaged_or_legacy_entries_are_dropped(tmp_path, damage):
 def test_an_unparseable_payload_with_valid_digests_is_dropped_by_load(tmp_path):
     """Digests catch changes after writing; `Cache.load` also catches a payload that was
     stored broken (random bytes): dropped, a miss, no exception."""
-    from visphy_core.cache import read_json
+    from visphy_core.infra.cache import read_json
 
     cache = Cache(tmp_path)
     key = content_key("r")
@@ -178,8 +178,8 @@ def home(tmp_path, mini_root):
 
 
 def _run(home: Path, *overrides: str) -> tuple[dict, dict]:
-    from visphy_core.config_check import compose
-    from visphy_core.run import run_experiment
+    from visphy_core.config.check import compose
+    from visphy_core.execute.run import run_experiment
 
     cfg = compose([f"paths.root={home}", "dataset.limit=1", "tracking=none",
                    "run.progress=false", "model=oracle", "engine=threejs",
@@ -246,7 +246,7 @@ def test_random_bytes_in_a_json_entry_are_recomputed_and_named(home, clean, caps
 
 @pytest.mark.browser
 def test_cache_false_returns_fresh_results_and_replaces_the_entry(home, clean):
-    from visphy_core.cache import Cache
+    from visphy_core.infra.cache import Cache
 
     s1, row1 = clean
     cache = Cache(home / "cache")

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from visphy_core.calls import (
+from visphy_core.calls.retry import (
     RETRYABLE,
     AdaptiveLimiter,
     CallError,
@@ -33,12 +33,12 @@ from visphy_core.calls import (
     kind_for_status,
     retry_after_seconds,
 )
-from visphy_core.judge import parse_verdict, uniform_indices
-from visphy_core.prompts import build as prompts
-from visphy_core.reply_spec import spec_problems
-from visphy_core.scene import Scene
-from visphy_core.usage import CallRecord, CostCapReached, Price, UsageLedger
-from visphy_core.video import ClipInfo
+from visphy_core.api.judge import parse_verdict, uniform_indices
+from visphy_core.calls.prompts import build as prompts
+from visphy_core.spec.reply_spec import spec_problems
+from visphy_core.api.scene import Scene
+from visphy_core.calls.usage import CallRecord, CostCapReached, Price, UsageLedger
+from visphy_core.infra.video import ClipInfo
 
 PROMPTS_DIR = Path(prompts.__file__).parent
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from visphy_core.config_check import ConfigError, check_overrides, compose
+from visphy_core.config.check import ConfigError, check_overrides, compose
 
 from conftest import REPO, run_cli
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from visphy_core.config_check import ConfigError, check_overrides
+from visphy_core.config.check import ConfigError, check_overrides
 
 from conftest import run_cli
 
@@ -197,7 +197,7 @@ def test_traceback_flag_and_env_show_the_traceback(tmp_path):
 
 
 def test_enum_values_compare_as_strings():
-    from visphy_core.config_check import compose
+    from visphy_core.config.check import compose
 
     cfg = compose(["tracking=none", "dataset=original"])
     assert cfg.tracking.backend == "none" and f"{cfg.tracking.backend}" == "none"
@@ -219,7 +219,7 @@ def test_plugin_schemas_get_the_same_range_checks():
     """A plugin schema's own metadata is read, and a redefined core field keeps its range."""
     from hydra.core.config_store import ConfigStore
 
-    from visphy_core.config_schema import EngineConfig
+    from visphy_core.api.config_schema import EngineConfig
 
     @dataclass
     class RangedEngineConfig(EngineConfig):
@@ -236,9 +236,9 @@ def test_plugin_schemas_get_the_same_range_checks():
 
 
 def test_user_error_classification():
-    from visphy_core.cli import is_user_error
-    from visphy_core.errors import UserError
-    from visphy_core.plugins import PluginError
+    from visphy_core.cli.main import is_user_error
+    from visphy_core.api.errors import UserError
+    from visphy_core.api.registry import PluginError
     from visphy_core.sandbox.browser import BrowserUnavailable
 
     assert is_user_error(ConfigError("x")) and is_user_error(UserError("x"))

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from visphy_core.cache import Cache, content_key
-from visphy_core.video import ClipInfo, decode_video, encode_video, frame_digest, normalise_clip
+from visphy_core.infra.cache import Cache, content_key
+from visphy_core.infra.video import ClipInfo, decode_video, encode_video, frame_digest, normalise_clip
 from visphy_plugins.metrics.pixel import psnr_frame, ssim_frame
 
 
@@ -118,7 +118,7 @@ def test_normalise_command_matches_a_foreign_video_to_the_reference(tmp_path):
 
 # --------------------------------------------------------------------------- files, png, settings
 def test_atomic_write_replaces_whole_files_and_leaves_no_temporaries(tmp_path):
-    from visphy_core.files import atomic_write
+    from visphy_core.infra.files import atomic_write
 
     path = tmp_path / "a" / "b.txt"
     atomic_write(path, "first ✓")
@@ -131,7 +131,7 @@ def test_atomic_write_replaces_whole_files_and_leaves_no_temporaries(tmp_path):
 
 
 def test_png_round_trip_and_transparency_over_a_background():
-    from visphy_core.png import decode_png, png_bytes
+    from visphy_core.infra.png import decode_png, png_bytes
 
     rgb = np.random.default_rng(0).integers(0, 256, (5, 7, 3), dtype=np.uint8)
     assert np.array_equal(decode_png(png_bytes(rgb)), rgb)
@@ -146,7 +146,7 @@ def test_png_round_trip_and_transparency_over_a_background():
 def test_cfg_get_reads_any_node_and_falls_back_on_absent_or_none():
     from omegaconf import OmegaConf
 
-    from visphy_core.settings import cfg_get
+    from visphy_core.api.settings import cfg_get
 
     strict = OmegaConf.structured({"a": 1, "b": None})
     OmegaConf.set_struct(strict, True)
@@ -165,8 +165,8 @@ def test_a_sequence_metric_is_computed_once_for_pairings_with_the_same_pairs(tmp
                                                                              mini_scenes):
     """The aligned pairing at offset 0 has the unaligned pairing's pairs: one computation, the
     same value in both columns; a clip whose best offset is not 0 is computed per pairing."""
-    from visphy_core.metrics import SEQUENCE, Metric
-    from visphy_core.scoring import ScoringProtocol, score_scene
+    from visphy_core.api.metrics import SEQUENCE, Metric
+    from visphy_core.scoring.score import ScoringProtocol, score_scene
 
     class Counting(Metric):
         name, kind = "counting", SEQUENCE

@@ -17,7 +17,7 @@ from visphy_plugins.datasets.visphybench.preview import (
     write_contact_sheet,
     write_preview,
 )
-from visphy_core.video import decode_video
+from visphy_core.infra.video import decode_video
 
 
 def _entry(sid, template, dim, family, splits, difficulty, objects):

@@ -13,8 +13,8 @@ import textwrap
 import numpy as np
 import pytest
 
-from visphy_core.engine import FailureClass, Program, ProgramRejected, RenderContract
-from visphy_core.video import frame_digest
+from visphy_core.api.engine import FailureClass, Program, ProgramRejected, RenderContract
+from visphy_core.infra.video import frame_digest
 from visphy_plugins.engines.blender import SETUP_HINT, BlenderEngine, find_blender_python
 
 pytestmark = pytest.mark.blender
@@ -311,8 +311,8 @@ def jar_scene(tmp_path_factory):
     trajectory written the way a generated dataset stores them, plus its exact reference frames."""
     from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
     from mini_templates import mini_scenes
-    from visphy_core.scene import Scene
-    from visphy_core.video import ClipInfo
+    from visphy_core.api.scene import Scene
+    from visphy_core.infra.video import ClipInfo
 
     spec, rollout = mini_scenes()[1]
     d = tmp_path_factory.mktemp("blender_scene")
@@ -356,8 +356,8 @@ def test_reference_program_tracks_ground_truth(engine, jar_scene):
 def test_reference_program_3d_camera_and_shapes(engine, tmp_path):
     """A hand-written 3D scene (sphere, box, wedge, compound; the spec's y-up axes): the red
     sphere's centre lands where the spec's pinhole camera projects it."""
-    from visphy_core.scene import Scene
-    from visphy_core.video import ClipInfo
+    from visphy_core.api.scene import Scene
+    from visphy_core.infra.video import ClipInfo
 
     cam = {"type": "perspective", "fov_deg": 45.0, "near": 0.1, "far": 100.0,
            "position": [0.5, 2.0, 6.0], "look_at": [0.0, 0.5, 0.0], "up": [0.0, 1.0, 0.0],

@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from visphy_core.cache import Cache
-from visphy_core.engine import (Engine, FailureClass, Program, RenderContract, RenderFlag,
+from visphy_core.infra.cache import Cache
+from visphy_core.api.engine import (Engine, FailureClass, Program, RenderContract, RenderFlag,
                                 RenderResult)
-from visphy_core.pipeline import render_cached
-from visphy_core.video import decode_video
+from visphy_core.execute.pipeline import render_cached
+from visphy_core.infra.video import decode_video
 
 CONTRACT = RenderContract(fps=5, n_frames=9, width=128, height=128, timeout_s=30)
 
@@ -59,7 +59,7 @@ def test_requested_versions_are_read_from_cdn_urls():
 
 
 def test_vendored_versions_come_from_the_lock_file():
-    from visphy_core.js_assets import ASSETS_SRC
+    from visphy_core.infra.js_assets import ASSETS_SRC
     from visphy_plugins.engines.browser_base import THREE_ESM, served_version
 
     lock = json.loads((ASSETS_SRC / "package-lock.json").read_text())["packages"]
@@ -273,11 +273,11 @@ def test_rows_carry_the_render_flags_and_the_scene_dir_the_partial_clip(tmp_path
     import shutil
 
     from conftest import with_fast_metrics
-    from visphy_core.config_check import compose
-    from visphy_core.hookspecs import hookimpl
-    from visphy_core.model import Model, ModelResponse
-    from visphy_core.plugins import get_plugin_manager, get_registry
-    from visphy_core.run import run_experiment
+    from visphy_core.config.check import compose
+    from visphy_core.api.hookspecs import hookimpl
+    from visphy_core.api.model import Model, ModelResponse
+    from visphy_core.api.registry import get_plugin_manager, get_registry
+    from visphy_core.execute.run import run_experiment
 
     class Replies(Model):
         name = "replies"

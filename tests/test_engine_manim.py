@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from visphy_core.engine import FailureClass, Program, ProgramRejected, RenderContract
+from visphy_core.api.engine import FailureClass, Program, ProgramRejected, RenderContract
 
 pytestmark = pytest.mark.manim
 
@@ -406,8 +406,8 @@ def test_reference_program_tracks_ground_truth_handmade(engine, tmp_path):
     from visphy_plugins.datasets.visphybench.build import _npz_bytes
     from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
     from mini_templates import mini_scenes
-    from visphy_core.scene import Scene
-    from visphy_core.video import ClipInfo
+    from visphy_core.api.scene import Scene
+    from visphy_core.infra.video import ClipInfo
 
     for spec, rollout in mini_scenes()[:3]:
         sid = spec["scene_id"]
@@ -431,8 +431,8 @@ def test_reference_program_tracks_ground_truth_mini_split(engine, mini_scenes):
 
 
 def test_reference_program_3d_not_implemented(engine):
-    from visphy_core.scene import Scene
-    from visphy_core.video import ClipInfo
+    from visphy_core.api.scene import Scene
+    from visphy_core.infra.video import ClipInfo
 
     scene = Scene(scene_id="14_tmpl_14", dim="3d", clip=ClipInfo(15.0, 75, 512, 512),
                   video_path=Path("/nonexistent.mp4"))

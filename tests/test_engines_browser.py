@@ -15,8 +15,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from visphy_core.engine import FailureClass, Program, RenderContract, classify_frames
-from visphy_core.video import frame_digest
+from visphy_core.api.engine import FailureClass, Program, RenderContract, classify_frames
+from visphy_core.infra.video import frame_digest
 
 pytestmark = pytest.mark.browser
 

@@ -7,7 +7,7 @@ import json
 import pytest
 
 from conftest import run_cli
-from visphy_core.plugins import get_registry
+from visphy_core.api.registry import get_registry
 
 ENGINES = sorted(get_registry().engines)
 

@@ -34,7 +34,7 @@ def sweep_points(name: str) -> tuple[list[list[str]], dict]:
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from omegaconf import OmegaConf
 
-    from visphy_core.plugins import get_registry
+    from visphy_core.api.registry import get_registry
 
     get_registry()
     GlobalHydra.instance().clear()
@@ -59,7 +59,7 @@ def test_the_shipped_studies():
 def test_every_point_of_the_sweep_composes_and_passes_the_checks(name):
     from omegaconf import OmegaConf
 
-    from visphy_core.config_check import compose_all
+    from visphy_core.config.check import compose_all
 
     points, hydra = sweep_points(name)
     assert len(points) >= 1
@@ -104,7 +104,7 @@ def test_cfg_job_of_a_study_resolves_on_the_command_line(tmp_path):
 
 
 def test_smoke_still_composes():
-    from visphy_core.config_check import compose
+    from visphy_core.config.check import compose
 
     cfg = compose(["experiment=smoke"])
     assert cfg.dataset.limit == 1 and cfg.tracking.backend == "none"

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from visphy_core.engine import FailureClass, ProgramRejected
-from visphy_core.extract import extract_analysis, extract_code, extract_spec
+from visphy_core.api.engine import FailureClass, ProgramRejected
+from visphy_core.api.extract import extract_analysis, extract_code, extract_spec
 
 REPLY = """The red ball falls onto the bar and rolls right.
 

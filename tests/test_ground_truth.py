@@ -11,7 +11,7 @@ import pytest
 from visphy_plugins.physics.box2d import simulate_2d, trajectory_digest
 from visphy_plugins.datasets.visphybench.detection import detection_from_spec
 from visphy_plugins.datasets.visphybench.raster2d import render_frame_2d
-from visphy_core.spec2d import validate_spec
+from visphy_core.spec.spec2d import validate_spec
 from mini_templates import layout_problems, mini_specs
 from visphy_plugins.datasets.visphybench.loader import load_generated
 
@@ -109,7 +109,7 @@ def test_clips_are_encoded_like_the_published_ones_or_exactly(tmp_path):
     the rasteriser's pixels bit for bit."""
     import av
 
-    from visphy_core.video import decode_video
+    from visphy_core.infra.video import decode_video
     from visphy_plugins.datasets.visphybench.build import write_scene
     from visphy_plugins.datasets.visphybench.catalogue import build_catalogue, units
     from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d

@@ -1,4 +1,4 @@
-"""The ground-truth store (`visphy_core.ground_truth`): normalisation anchors computed ahead of a
+"""The ground-truth store (`visphy_core.scoring.ground_truth`): normalisation anchors computed ahead of a
 run (``ground-truth``) are the anchors a run computes itself; a run that finds them renders one
 clip per oracle scene (no twin, the spec track's replay is the program's render) and scores no
 anchor; entries are keyed by what determines them."""
@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from visphy_core.cache import Cache
-from visphy_core.engine import RenderContract
-from visphy_core.ground_truth import (CEILING, FLOOR, anchor_key, frozen_identity,
+from visphy_core.infra.cache import Cache
+from visphy_core.api.engine import RenderContract
+from visphy_core.scoring.ground_truth import (CEILING, FLOOR, anchor_key, frozen_identity,
                                       scene_anchors)
 
 METRICS = ["metrics.names=[psnr,spatiotemporal_iou,track_pos_err]", "metrics.spec_track=true",
@@ -27,8 +27,8 @@ def _entries(root: Path, kind: str) -> dict[str, bytes]:
 
 
 def _run(home: Path, tmp: Path, name: str, scene_id: str, store: Path) -> tuple[Path, list]:
-    from visphy_core.config_check import compose
-    from visphy_core.run import run_experiment
+    from visphy_core.config.check import compose
+    from visphy_core.execute.run import run_experiment
 
     cfg = compose([f"paths.root={home}", "tracking=none", "run.progress=false",
                    f"paths.cache_dir={tmp / name / 'cache'}",
@@ -42,7 +42,7 @@ def _run(home: Path, tmp: Path, name: str, scene_id: str, store: Path) -> tuple[
 @pytest.mark.browser
 def test_anchors_built_ahead_are_the_run_time_anchors_and_a_run_reuses_them(
         tmp_path, mini_root, mini_scenes):
-    from visphy_core.cli_ground_truth import prepare
+    from visphy_core.cli.ground_truth import prepare
 
     home = tmp_path / "home"
     shutil.copytree(mini_root, home / "data" / mini_root.name)
@@ -94,7 +94,7 @@ class _Clips:
 
 
 def test_stored_anchors_are_served_and_keyed_by_what_determines_them(tmp_path, mini_scenes):
-    from visphy_core.plugins import get_registry
+    from visphy_core.api.registry import get_registry
 
     scene = mini_scenes[0]
     reference = scene.reference_frames()

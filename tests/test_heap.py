@@ -1,4 +1,4 @@
-"""A run hands freed memory back after each scene (`visphy_core.heap`): without it, freed
+"""A run hands freed memory back after each scene (`visphy_core.infra.heap`): without it, freed
 megabyte blocks stay in glibc's per-thread arenas and a whole run's RSS grows to several times
 what it holds."""
 
@@ -17,7 +17,7 @@ SCRIPT = textwrap.dedent("""
     import os, sys, threading
     import numpy as np
     sys.path.insert(0, {repo!r})
-    from visphy_core.heap import release_free_memory
+    from visphy_core.infra.heap import release_free_memory
 
     def rss():
         return int(open("/proc/self/statm").read().split()[1]) * os.sysconf("SC_PAGE_SIZE")

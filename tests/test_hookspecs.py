@@ -8,8 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from visphy_core import hookspecs
-
+from visphy_core.api import hookspecs
 REPO = Path(__file__).resolve().parents[1]
 HOOKS = [name for name, fn in inspect.getmembers(hookspecs, inspect.isfunction)
          if name.startswith("visphy_")]
@@ -34,7 +33,7 @@ def test_every_hook_has_a_test(hook):
 
 @pytest.mark.parametrize("hook", HOOKS)
 def test_every_hook_is_documented_with_its_exact_signature(hook):
-    from visphy_core.plugins import build_plugin_manager
+    from visphy_core.api.registry import build_plugin_manager
 
     pm = build_plugin_manager()
     argnames = getattr(pm.hook, hook).spec.argnames

@@ -24,7 +24,7 @@ from urllib.parse import urlsplit
 import pytest
 
 from tests.conftest import REPO, run_cli
-from visphy_core.errors import UserError
+from visphy_core.api.errors import UserError
 from visphy_core.human.items import collect_items, find_run_dirs, rater_order
 from visphy_core.human.media import PlayableCopies, byte_range
 from visphy_core.human.server import RatingServer, RatingSession, loopback_address

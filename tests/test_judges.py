@@ -23,10 +23,10 @@ import pytest
 from omegaconf import OmegaConf
 from PIL import Image
 
-from visphy_core.judge import JudgeInput, Verdict, uniform_indices
-from visphy_core.keys import MissingKey
-from visphy_core.prompts.build import judge_prompt
-from visphy_core.video import decode_video, encode_video
+from visphy_core.api.judge import JudgeInput, Verdict, uniform_indices
+from visphy_core.calls.keys import MissingKey
+from visphy_core.calls.prompts.build import judge_prompt
+from visphy_core.infra.video import decode_video, encode_video
 from visphy_plugins.judges import api_judges
 from visphy_plugins.judges.api_judges import ApiJudge, ApiJudgeConfig
 from visphy_plugins.judges.videoscore import (VideoScore2Judge, VideoScore2JudgeConfig,
@@ -412,8 +412,8 @@ def test_judge_configs_compose_one_or_several():
     from hydra import compose, initialize_config_module
     from hydra.core.global_hydra import GlobalHydra
 
-    from visphy_core.config_check import check_values
-    from visphy_core.plugins import get_registry
+    from visphy_core.config.check import check_values
+    from visphy_core.api.registry import get_registry
 
     get_registry()
     GlobalHydra.instance().clear()

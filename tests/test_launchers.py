@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from visphy_core.run import STAGE_FIELDS
+from visphy_core.execute.run import STAGE_FIELDS
 
 from conftest import FAST_METRICS, run_cli
 

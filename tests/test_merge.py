@@ -12,7 +12,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from visphy_core.run import STAGE_FIELDS
+from visphy_core.execute.run import STAGE_FIELDS
 import yaml
 
 from conftest import FAST_METRICS, run_cli
@@ -71,7 +71,7 @@ def merged(home, shards, full) -> tuple[Path, str]:
     import io
     from contextlib import redirect_stdout
 
-    from visphy_core.cli import main
+    from visphy_core.cli.main import main
 
     out = home / "runs" / "merged"
     printed = io.StringIO()
@@ -161,7 +161,7 @@ def _refused(*shards: Path, out: Path, extra: tuple[str, ...] = ()) -> str:
     import io
     from contextlib import redirect_stderr
 
-    from visphy_core.cli import main
+    from visphy_core.cli.main import main
 
     existed = out.exists()
     err = io.StringIO()
@@ -192,7 +192,7 @@ def test_refusals(shards, merged, tmp_path):
 
 
 def test_partial_merges_the_shards_named(shards, home):
-    from visphy_core.merge import check_shards, read_shard
+    from visphy_core.execute.merge import check_shards, read_shard
 
     [one] = check_shards([read_shard(shards[1])], partial=True)
     assert one.index == (1, 2) and len(one.rows) == 1
@@ -206,7 +206,7 @@ def test_merge_study_merges_the_run_its_shards_belong_to(study, full, merged, tm
 
     from mlflow.tracking import MlflowClient
 
-    from visphy_core.cli import main
+    from visphy_core.cli.main import main
 
     printed = io.StringIO()
     with redirect_stdout(printed):

@@ -11,7 +11,7 @@ import pytest
 from visphy_plugins.datasets.visphybench.validity import (PARAMS, RELATIVE_STEP, perturb, pick_cases, revealed,
                                            rho, run_study,
                                            summarise)
-from visphy_core.plugins import get_registry
+from visphy_core.api.registry import get_registry
 
 CHECKED = ("track_pos_err", "track_vel_err", "flow_epe_dis", "ssim")
 #: the first-contact time moves with the initial speed and gravity only: restitution and

@@ -13,12 +13,12 @@ import cv2
 import numpy as np
 import pytest
 
-from visphy_core.alignment import PAPER, EVERY_FRAME, align, unaligned
-from visphy_core.cache import Cache
-from visphy_core.metrics import HIGHER, LOWER, SEQUENCE, MetricInput
-from visphy_core.scene import Scene
-from visphy_core.scoring import ScoringProtocol, score_scene
-from visphy_core.video import ClipInfo, decode_video, encode_video
+from visphy_core.scoring.alignment import PAPER, EVERY_FRAME, align, unaligned
+from visphy_core.infra.cache import Cache
+from visphy_core.api.metrics import HIGHER, LOWER, SEQUENCE, MetricInput
+from visphy_core.api.scene import Scene
+from visphy_core.scoring.score import ScoringProtocol, score_scene
+from visphy_core.infra.video import ClipInfo, decode_video, encode_video
 from visphy_plugins.metrics import motion_masks as M
 
 from conftest import run_cli
@@ -72,7 +72,7 @@ def reencoded(clip: np.ndarray, fps: float, tmp_path, crf: int = 23) -> np.ndarr
 
 # ------------------------------------------------------------------------------ contract
 def test_five_sequence_metrics_registered_with_their_contract():
-    from visphy_core.plugins import get_registry
+    from visphy_core.api.registry import get_registry
 
     reg = get_registry()
     for name in NAMES:
@@ -278,7 +278,7 @@ def reference_3d(mini_root, tmp_path_factory):
     writes it, decoded as a run reads it."""
     import shutil
 
-    from visphy_core.js_assets import assets_installed
+    from visphy_core.infra.js_assets import assets_installed
     from visphy_core.sandbox.browser import BrowserPool
     from visphy_plugins.datasets.visphybench.build import (dataset_root,
                                                            load_or_build_catalogue, write_scene)

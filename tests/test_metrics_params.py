@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from visphy_core.metrics import LOWER, SCENE, MetricInput
+from visphy_core.api.metrics import LOWER, SCENE, MetricInput
 from visphy_plugins.metrics import params as P
 from visphy_plugins.metrics.program_params import analyse_program, eval_number, match_name
 

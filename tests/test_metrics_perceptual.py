@@ -34,10 +34,10 @@ piq = pytest.importorskip("piq")
 pytest.importorskip("torchvision")
 
 from visphy_core import weights  # noqa: E402
-from visphy_core.cache import Cache  # noqa: E402
-from visphy_core.metrics import HIGHER, LOWER, PAIRS  # noqa: E402
-from visphy_core.scene import ClipInfo, Scene  # noqa: E402
-from visphy_core.scoring import score_scene  # noqa: E402
+from visphy_core.infra.cache import Cache  # noqa: E402
+from visphy_core.api.metrics import HIGHER, LOWER, PAIRS  # noqa: E402
+from visphy_core.api.scene import ClipInfo, Scene  # noqa: E402
+from visphy_core.scoring.score import score_scene  # noqa: E402
 from visphy_plugins.metrics import _torch as _T  # noqa: E402
 from visphy_plugins.metrics import perceptual as P  # noqa: E402
 from visphy_plugins.metrics.pixel import PSNR, SSIM, psnr_frame, ssim_frame  # noqa: E402

@@ -14,17 +14,17 @@ import numpy as np
 import pytest
 from scipy.stats import spearmanr
 
-from visphy_core.alignment import PAPER, align, unaligned
+from visphy_core.scoring.alignment import PAPER, align, unaligned
 from visphy_plugins.physics.box2d import simulate_2d
 from visphy_plugins.datasets.visphybench.detection import detection_from_spec
 from visphy_plugins.datasets.visphybench.detection3d import detection_from_spec_3d
 from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d, render_frame_2d
 from mini_templates import SCENES
 from mini_templates import mini_scenes as make_mini_scenes
-from visphy_core.metrics import LOWER, SEQUENCE, MetricInput
-from visphy_core.scene import Scene
-from visphy_core.scoring import ScoringProtocol, alignments
-from visphy_core.video import ClipInfo, decode_video, encode_video
+from visphy_core.api.metrics import LOWER, SEQUENCE, MetricInput
+from visphy_core.api.scene import Scene
+from visphy_core.scoring.score import ScoringProtocol, alignments
+from visphy_core.infra.video import ClipInfo, decode_video, encode_video
 from visphy_plugins.metrics import tracks as T
 
 SCENE_3D = "vpb3-s0-3d-t003-v02"  # a 3D scene of the generated benchmark (template 3)
@@ -556,13 +556,13 @@ def _check_3d(scene, frames: np.ndarray, poses: np.ndarray | None) -> None:
 def test_3d_rendered_clip_segments_every_dynamic_body(tmp_path):
     import shutil
 
-    from visphy_core.js_assets import assets_installed
+    from visphy_core.infra.js_assets import assets_installed
 
     if shutil.which("node") is None or not assets_installed():
         pytest.skip("Node.js or the browser engine libraries are missing")
     from visphy_plugins.physics.cannon import simulate_3d
     from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
-    from visphy_core.spec3d import validate_spec_3d
+    from visphy_core.spec.spec3d import validate_spec_3d
     from visphy_plugins.datasets.visphybench.screening3d import validity_problems_3d
     from visphy_plugins.datasets.visphybench.templates_3d import TEMPLATES_3D
     from visphy_core.sandbox.browser import BrowserPool
@@ -603,7 +603,7 @@ def built_3d(mini_root, tmp_path_factory) -> Path:
 
     from visphy_plugins.datasets.visphybench.build import (dataset_root,
                                                            load_or_build_catalogue, write_scene)
-    from visphy_core.js_assets import assets_installed
+    from visphy_core.infra.js_assets import assets_installed
     from visphy_core.sandbox.browser import BrowserPool
 
     if not assets_installed():

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from conftest import run_cli
-from visphy_core.engine import Engine, RenderContract
+from visphy_core.api.engine import Engine, RenderContract
 from visphy_plugins.engines.native import native_payload, union_outline
 
 SCENES = (0, 1)           # two of the mini split's four 2D scenes
@@ -39,10 +39,10 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
 def headline(scene, ref: np.ndarray, gen: np.ndarray, tmp_path) -> tuple[float, dict]:
     """The scene's physics score with the still clip (the first frame held) as floor and the
     metrics' ideal values as ceilings; and the generated clip's component values."""
-    from visphy_core.cache import Cache
-    from visphy_core.headline import Headline, scene_headline
-    from visphy_core.plugins import get_registry
-    from visphy_core.scoring import score_scene
+    from visphy_core.infra.cache import Cache
+    from visphy_core.scoring.headline import Headline, scene_headline
+    from visphy_core.api.registry import get_registry
+    from visphy_core.scoring.score import score_scene
 
     head = Headline()
     reg = get_registry()
@@ -106,7 +106,7 @@ def test_a_compound_is_drawn_as_the_outline_of_its_abutting_parts():
 
 
 def test_the_native_payload_is_the_replay_payload_plus_outlines(scenes):
-    from visphy_core.replay import replay_payload
+    from visphy_core.spec.replay import replay_payload
 
     for scene in scenes:
         exact, native = replay_payload(scene), native_payload(scene)
@@ -142,7 +142,7 @@ def test_engines_declare_native_programs_and_3d_falls_back_to_the_exact_one():
 def test_the_oracle_answers_with_the_program_of_its_style(scenes):
     from omegaconf import OmegaConf
 
-    from visphy_core.model import OutputContract, PrivilegedRequest
+    from visphy_core.api.model import OutputContract, PrivilegedRequest
     from visphy_plugins.engines.p5 import P5Engine
     from visphy_plugins.models.oracle import OracleConfig, OracleModel
 

@@ -15,7 +15,7 @@ from visphy_plugins.datasets.original import (
     probe_clip,
     read_difficulty_table,
 )
-from visphy_core.video import encode_video
+from visphy_core.infra.video import encode_video
 
 ID_2D_A, ID_2D_B, ID_3D = "task10063_000", "task10009_013", "14_tmpl_14"
 

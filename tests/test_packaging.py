@@ -25,9 +25,9 @@ def test_wheel_contains_configs_assets_and_templates(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
     for required in ("visphy_conf/config.yaml", "visphy_conf/engine/threejs.yaml",
                      "visphy_conf/hydra/launcher/local.yaml",
-                     "visphy_core/sandbox/virtual_time.js", "visphy_core/prompts/default.txt",
-                     "visphy_core/js_vendor/package-lock.json",
-                     "visphy_core/replay3d.html",
+                     "visphy_core/sandbox/virtual_time.js", "visphy_core/calls/prompts/default.txt",
+                     "visphy_core/infra/js_vendor/package-lock.json",
+                     "visphy_core/spec/replay3d.html",
                      "visphy_plugins/engines/templates/threejs_replay_2d.html"):
         assert required in names, required
     entry_points = next(n for n in names if n.endswith("entry_points.txt"))

@@ -1,5 +1,5 @@
 """The ``paper`` protocol follows upstream's ``utils/evaluate_video_metrics.py::evaluate_pair``
-rule by rule (`visphy_core.paper_protocol`), while the ``visphy`` pairings stay time-honest.
+rule by rule (`visphy_core.scoring.paper_protocol`), while the ``visphy`` pairings stay time-honest.
 
 Each test is built on a synthetic clip where the upstream rule and visphy's own rule give
 different answers, and asserts upstream's: implemented the visphy way, it fails. Clips are
@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
-from visphy_core import paper_protocol as pp
-from visphy_core.alignment import PAPER, AlignParams, align
-from visphy_core.cache import Cache
-from visphy_core.scene import ClipInfo, Scene
-from visphy_core.scoring import ScoringProtocol, score_scene
+from visphy_core.scoring import paper_protocol as pp
+from visphy_core.scoring.alignment import PAPER, AlignParams, align
+from visphy_core.infra.cache import Cache
+from visphy_core.api.scene import ClipInfo, Scene
+from visphy_core.scoring.score import ScoringProtocol, score_scene
 from visphy_plugins.metrics.pixel import PSNR, SSIM, psnr_frame, ssim_frame
 
 SIZE = 96
@@ -334,7 +334,7 @@ def test_visphy_pairings_are_unchanged_and_paper_columns_use_upstreams_scores(tm
 
 
 def test_the_paper_rules_are_the_protocols_default_and_dtw_runs_after_the_offset():
-    from visphy_core.config_check import check_overrides
+    from visphy_core.config.check import check_overrides
 
     assert PAPER.rules == "upstream" and PAPER.dtw and PAPER.sample_every == 3
     (cfg,) = check_overrides([])
@@ -353,7 +353,7 @@ def test_a_replayed_video_at_a_foreign_rate_is_paired_by_index_in_a_run(tmp_path
     import json
 
     from conftest import run_cli
-    from visphy_core.video import decode_video, encode_video
+    from visphy_core.infra.video import decode_video, encode_video
     from visphy_plugins.datasets.tiny import make_tiny_dataset
 
     root = make_tiny_dataset(tmp_path / "data", 1)

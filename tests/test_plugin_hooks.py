@@ -10,9 +10,9 @@ import pytest
 
 from conftest import FAST_METRICS
 
-from visphy_core.hookspecs import hookimpl
-from visphy_core.metrics import HIGHER, Metric
-from visphy_core.plugins import PluginError, build_plugin_manager, build_registry
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.metrics import HIGHER, Metric
+from visphy_core.api.registry import PluginError, build_plugin_manager, build_registry
 
 
 @pytest.fixture
@@ -106,9 +106,9 @@ def test_visphy_register_judges(pm):
 
 
 def test_visphy_register_datasets(pm, tmp_path):
-    from visphy_core.dataset.base import Dataset
-    from visphy_core.scene import Scene
-    from visphy_core.video import ClipInfo
+    from visphy_core.api.dataset import Dataset
+    from visphy_core.api.scene import Scene
+    from visphy_core.infra.video import ClipInfo
 
     class Listing(Dataset):
         name = "listing"
@@ -146,7 +146,7 @@ def test_visphy_register_datasets(pm, tmp_path):
 
 
 def test_visphy_register_physics(pm):
-    from visphy_core.physics import Physics, physics_for
+    from visphy_core.api.physics import Physics, physics_for
 
     class Ballistic(Physics):
         """A point mass under gravity, nothing else."""
@@ -209,9 +209,9 @@ def recorded_run(tmp_path_factory, mini_root):
     """One real run of two mini scenes with the Recorder plugin registered."""
     import shutil
 
-    from visphy_core.config_check import compose
-    from visphy_core.plugins import get_plugin_manager
-    from visphy_core.run import run_experiment
+    from visphy_core.config.check import compose
+    from visphy_core.api.registry import get_plugin_manager
+    from visphy_core.execute.run import run_experiment
 
     home = tmp_path_factory.mktemp("home")
     shutil.copytree(mini_root, home / "data" / mini_root.name)

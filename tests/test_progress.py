@@ -16,7 +16,7 @@ from pathlib import Path
 from rich.console import Console
 
 from conftest import REPO, run_cli
-from visphy_core.console import StageProgress, stage_progress
+from visphy_core.execute.console import StageProgress, stage_progress
 
 
 def test_stage_lines_count_scenes_and_skips():

@@ -14,8 +14,8 @@ import pytest
 from omegaconf import OmegaConf
 from PIL import Image
 
-from visphy_core.calls import CallError, CallErrorKind
-from visphy_core.model import ImageInput, ModelRequest, ModelResponse, OutputContract
+from visphy_core.calls.retry import CallError, CallErrorKind
+from visphy_core.api.model import ImageInput, ModelRequest, ModelResponse, OutputContract
 from visphy_plugins.providers.base import ApiCaller, ApiModel, Part
 from visphy_plugins.providers.config import ApiModelConfig, PriceConfig, RetriesConfig
 from visphy_plugins.testing.fake_anthropic import FakeAnthropicServer

@@ -13,7 +13,7 @@ import pytest
 from omegaconf import OmegaConf
 from PIL import Image
 
-from visphy_core.model import ImageInput, ModelRequest, ModelResponse, OutputContract
+from visphy_core.api.model import ImageInput, ModelRequest, ModelResponse, OutputContract
 from visphy_plugins.providers.base import ApiModel, Part, make_client
 from visphy_plugins.providers.config import ApiModelConfig, PriceConfig, RetriesConfig
 from visphy_plugins.testing.fake_gemini import FakeGeminiServer, blocked_candidate, model_of

@@ -15,7 +15,7 @@ import pytest
 from omegaconf import OmegaConf
 from PIL import Image
 
-from visphy_core.model import ImageInput, ModelRequest, ModelResponse, OutputContract
+from visphy_core.api.model import ImageInput, ModelRequest, ModelResponse, OutputContract
 from visphy_plugins.providers.base import ApiCaller, ApiModel, Part
 from visphy_plugins.providers.config import (ApiModelConfig, ConcurrencyConfig, PriceConfig,
                                              RetriesConfig)

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from visphy_core.engine import Program, RenderContract
-from visphy_core.video import frame_digest
+from visphy_core.api.engine import Program, RenderContract
+from visphy_core.infra.video import frame_digest
 
 pytestmark = pytest.mark.browser
 

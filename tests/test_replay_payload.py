@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from visphy_core.replay import fill, payload_from, replay_html_3d, replay_payload
+from visphy_core.spec.replay import fill, payload_from, replay_html_3d, replay_payload
 
 
 def _spec_2d() -> dict:
@@ -54,7 +54,7 @@ def test_payload_errors_name_what_is_missing():
 
 def test_every_engine_reads_the_same_payload(mini_scenes):
     """The reference programs of all five engines embed the scene's one payload."""
-    from visphy_core.plugins import get_registry
+    from visphy_core.api.registry import get_registry
 
     scene = mini_scenes[0]
     payload = replay_payload(scene)

@@ -1,6 +1,6 @@
 """Reference descriptions, the `replay` model and the one-reply `render` command.
 
-* `visphy_core/references.py`: `describe_spec` / `describe_detection` are deterministic, name
+* `visphy_core/calls/references.py`: `describe_spec` / `describe_detection` are deterministic, name
   exactly what the ground truth holds and tell scenes apart; `ReferenceWriter` (``spec`` mode)
   caches by the scene's ground truth (shared by every run and model) and never reads a reply.
 * `plugins/models/replay.py`: every source layout it documents (a folder of ``<id>.txt`` /
@@ -28,12 +28,12 @@ import pytest
 from omegaconf import OmegaConf
 
 from conftest import run_cli
-from visphy_core.cache import Cache
-from visphy_core.errors import UserError
-from visphy_core.model import ModelRequest, OutputContract
-from visphy_core.references import ReferenceWriter, describe_detection, describe_spec
-from visphy_core.scene import Scene
-from visphy_core.video import ClipInfo
+from visphy_core.infra.cache import Cache
+from visphy_core.api.errors import UserError
+from visphy_core.api.model import ModelRequest, OutputContract
+from visphy_core.calls.references import ReferenceWriter, describe_detection, describe_spec
+from visphy_core.api.scene import Scene
+from visphy_core.infra.video import ClipInfo
 from visphy_plugins.models.replay import ReplayConfig, ReplayModel
 from visphy_plugins.testing.replies import ANALYSIS, HTML_PROGRAM, MANIM_PROGRAM, reply
 from visphy_plugins.datasets.tiny import make_tiny_dataset, scene_id
@@ -217,8 +217,8 @@ def test_reference_writer_spec_mode_caches_by_ground_truth_for_every_run(tmp_pat
 def test_reference_writer_never_reads_the_model(tmp_path, specs, tiny_root):
     """In spec mode the writer ignores any model it is handed: the text is the spec's, whatever
     the model would say, and two different models read the same cache entry."""
-    from visphy_core.generation import ModelCaller
-    from visphy_core.usage import UsageLedger
+    from visphy_core.calls.generation import ModelCaller
+    from visphy_core.calls.usage import UsageLedger
 
     spec = specs[3]
     scene = _spec_scene(tmp_path / "s", spec, tiny_root / "sub" / "videos" / f"{S1}.mp4")
@@ -300,7 +300,7 @@ def test_replay_folder_of_reply_files_every_suffix(tmp_path):
 
 
 def test_replay_wrapped_bare_program_extracts_unchanged(tmp_path):
-    from visphy_core.extract import extract_code
+    from visphy_core.api.extract import extract_code
 
     src = tmp_path / "r"
     src.mkdir()

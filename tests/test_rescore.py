@@ -171,7 +171,7 @@ def test_a_judge_added_by_rescoring_calls_only_the_judge(finished, no_chromium):
     (["judge.gemini.base_url=http://x"], "the run has no judge 'gemini'"),
 ])
 def test_refused_overrides_are_one_line_errors(finished, capsys, args, needle):
-    from visphy_core.cli import main
+    from visphy_core.cli.main import main
 
     assert main(["score", str(finished["run"]), *args]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -179,7 +179,7 @@ def test_refused_overrides_are_one_line_errors(finished, capsys, args, needle):
 
 
 def test_a_missing_or_foreign_folder_is_a_one_line_error(tmp_path, capsys):
-    from visphy_core.cli import main
+    from visphy_core.cli.main import main
 
     (tmp_path / "stuff").mkdir()
     assert main(["score", str(tmp_path / "nope")]) == 2

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from visphy_core.run_dir import new_run_dir
+from visphy_core.results.run_dir import new_run_dir
 
 CFG = {"model": {"name": "replay"}, "engine": {"name": "threejs"}, "run": {"retry": True},
        "paths": {"home": "/nowhere"}}

@@ -15,15 +15,15 @@ import pytest
 
 from conftest import with_fast_metrics
 
-from visphy_core.engine import Engine, FailureClass, Program, RenderResult
-from visphy_core.hookspecs import hookimpl
-from visphy_core.model import Model, ModelResponse
+from visphy_core.api.engine import Engine, FailureClass, Program, RenderResult
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.model import Model, ModelResponse
 
 
 def _compose_run(home: Path, *overrides: str, plugins: dict | None = None):
-    from visphy_core.config_check import compose
-    from visphy_core.plugins import get_plugin_manager, get_registry
-    from visphy_core.run import run_experiment
+    from visphy_core.config.check import compose
+    from visphy_core.api.registry import get_plugin_manager, get_registry
+    from visphy_core.execute.run import run_experiment
 
     pm = get_plugin_manager()
     for name, plugin in (plugins or {}).items():
@@ -62,7 +62,7 @@ def _middle(home: Path, mini_root: Path) -> tuple[Path, str]:
 # --------------------------------------------------------------------------- data_error rows
 
 def _break(kind: str, root: Path, sid: str) -> tuple[Path, str]:
-    from visphy_core.video import decode_video, encode_video
+    from visphy_core.infra.video import decode_video, encode_video
 
     if kind == "malformed_detection":
         path = root / "detection_json" / f"{sid}_frame_01.json"
@@ -119,7 +119,7 @@ def test_the_original_layout_keeps_a_broken_scene_for_a_row(tmp_path, mini_scene
     """The lenient loader a run uses turns a scene's bad files into a data_error scene, while
     split-level errors still fail before any work."""
     from visphy_plugins.datasets.original import load_original
-    from visphy_core.scene import SceneDataError
+    from visphy_core.api.scene import SceneDataError
 
     split = tmp_path / "sub"
     (split / "videos").mkdir(parents=True)
@@ -210,7 +210,7 @@ class _Raiser:
 @pytest.mark.parametrize("how, mlflow_status, status", [
     ("exception", "FAILED", "failed"), ("sigterm", "KILLED", "interrupted")])
 def test_an_interrupted_loop_ends_the_mlflow_run(home, how, mlflow_status, status):
-    from visphy_core.run import RunInterrupted
+    from visphy_core.execute.run import RunInterrupted
 
     def action():
         if how == "exception":

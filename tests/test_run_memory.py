@@ -1,4 +1,4 @@
-"""A run's memory stays bounded over its scenes (`visphy_core.heap`, `visphy_core.scheduler`,
+"""A run's memory stays bounded over its scenes (`visphy_core.infra.heap`, `visphy_core.execute.scheduler`,
 `visphy_core.sandbox.browser`).
 
 What grew with the number of scenes: every rendered clip's frames, held by the finished page's
@@ -97,8 +97,7 @@ def _cycle_with_array(nbytes: int) -> weakref.ref:
 
 
 def test_release_free_memory_frees_what_only_cycles_hold(monkeypatch):
-    from visphy_core import heap
-
+    from visphy_core.infra import heap
     gc.collect()
     gc.disable()
     try:
@@ -120,7 +119,7 @@ ARENAS_SCRIPT = textwrap.dedent("""
     import ctypes, io, os, re, sys, tempfile, threading
     import numpy as np
     sys.path.insert(0, {repo!r})
-    from visphy_core.heap import limit_arenas
+    from visphy_core.infra.heap import limit_arenas
     print("limit", limit_arenas())
     go = threading.Barrier(6)
     def work():
@@ -150,7 +149,7 @@ def _arenas(env: dict) -> tuple[str, int]:
 
 @pytest.mark.parametrize("mark", glibc_only)
 def test_one_arena_serves_every_thread(mark):
-    from visphy_core.heap import ARENAS_ENV
+    from visphy_core.infra.heap import ARENAS_ENV
 
     assert _arenas({ARENAS_ENV: ""}) == ("1", 1)
     limit, arenas = _arenas({ARENAS_ENV: "0"})  # glibc's default: an arena per thread
@@ -158,8 +157,8 @@ def test_one_arena_serves_every_thread(mark):
 
 
 def test_the_run_caps_the_arenas_before_its_threads_start(monkeypatch):
-    from visphy_core import heap, scheduler
-
+    from visphy_core.infra import heap
+    from visphy_core.execute import scheduler
     calls = []
     monkeypatch.setattr(scheduler, "limit_arenas", lambda: calls.append(1))
     scheduler.pin_torch_threads()
@@ -173,7 +172,7 @@ BUDGET_SCRIPT = textwrap.dedent("""
     import sys, threading, time
     import numpy as np
     sys.path.insert(0, {repo!r})
-    from visphy_core.heap import BudgetTrim, rss_bytes
+    from visphy_core.infra.heap import BudgetTrim, rss_bytes
     keep = []
     def scene():  # on a thread, as a run's scenes are
         big = np.ones(16 * 2**20, np.uint8); del big  # glibc's mmap threshold rises to 16 MiB
@@ -210,8 +209,7 @@ def test_pages_go_back_once_the_process_grows_above_its_budget(mark):
 
 
 def test_no_budget_or_no_trim_starts_nothing(monkeypatch):
-    from visphy_core import heap
-
+    from visphy_core.infra import heap
     assert heap.BudgetTrim(budget=0).start() is False
     monkeypatch.setenv(heap.TRIM_ENV, "0")
     assert heap.BudgetTrim(budget=2**20).start() is False
@@ -241,8 +239,8 @@ class _Scene:
 def _run_scenes(scenes, workers: int, budget_mpx: str, monkeypatch) -> list[int]:
     """Each scene renders, then scores for a while; returns the clip pixels scoring at once,
     as seen from inside every score stage."""
-    from visphy_core.console import StageEvents
-    from visphy_core.scheduler import SCORE_PIXELS_ENV, SceneScheduler, StageGates
+    from visphy_core.execute.console import StageEvents
+    from visphy_core.execute.scheduler import SCORE_PIXELS_ENV, SceneScheduler, StageGates
 
     monkeypatch.setenv(SCORE_PIXELS_ENV, budget_mpx)
     gates = StageGates(StageEvents(), workers)
@@ -276,7 +274,7 @@ def test_two_3d_scenes_never_score_at_once(monkeypatch):
 
 
 def test_2d_scenes_score_side_by_side_and_beside_a_3d_scene(monkeypatch):
-    from visphy_core.scheduler import SCORE_PIXELS
+    from visphy_core.execute.scheduler import SCORE_PIXELS
 
     scenes = [_Scene("3d", _Clip(75))] + [_Scene(f"2d-{i}", _Clip(17)) for i in range(5)]
     seen = _run_scenes(scenes, workers=3, budget_mpx="32", monkeypatch=monkeypatch)
@@ -284,8 +282,8 @@ def test_2d_scenes_score_side_by_side_and_beside_a_3d_scene(monkeypatch):
 
 
 def test_a_scene_waiting_for_scoring_memory_is_abandoned_on_cancel(monkeypatch):
-    from visphy_core.console import StageEvents
-    from visphy_core.scheduler import SCORE_PIXELS_ENV, SceneCancelled, StageGates
+    from visphy_core.execute.console import StageEvents
+    from visphy_core.execute.scheduler import SCORE_PIXELS_ENV, SceneCancelled, StageGates
 
     monkeypatch.setenv(SCORE_PIXELS_ENV, "32")
     gates = StageGates(StageEvents(), 2)
@@ -325,8 +323,8 @@ def test_3d_scenes_in_flight_are_fewer_than_the_threads(monkeypatch):
     """Scenes hold their decoded ground truth from their start: with 3D clips, no more of them
     are taken than `INFLIGHT_PIXELS` allows, though threads are free (and without the limit
     they are)."""
-    from visphy_core.console import StageEvents
-    from visphy_core.scheduler import INFLIGHT_PIXELS_ENV, SceneScheduler, StageGates
+    from visphy_core.execute.console import StageEvents
+    from visphy_core.execute.scheduler import INFLIGHT_PIXELS_ENV, SceneScheduler, StageGates
 
     def run(limit: str) -> tuple[int, int]:
         monkeypatch.setenv(INFLIGHT_PIXELS_ENV, limit)
@@ -352,8 +350,8 @@ def test_3d_scenes_in_flight_are_fewer_than_the_threads(monkeypatch):
 
 
 def test_clip_pixels_and_the_limit_setting(monkeypatch):
-    from visphy_core.errors import ConfigError
-    from visphy_core.scheduler import (INFLIGHT_PIXELS_ENV, SCORE_PIXELS_ENV, clip_pixels,
+    from visphy_core.api.errors import ConfigError
+    from visphy_core.execute.scheduler import (INFLIGHT_PIXELS_ENV, SCORE_PIXELS_ENV, clip_pixels,
                                        inflight_pixels, score_pixels)
 
     assert clip_pixels(_Scene("s", _Clip(17))) == 17 * 512 * 512

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import pytest
 
-from visphy_core.config_check import ConfigError, check_overrides, compose
-from visphy_core.dataset import load_dataset
-from visphy_core.dataset.shard import interleave, parse_shard, select_shard
+from visphy_core.config.check import ConfigError, check_overrides, compose
+from visphy_core.execute.datasets import load_dataset
+from visphy_core.execute.shard import interleave, parse_shard, select_shard
 
 from conftest import run_cli
 

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from visphy_core.spec_track import SpecTrackError, merged_spec, simulate, spec_scene
+from visphy_core.spec.spec_track import SpecTrackError, merged_spec, simulate, spec_scene
 
 from conftest import run_cli
 

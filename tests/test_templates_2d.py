@@ -14,7 +14,7 @@ from visphy_plugins.physics.box2d import simulate_2d
 from visphy_plugins.datasets.visphybench.features import difficulty_features, difficulty_score
 from visphy_plugins.datasets.visphybench.filters import REASONS, validity_problems
 from visphy_plugins.datasets.visphybench.raster2d import PALETTE
-from visphy_core.spec2d import (
+from visphy_core.spec.spec2d import (
     PHYRE_PROFILE,
     WALL_IDS,
     category_of,

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from mini_templates import mini_specs
-from visphy_core.headline import Headline
-from visphy_core.metrics import HIGHER, LOWER
-from visphy_core.normalisation import twin_spec
+from visphy_core.scoring.headline import Headline
+from visphy_core.api.metrics import HIGHER, LOWER
+from visphy_core.scoring.normalisation import twin_spec
 from visphy_plugins.datasets.visphybench import validity_order as vo
 
 RED = (243, 79, 70)
@@ -285,7 +285,7 @@ def test_on_mini_scenes_the_headline_orders_the_four_kinds(jar, thrown):
     """The headline orders (i) > (ii) > (iii), (iv) by means on both scenes (it ranks a
     still clip at exactly 0 and the flow extrapolation below every physics-right clip); PSNR
     need not: a re-simulated clip with the truth's colours can be sharper than a repaint."""
-    from visphy_core.plugins import get_registry
+    from visphy_core.api.registry import get_registry
 
     registry = get_registry()
     names = ("psnr", "spatiotemporal_iou", "weighted_spatial_iou", "track_pos_err")

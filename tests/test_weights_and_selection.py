@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 from omegaconf import OmegaConf
 
-from visphy_core import weights
-from visphy_core.plugins import get_registry
-from visphy_core.scoring import select_metrics, subsample_pairs
+from visphy_core.scoring import weights
+from visphy_core.api.registry import get_registry
+from visphy_core.scoring.score import select_metrics, subsample_pairs
 
 
 @pytest.fixture(autouse=True)

@@ -1,4 +1,4 @@
-"""Scenes side by side (`run.workers`, visphy_core/scheduler.py): the same rows, frames and scores
+"""Scenes side by side (`run.workers`, visphy_core/execute/scheduler.py): the same rows, frames and scores
 with one worker and with two; the scheduler's gates (slots, the render lane in scene order, the
 call lane of ``run.prefetch=0``), rows handed back in scene order, cancelling and draining; the
 progress lines' in-flight counts; and ``run.workers`` itself."""
@@ -17,12 +17,12 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from visphy_core.run import STAGE_FIELDS
+from visphy_core.execute.run import STAGE_FIELDS
 from rich.console import Console
 
 from conftest import REPO, run_cli
-from visphy_core.console import StageEvents, StageProgress, stage_progress
-from visphy_core.scheduler import (SceneCancelled, SceneScheduler, StageGates, resolve_workers,
+from visphy_core.execute.console import StageEvents, StageProgress, stage_progress
+from visphy_core.execute.scheduler import (SceneCancelled, SceneScheduler, StageGates, resolve_workers,
                                    usable_cores)
 
 # --------------------------------------------------------------------------- one vs two workers
@@ -320,8 +320,8 @@ def test_a_bad_worker_count_is_one_line_before_any_work(tmp_path, value):
 
 
 def test_the_worker_count_does_not_change_the_config_hash():
-    from visphy_core.config_check import compose
-    from visphy_core.run_dir import config_hash
+    from visphy_core.config.check import compose
+    from visphy_core.results.run_dir import config_hash
 
     hashes = {config_hash(compose([f"run.workers={w}"])) for w in ("auto", "1", "4")}
     assert len(hashes) == 1

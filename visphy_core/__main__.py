@@ -2,7 +2,7 @@
 
 import sys
 
-from visphy_core.cli import main
+from visphy_core.cli.main import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -28,7 +28,7 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
-from visphy_core.hookspecs import hookimpl
+from visphy_core.api.hookspecs import hookimpl
 
 log = logging.getLogger("visphy.tracking")
 _ACTIVE: dict[int, Any] = {}
@@ -95,7 +95,7 @@ def log_params(client, run_id: str, params: dict[str, Any]) -> None:
     """Params in batches (one request per 100 over a tracking server); MLflow's length limits."""
     from mlflow.entities import Param
 
-    from visphy_core.secrets import public_config
+    from visphy_core.calls.secrets import public_config
 
     client.log_batch(run_id, params=[Param(key[:250], str(public_config(str(value)))[:6000])
                                      for key, value in sorted(params.items())])

@@ -17,7 +17,7 @@ read without following symlinks and with size limits.
 
 Frames cross the sandbox boundary as files the script could have rewritten (an ``atexit``
 handler runs after the runner wrote ``result.json``), so the host reads them only through
-`visphy_core.video.read_untrusted_frames`: exactly the names ``frame_00000.png`` ..
+`visphy_core.infra.video.read_untrusted_frames`: exactly the names ``frame_00000.png`` ..
 ``frame_{n_frames-1}.png`` (other files are ignored), each a regular file (no symbolic link)
 of bounded size whose PNG header must say exactly the contract's width × height **before** it is
 decoded. The runner always renders at the contract size, so a frame of another size is not fitted
@@ -60,16 +60,16 @@ from typing import Any, Optional
 
 import numpy as np
 
-from visphy_core.config_schema import EngineConfig
-from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
+from visphy_core.api.config_schema import EngineConfig
+from visphy_core.api.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
                                 RenderFlag, RenderResult, classify_frames)
-from visphy_core.extract import extract_code, extract_spec, fenced_blocks
-from visphy_core.hookspecs import hookimpl
-from visphy_core.png import DeadlineExceeded, FrameRejected
-from visphy_core.replay import replay_payload
-from visphy_core.scene import Scene
-from visphy_core.secrets import redact
-from visphy_core.settings import cfg_get
+from visphy_core.api.extract import extract_code, extract_spec, fenced_blocks
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.infra.png import DeadlineExceeded, FrameRejected
+from visphy_core.spec.replay import replay_payload
+from visphy_core.api.scene import Scene
+from visphy_core.calls.secrets import redact
+from visphy_core.api.settings import cfg_get
 
 HERE = Path(__file__).resolve().parent
 RUNNER = HERE / "blender_runner.py"
@@ -441,7 +441,7 @@ def _read_frames(paths: list[Path], contract: RenderContract,
     """The PNG frames, each exactly the clip's size (the runner renders nothing else): read by
     the shared untrusted-frame reader (header before decoding, no links, size caps, at most
     ``n_frames``, ``deadline``); raises `FrameRejected` or `DeadlineExceeded`."""
-    from visphy_core.video import read_untrusted_frames
+    from visphy_core.infra.video import read_untrusted_frames
 
     return read_untrusted_frames(paths, contract.width, contract.height, contract.n_frames,
                                  deadline)

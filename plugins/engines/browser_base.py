@@ -42,10 +42,10 @@ from urllib.parse import urlparse
 
 import numpy as np
 
-from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
+from visphy_core.api.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
                                 RenderFlag, RenderResult, classify_frames)
-from visphy_core.extract import extract_code, extract_spec
-from visphy_core.replay import fill, replay_payload
+from visphy_core.api.extract import extract_code, extract_spec
+from visphy_core.spec.replay import fill, replay_payload
 from visphy_core.sandbox.browser import BrowserPool, PageCapture
 
 TEMPLATES = Path(__file__).with_name("templates")
@@ -270,7 +270,7 @@ _SERVED = (("/vendor/npm/three-esm/", "three", "three-esm"),
 @cache
 def _locked_versions() -> dict[str, str]:
     """Lock entry name (``three``, ``three-esm``...) -> the exact version vendored."""
-    from visphy_core.js_assets import ASSETS_SRC
+    from visphy_core.infra.js_assets import ASSETS_SRC
 
     lock = json.loads((ASSETS_SRC / "package-lock.json").read_text())
     return {name.removeprefix("node_modules/"): str(info.get("version", "?"))
@@ -407,7 +407,7 @@ class BrowserEngine(Engine):
 
     @cached_property
     def vendor(self):
-        from visphy_core.js_assets import VendorFiles
+        from visphy_core.infra.js_assets import VendorFiles
 
         return VendorFiles()
 
@@ -520,7 +520,7 @@ class BrowserEngine(Engine):
             lines.append("[visphy] two three.js instances were loaded in this page (three.js "
                          f"warned: {THREE_TWICE}); the page references "
                          + (", ".join(builds.values()) or "no vendored build"))
-        from visphy_core.secrets import redact
+        from visphy_core.calls.secrets import redact
 
         result.logs += [redact(line) for line in lines]  # last: the cached log keeps its tail
 
@@ -529,7 +529,7 @@ class BrowserEngine(Engine):
 
 
 def replay_payload_2d(scene, engine_name: str) -> dict:
-    """The scene's replay payload (`visphy_core.replay`) for a 2D-only engine."""
+    """The scene's replay payload (`visphy_core.spec.replay`) for a 2D-only engine."""
     if scene.dim == "3d":
         raise NotImplementedError(
             f"{scene.scene_id}: the {engine_name} engine is 2D only; a 3D scene has no "
@@ -542,7 +542,7 @@ def fill_template(name: str, payload: dict) -> str:
 
 
 def _resize(frames: list[np.ndarray], contract: RenderContract) -> np.ndarray:
-    from visphy_core.video import resize_with_padding
+    from visphy_core.infra.video import resize_with_padding
 
     return np.stack([resize_with_padding(f, contract.width, contract.height) for f in frames])
 
@@ -586,7 +586,7 @@ def classify_capture(cap: PageCapture, contract: RenderContract,
     """Turn what the page did into frames or a failure class, with the evidence in the logs,
     and the flags of what was done to it (`RenderFlag`; ``expects_recording_call``: flag a page
     that never called ``setupRecording``)."""
-    from visphy_core.secrets import redact, redact_obj
+    from visphy_core.calls.secrets import redact, redact_obj
 
     logs = list(cap.errors) + list(cap.console)
     logs += [f"blocked request: {url}" for url in cap.blocked_requests]

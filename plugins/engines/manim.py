@@ -46,7 +46,7 @@ explicit opt-out) → ``infra_error`` with the reason. The isolation the program
 
 Frames cross the sandbox boundary as one raw file (``frames.rgb``: no codec, no header, the
 runner writes clip-sized RGB frames); the program runs in the runner's process and could rewrite
-it, so the host reads it with `visphy_core.video.read_untrusted_raw_frames`: no symbolic link, a
+it, so the host reads it with `visphy_core.infra.video.read_untrusted_raw_frames`: no symbolic link, a
 regular file, at most ``n_frames`` clip-sized frames (a larger file is refused by its size,
 unread: ``runtime_error`` "frame output refused: frames.rgb is N bytes, more than the clip's ...
 refused unread"), straight into one clip-sized array. Reading it counts against the scene's
@@ -72,18 +72,18 @@ from pathlib import Path
 
 import numpy as np
 
-from visphy_core.config_schema import EngineConfig
-from visphy_core.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
+from visphy_core.api.config_schema import EngineConfig
+from visphy_core.api.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
                                 RenderFlag, RenderResult, classify_frames)
-from visphy_core.extract import extract_code, extract_spec
-from visphy_core.hookspecs import hookimpl
-from visphy_core.png import DeadlineExceeded, FrameRejected
-from visphy_core.replay import replay_payload
+from visphy_core.api.extract import extract_code, extract_spec
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.infra.png import DeadlineExceeded, FrameRejected
+from visphy_core.spec.replay import replay_payload
 from visphy_core.sandbox.process import (Limits, ProcessResult, describe_limit, python_ro_paths,
                                          read_untrusted, run_sandboxed)
-from visphy_core.secrets import redact
-from visphy_core.settings import cfg_get
-from visphy_core.scene import Scene
+from visphy_core.calls.secrets import redact
+from visphy_core.api.settings import cfg_get
+from visphy_core.api.scene import Scene
 
 log = logging.getLogger(__name__)
 
@@ -382,7 +382,7 @@ def _read_raw(work: Path, contract: RenderContract, max_frames: int,
               deadline: float | None) -> np.ndarray:
     """``frames.rgb`` through the shared untrusted-frame reader (no link, a regular file, at
     most ``max_frames`` clip-sized frames by its size, ``deadline``)."""
-    from visphy_core.video import read_untrusted_raw_frames
+    from visphy_core.infra.video import read_untrusted_raw_frames
 
     return read_untrusted_raw_frames(work / "frames.rgb", contract.width, contract.height,
                                      max_frames, deadline)

@@ -1,7 +1,7 @@
 """Native-drawing reference programs: the ground truth drawn with each engine's own primitives.
 
 Every engine has two trusted reference programs for a ground-truth scene, both reading the same
-replay payload (`visphy_core.replay`: per-frame poses, shapes, colours):
+replay payload (`visphy_core.spec.replay`: per-frame poses, shapes, colours):
 
 * **exact** (`Engine.program_from_spec`): reproduces the benchmark's alias-free raster (p5 writes
   the pixels into ``pixels[]``, Manim shows a pre-rasterised image, the others draw real shapes
@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 
-from visphy_core.replay import replay_payload
+from visphy_core.spec.replay import replay_payload
 
 #: Segments of a disc where the engine draws circles as polygons (three.js, Blender): the
 #: chord of a 64-gon stays within r·(1 − cos(π/64)) < 0.07 px of a 56 px circle.

@@ -11,9 +11,9 @@ finished ``preload()`` and ``setup()``. 2D only: a 3D scene has no p5 reference 
 
 from __future__ import annotations
 
-from visphy_core.engine import Program
-from visphy_core.hookspecs import hookimpl
-from visphy_core.scene import Scene
+from visphy_core.api.engine import Program
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.scene import Scene
 from visphy_plugins.engines.browser_base import BrowserEngine, fill_template, replay_payload_2d
 from visphy_plugins.engines.native import native_payload
 

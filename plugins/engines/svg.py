@@ -10,9 +10,9 @@ capture, so frame k always shows t = k / fps. 2D only.
 
 from __future__ import annotations
 
-from visphy_core.engine import FailureClass, Program, ProgramRejected
-from visphy_core.hookspecs import hookimpl
-from visphy_core.scene import Scene
+from visphy_core.api.engine import FailureClass, Program, ProgramRejected
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.scene import Scene
 from visphy_plugins.engines.browser_base import BrowserEngine, fill_template, replay_payload_2d
 from visphy_plugins.engines.native import native_payload
 

@@ -3,11 +3,11 @@
 One class (`ApiJudge`) serves all four; ``conf/judge/<name>.yaml`` says which provider and model,
 and whether the judge watches the two clips (``input: video``; Gemini and Qwen-VL accept MP4) or
 ``frames`` uniformly sampled frames of each clip (``frames: k`` per clip; for APIs that take only
-images). The message is the judge prompt (`visphy_core.prompts.build.judge_prompt`), then the
+images). The message is the judge prompt (`visphy_core.calls.prompts.build.judge_prompt`), then the
 ground truth, then the clip under judgement: [text, reference.mp4, generated.mp4] or [text,
 k reference PNGs, k generated PNGs], each clip's frames in time order.
 
-A reply goes through `visphy_core.judge.parse_verdict`; a provider failure after retries, a
+A reply goes through `visphy_core.api.judge.parse_verdict`; a provider failure after retries, a
 refusal, a reply cut by the token limit, no JSON or a score outside 1–10 give an **invalid**
 verdict with its reason (counted, never a number).
 """
@@ -20,11 +20,11 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any, Optional
 
-from visphy_core.config_schema import JudgeConfig
-from visphy_core.hookspecs import hookimpl
-from visphy_core.judge import Judge, JudgeInput, Verdict, parse_verdict, uniform_indices
-from visphy_core.prompts.build import judge_prompt, png_bytes
-from visphy_core.video import decode_video
+from visphy_core.api.config_schema import JudgeConfig
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.judge import Judge, JudgeInput, Verdict, parse_verdict, uniform_indices
+from visphy_core.calls.prompts.build import judge_prompt, png_bytes
+from visphy_core.infra.video import decode_video
 from visphy_plugins.providers.base import ApiCaller, Part
 from visphy_plugins.providers.config import ApiSettings
 

@@ -9,7 +9,7 @@
 * ``forward_env``: names or glob patterns of the launching process's environment variables that
   every job receives (through Ray's ``runtime_env``), since the workers of an existing cluster
   do not share the shell visphy was started from. API keys are deliberately not among them: put
-  them in ``$VISPHY_HOME/.env`` on the shared path (`visphy_core.keys`) instead of sending them
+  them in ``$VISPHY_HOME/.env`` on the shared path (`visphy_core.calls.keys`) instead of sending them
   through the cluster's metadata store.
 """
 
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List
 
-from visphy_core.hookspecs import hookimpl
+from visphy_core.api.hookspecs import hookimpl
 
 LAUNCHER_CLASS = "hydra_plugins.visphy_launchers.ray_launcher.RayLauncher"
 

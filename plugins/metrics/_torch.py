@@ -29,9 +29,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
-from visphy_core import weights
-
-
+from visphy_core.scoring import weights
 @lru_cache(maxsize=None)
 def missing_packages(*modules: str) -> str | None:
     """The unavailable reason when one of ``modules`` cannot be imported here, else None."""

@@ -74,8 +74,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from visphy_core.hookspecs import hookimpl
-from visphy_core.metrics import HIGHER, LOWER, SEQUENCE, Metric, MetricInput
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.metrics import HIGHER, LOWER, SEQUENCE, Metric, MetricInput
 
 _MEMO_KEY = "motion_masks"
 

@@ -40,8 +40,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from visphy_core.hookspecs import hookimpl
-from visphy_core.metrics import HIGHER, PAIRS, Metric
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.metrics import HIGHER, PAIRS, Metric
 from visphy_plugins.metrics import _torch
 
 PSNR_CAP_DB = 100.0  # identical frames: report the cap instead of infinity

@@ -177,8 +177,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from visphy_core.hookspecs import hookimpl
-from visphy_core.metrics import LOWER, SEQUENCE, Metric, MetricInput
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.metrics import LOWER, SEQUENCE, Metric, MetricInput
 
 from visphy_plugins.metrics.association import Row, associate, dominant_colours, find_blobs
 

@@ -7,7 +7,7 @@ settings and prices come from ``conf/model/<name>.yaml``.
 
 from __future__ import annotations
 
-from visphy_core.hookspecs import hookimpl
+from visphy_core.api.hookspecs import hookimpl
 from visphy_plugins.providers.base import ApiModel
 from visphy_plugins.providers.config import ApiModelConfig
 

@@ -25,10 +25,10 @@ from typing import Any, Optional
 
 import numpy as np
 
-from visphy_core.config_schema import ModelConfig
-from visphy_core.errors import UserError
-from visphy_core.hookspecs import hookimpl
-from visphy_core.model import Model, ModelRequest, ModelResponse
+from visphy_core.api.config_schema import ModelConfig
+from visphy_core.api.errors import UserError
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.model import Model, ModelRequest, ModelResponse
 from visphy_plugins.models.baselines import decode_png, key_frame_index
 from visphy_plugins.models.video_apis import PROMPT, PROMPT_VERSION, finish_frames, letterbox
 

@@ -21,12 +21,12 @@ import time
 from dataclasses import dataclass
 from enum import Enum
 
-from visphy_core.config_schema import ModelConfig
-from visphy_core.hookspecs import hookimpl
-from visphy_core.model import Model, ModelRequest, ModelResponse, PrivilegedRequest, \
+from visphy_core.api.config_schema import ModelConfig
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.model import Model, ModelRequest, ModelResponse, PrivilegedRequest, \
     config_identity
-from visphy_core.references import describe_spec
-from visphy_core.settings import cfg_get
+from visphy_core.calls.references import describe_spec
+from visphy_core.api.settings import cfg_get
 
 
 class OracleStyle(str, Enum):

@@ -18,7 +18,7 @@ A scene with no recorded reply is a ``model_error`` naming the file it looked fo
 with no recorded repair reply keeps the first attempt's failure (``error_kind="not_recorded"``).
 Replies cost nothing and are not billed again.
 
-The source is a foreign tree: every file is read through `visphy_core.files` (no symbolic link
+The source is a foreign tree: every file is read through `visphy_core.infra.files` (no symbolic link
 below ``source`` is followed, only regular files, size caps). A scene whose reply is a link, or
 sits in a linked folder, is a ``data_error`` row naming the path; its content is never read.
 """
@@ -33,12 +33,12 @@ from typing import Optional
 
 from omegaconf import MISSING
 
-from visphy_core import files
-from visphy_core.config_schema import ModelConfig
-from visphy_core.errors import UserError
-from visphy_core.extract import fenced_blocks
-from visphy_core.hookspecs import hookimpl
-from visphy_core.model import Model, ModelRequest, ModelResponse
+from visphy_core.infra import files
+from visphy_core.api.config_schema import ModelConfig
+from visphy_core.api.errors import UserError
+from visphy_core.api.extract import fenced_blocks
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.model import Model, ModelRequest, ModelResponse
 
 TEXT_SUFFIXES = (".txt", ".md", ".html", ".py")
 FENCE_FOR = {".html": "html", ".py": "python"}

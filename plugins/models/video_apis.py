@@ -8,7 +8,7 @@ which is then resampled to the clip contract by its own timestamps (time 0 of th
 video is the first key frame's time) and written as the reply's MP4.
 
 Every HTTP step (create, each poll, the download) is one unit retried by
-`visphy_core.calls.call_with_retries` under the endpoint's adaptive limiter; the SDKs' own
+`visphy_core.calls.retry.call_with_retries` under the endpoint's adaptive limiter; the SDKs' own
 retries are off. A generation that finishes with an error is ``error_kind="server"``; a
 content-policy rejection is ``"bad_request"``. Cost: seconds of video × ``price_usd_per_second``.
 
@@ -46,14 +46,14 @@ from typing import Any, Awaitable, Callable, Optional, TypeVar
 
 import numpy as np
 
-from visphy_core.calls import (CallError, CallErrorKind, RetryPolicy, call_with_retries,
+from visphy_core.calls.retry import (CallError, CallErrorKind, RetryPolicy, call_with_retries,
                                kind_for_status, limiter_for, retry_after_seconds)
-from visphy_core.config_schema import ModelConfig
-from visphy_core.errors import ConfigError
-from visphy_core.hookspecs import hookimpl
-from visphy_core.keys import require_key
-from visphy_core.model import Model, ModelRequest, ModelResponse, OutputContract
-from visphy_core.video import (ClipInfo, VideoBudget, decode_video_timed, resample_by_time,
+from visphy_core.api.config_schema import ModelConfig
+from visphy_core.api.errors import ConfigError
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.calls.keys import require_key
+from visphy_core.api.model import Model, ModelRequest, ModelResponse, OutputContract
+from visphy_core.infra.video import (ClipInfo, VideoBudget, decode_video_timed, resample_by_time,
                                resize_with_padding)
 from visphy_plugins.models.baselines import decode_png, key_frame_index, png_bytes, write_clip
 from visphy_plugins.providers.config import ConcurrencyConfig, RetriesConfig

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Optional
 
-from visphy_core.config_schema import ModelConfig
+from visphy_core.api.config_schema import ModelConfig
 
 
 class Provider(StrEnum):

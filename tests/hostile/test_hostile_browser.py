@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from visphy_core.engine import FailureClass, Program, RenderContract
+from visphy_core.api.engine import FailureClass, Program, RenderContract
 
 pytestmark = pytest.mark.browser
 

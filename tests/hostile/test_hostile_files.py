@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from conftest import run_cli
-from visphy_core import files
+from visphy_core.infra import files
 from visphy_plugins.datasets.tiny import make_tiny_dataset, scene_id
 from visphy_plugins.testing.fake_openai import FakeOpenAIServer
 from visphy_plugins.testing.fake_server import ok

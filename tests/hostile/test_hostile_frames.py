@@ -3,8 +3,8 @@
 Frames cross the sandbox boundary as files (Blender: ``frames/frame_*.png``; Manim: one raw
 ``frames.rgb``) that the program can rewrite after the trusted runner has finished (an
 ``atexit`` handler runs after ``result.json`` is written). The host reads them only through the
-shared untrusted-media readers (`visphy_core.png.read_untrusted_png`,
-`visphy_core.video.read_untrusted_frames` / `read_untrusted_raw_frames` / `VideoBudget`), which
+shared untrusted-media readers (`visphy_core.infra.png.read_untrusted_png`,
+`visphy_core.infra.video.read_untrusted_frames` / `read_untrusted_raw_frames` / `VideoBudget`), which
 check the header (PNG IHDR; a video's stream size, frame count, duration) against the render
 contract before decoding anything, never follow links, cap file sizes and frame counts, and
 charge the host's reading to the scene's wall-clock deadline.
@@ -32,10 +32,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from visphy_core.engine import FailureClass, RenderContract
-from visphy_core.png import (PNG_HEADER_BYTES, DeadlineExceeded, FrameRejected, png_bytes,
+from visphy_core.api.engine import FailureClass, RenderContract
+from visphy_core.infra.png import (PNG_HEADER_BYTES, DeadlineExceeded, FrameRejected, png_bytes,
                              read_untrusted_png)
-from visphy_core.video import (ClipInfo, VideoBudget, decode_untrusted_video_timed,
+from visphy_core.infra.video import (ClipInfo, VideoBudget, decode_untrusted_video_timed,
                                encode_video, load_clip_for, probe_untrusted_video,
                                read_untrusted_frames, read_untrusted_raw_frames)
 
@@ -319,7 +319,7 @@ CHILD = r'''
 import json, sys, time
 spec = json.loads(sys.argv[1])
 import numpy, PIL.Image, av  # the decoders' own imports belong to the baseline
-from visphy_core.engine import Program, RenderContract
+from visphy_core.api.engine import Program, RenderContract
 if spec["kind"] == "blender":
     from visphy_plugins.engines.blender import BlenderEngine as Engine
 else:
@@ -497,7 +497,7 @@ def test_the_child_harness_measures_host_memory(tmp_path):
 
 
 def test_decode_png_can_refuse_by_header_before_decoding():
-    from visphy_core.png import decode_png
+    from visphy_core.infra.png import decode_png
 
     np.testing.assert_array_equal(decode_png(png_bytes(frame()), max_pixels=W * H), frame())
     with pytest.raises(FrameRejected, match="the image is 10000x10000 px, more than the 4096 "
@@ -514,7 +514,7 @@ def test_a_page_cannot_make_the_host_decode_a_huge_canvas():
 
     import numpy as np
 
-    from visphy_core.png import FrameRejected
+    from visphy_core.infra.png import FrameRejected
     from visphy_core.sandbox import readback
 
     side = 20000
@@ -534,6 +534,6 @@ def test_a_page_cannot_make_the_host_decode_a_huge_canvas():
     with pytest.raises(FrameRejected):
         readback.png_bytes_to_rgb(png)
     small = np.full((4, 4, 3), 200, np.uint8)
-    from visphy_core.png import png_bytes
+    from visphy_core.infra.png import png_bytes
 
     assert (readback.png_bytes_to_rgb(png_bytes(small)) == small).all()

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import pytest
 
-from visphy_core.engine import FailureClass, Program, RenderContract
+from visphy_core.api.engine import FailureClass, Program, RenderContract
 from visphy_core.sandbox import process as sp
 from visphy_core.sandbox import syscall_filter
 from visphy_core.sandbox.process import (Limits, isolation_available, isolation_level,

@@ -3,7 +3,7 @@ each scene's values in either success view.
 
 A run's ``results`` carry one ``score_<column>`` per metric column (``psnr``, ``psnr.aligned``,
 ``paper.psnr``, ``spec.…``, ``norm.…``, ``judge_<key>``); its ``summary.json`` gives each
-column's direction. The two views follow `visphy_core.run.summarise`: **model success** (the
+column's direction. The two views follow `visphy_core.execute.run.summarise`: **model success** (the
 model's own program gave the clip) and **with fallbacks** (every scene with a clip; the spec
 track's ``spec.`` columns over every evaluable scene, as S is scored whether or not the program
 ran).
@@ -16,9 +16,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from visphy_core.errors import UserError
-from visphy_core.pipeline import NOT_EVALUABLE
-from visphy_core.scoring import SPEC_PREFIX
+from visphy_core.api.errors import UserError
+from visphy_core.execute.pipeline import NOT_EVALUABLE
+from visphy_core.scoring.score import SPEC_PREFIX
 
 if TYPE_CHECKING:
     from visphy_core.analysis.load import RunData

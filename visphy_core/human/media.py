@@ -46,7 +46,7 @@ class PlayableCopies:
             return self._known[path]
 
     def _transcode(self, path: Path) -> Path:
-        from visphy_core.video import decode_video, encode_video
+        from visphy_core.infra.video import decode_video, encode_video
 
         frames, info = decode_video(path)
         out = self.folder / (hashlib.sha256(str(path).encode()).hexdigest()[:16] + ".mp4")

@@ -15,8 +15,8 @@ import re
 import threading
 from pathlib import Path
 
-from visphy_core import files
-from visphy_core.errors import UserError
+from visphy_core.infra import files
+from visphy_core.api.errors import UserError
 from visphy_core.human.items import RatingItem
 
 RATINGS_FILE = "human_ratings.jsonl"

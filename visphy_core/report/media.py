@@ -85,7 +85,7 @@ def av_errors() -> type[BaseException]:
 
 def encode_for_browser(frames: np.ndarray, dest: Path, fps: float) -> None:
     """H.264 yuv420p at crf 18, preset ``veryfast`` (a quarter of the time of visphy's archival
-    encoding, `visphy_core.video.encode_video`; this copy is only looked at), atomically."""
+    encoding, `visphy_core.infra.video.encode_video`; this copy is only looked at), atomically."""
     from fractions import Fraction
 
     import av
@@ -121,7 +121,7 @@ class MediaStore:
     def _decode(self, path: Path) -> tuple[np.ndarray, float]:
         """Decoded frames and fps of ``path``; the last clip is kept (its key frames and its
         transcode read it once)."""
-        from visphy_core.video import decode_video
+        from visphy_core.infra.video import decode_video
 
         if self._decoded is None or self._decoded[0] != path:
             frames, info = decode_video(path)

@@ -4,7 +4,7 @@ A finished run has ``summary.json`` and ``results.parquet``; a run that was inte
 killed may have only ``results.jsonl`` (with a half-written last line) and ``manifest.json``.
 The report needs the same view of both, so rows come from ``results.jsonl`` (parquet when the
 lines are gone) and, when ``summary.json`` is missing, the summary's counts and means are
-recomputed from the rows with the run's own rule (`visphy_core.run.summarise`: means over model
+recomputed from the rows with the run's own rule (`visphy_core.execute.run.summarise`: means over model
 successes, and over every scored scene with fallbacks). Nothing here writes to the run.
 """
 
@@ -16,10 +16,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from visphy_core import files
-from visphy_core.errors import UserError
-from visphy_core.pipeline import NOT_EVALUABLE, SceneResult
-from visphy_core.scoring import SPEC_PREFIX
+from visphy_core.infra import files
+from visphy_core.api.errors import UserError
+from visphy_core.execute.pipeline import NOT_EVALUABLE, SceneResult
+from visphy_core.scoring.score import SPEC_PREFIX
 
 #: What a directory needs to be read as a run (any one of them).
 RUN_MARKERS = ("manifest.json", "config.yaml", "results.jsonl", "summary.json")
@@ -181,7 +181,7 @@ def column_direction(column: str, base: dict[str, str]) -> str:
 
 
 def summarise_rows(results: list[SceneResult], manifest: dict[str, Any]) -> dict[str, Any]:
-    """The counts and means of `visphy_core.run.summarise` for a run that never wrote its
+    """The counts and means of `visphy_core.execute.run.summarise` for a run that never wrote its
     summary (directions from the manifest's metric list)."""
     base = {str(m.get("name")): str(m.get("direction", "higher"))
             for m in manifest.get("metrics") or [] if isinstance(m, dict)}

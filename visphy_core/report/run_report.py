@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from visphy_core.files import atomic_write
+from visphy_core.infra.files import atomic_write
 from visphy_core.report.ground_truth import locate_ground_truth
 from visphy_core.report.markup import esc, page
 from visphy_core.report.media import MediaStore

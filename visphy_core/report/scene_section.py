@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from visphy_core.pipeline import NOT_EVALUABLE, SceneResult
+from visphy_core.execute.pipeline import NOT_EVALUABLE, SceneResult
 from visphy_core.report.columns import HEADINGS, PRIMARY, direction_of, grouped, label
 from visphy_core.report.ground_truth import GroundTruth
 from visphy_core.report.markup import arrow, attr, details, esc, fmt, pre, table, url

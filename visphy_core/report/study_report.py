@@ -15,7 +15,7 @@ import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from visphy_core.files import atomic_write
+from visphy_core.infra.files import atomic_write
 from visphy_core.report.columns import PRIMARY, direction_of, grouped, label
 from visphy_core.report.markup import arrow, attr, details, esc, fmt, page, rate, table, url
 from visphy_core.report.run_data import RunData, is_run_dir, load_run

@@ -14,7 +14,7 @@ import base64
 
 import numpy as np
 
-from visphy_core.png import decode_png
+from visphy_core.infra.png import decode_png
 
 
 class ReadbackError(ValueError):

@@ -7,10 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from visphy_core.config_schema import ModelConfig
-from visphy_core.hookspecs import hookimpl
-from visphy_core.metrics import LOWER, Metric, MetricInput
-from visphy_core.model import Model, ModelRequest, ModelResponse
+from visphy_core.api.config_schema import ModelConfig
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.metrics import LOWER, Metric, MetricInput
+from visphy_core.api.model import Model, ModelRequest, ModelResponse
 
 PAGE = """<!DOCTYPE html>
 <html><head><style>body{{margin:0;background:#fff}}</style></head>

@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from visphy_core.files import atomic_write
-from visphy_core.png import png_bytes
-from visphy_core.video import PUBLISHED_CRF
+from visphy_core.infra.files import atomic_write
+from visphy_core.infra.png import png_bytes
+from visphy_core.infra.video import PUBLISHED_CRF
 
 from visphy_plugins.datasets.visphybench.catalogue import (GENERATOR_VERSION, Catalogue, Entry,
                                                             build_catalogue)
@@ -144,7 +144,7 @@ def clip_of(spec: dict) -> tuple[float, int, int, int]:
 def write_scene(entry: Entry, root: Path, pool=None, lossless: bool = False) -> dict:
     """Simulate (checking the catalogue digest), render and write one scene; returns its meta.
     The clip is encoded like the published ones (crf 23) or, ``lossless``, exactly."""
-    from visphy_core.video import encode_video
+    from visphy_core.infra.video import encode_video
 
     spec = json.loads(json.dumps(entry.spec))
     sid = spec["scene_id"]
@@ -259,7 +259,7 @@ def _write_previews(root: Path, metas: list[dict]) -> None:
     from PIL import Image
 
     from visphy_plugins.datasets.visphybench.preview import write_contact_sheet, write_preview
-    from visphy_core.video import decode_video
+    from visphy_core.infra.video import decode_video
 
     firsts = [(m["scene_id"], np.asarray(Image.open(
         root / "keyframes" / f"{m['scene_id']}_frame_01.png").convert("RGB"))) for m in metas]

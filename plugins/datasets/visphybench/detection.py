@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from visphy_core.spec2d import (
+from visphy_core.spec.spec2d import (
     category_of,
     local_polygons,
     shape_area_centroid,

@@ -5,9 +5,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from visphy_core import files
-from visphy_core.scene import Scene
-from visphy_core.video import ClipInfo
+from visphy_core.infra import files
+from visphy_core.api.scene import Scene
+from visphy_core.infra.video import ClipInfo
 
 
 def _require(path: Path) -> Path:

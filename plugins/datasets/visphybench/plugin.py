@@ -8,11 +8,11 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
-from visphy_core.dataset.base import Dataset
-from visphy_core.errors import ConfigError
-from visphy_core.hookspecs import hookimpl
-from visphy_core.scene import Scene
-from visphy_core.settings import cfg_get
+from visphy_core.api.dataset import Dataset
+from visphy_core.api.errors import ConfigError
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.scene import Scene
+from visphy_core.api.settings import cfg_get
 from visphy_plugins.datasets.visphybench.catalogue import GENERATOR_VERSION
 
 

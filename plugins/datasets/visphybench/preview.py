@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from visphy_core.files import atomic_write
-from visphy_core.png import png_bytes
-from visphy_core.video import encode_video, resize_with_padding
+from visphy_core.infra.files import atomic_write
+from visphy_core.infra.png import png_bytes
+from visphy_core.infra.video import encode_video, resize_with_padding
 
 GAP = 2
 LABEL_H = 14

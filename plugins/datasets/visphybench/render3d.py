@@ -1,6 +1,6 @@
 """The reference clip of a 3D scene: the ground-truth poses replayed by three.js in Chromium.
 
-`visphy_core.replay3d.replay_html_3d` fills ``visphy_core/replay3d.html`` with a JSON payload
+`visphy_core.spec.replay.replay_html_3d` fills ``visphy_core/spec/replay3d.html`` with a JSON payload
 (camera, lights, floor, bodies' shapes and colours, per-frame poses); it is a pure function of
 (spec, poses, fps, n_frames), and the threejs engine's reference program for 3D scenes is the
 same page. `render_clip_3d` renders it in the sandbox's virtual time (frame k captured at
@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from visphy_core.replay import replay_html_3d
+from visphy_core.spec.replay import replay_html_3d
 
 
 def render_clip_3d(spec: dict, frame_poses, pool, timeout_s: float = 180.0) -> np.ndarray:
     """Render the reference clip (N×H×W×3 uint8, N = len(frame_poses)) with a BrowserPool."""
-    from visphy_core.js_assets import VendorFiles
+    from visphy_core.infra.js_assets import VendorFiles
 
     poses = np.asarray(frame_poses, dtype=np.float64)
     fps = float(spec["world"]["video_fps"])

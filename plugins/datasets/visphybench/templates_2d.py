@@ -53,7 +53,7 @@ from visphy_plugins.datasets.visphybench.blocks2d import (
     mirror,
     uniform,
 )
-from visphy_core.spec2d import CATEGORIES, category_of, shape_area_centroid
+from visphy_core.spec.spec2d import CATEGORIES, category_of, shape_area_centroid
 
 W, H = bk.CANVAS
 LAYOUT_TRIES = 40

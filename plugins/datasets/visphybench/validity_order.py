@@ -39,10 +39,10 @@ ground truth X (the raw render, no codec) under visphy's unaligned pairing:
 (iii) ``static`` — the first frame held for the whole clip (the ``static`` baseline).
 (iv) ``flow`` — the ``flow_extrapolate`` baseline's own function on key frames 1 and 10.
 
-Scores: every frame and sequence metric of the suite (`visphy_core.scoring.score_scene`,
+Scores: every frame and sequence metric of the suite (`visphy_core.scoring.score.score_scene`,
 ``ScoringProtocol(unaligned=True, aligned=False, paper=False)``) and the headline
-(`visphy_core.headline.scene_headline`): floor = the static clip's component values, ceiling =
-the twin's (`visphy_core.normalisation.twin_spec`, simulated and drawn like the truth), so the
+(`visphy_core.scoring.headline.scene_headline`): floor = the static clip's component values, ceiling =
+the twin's (`visphy_core.scoring.normalisation.twin_spec`, simulated and drawn like the truth), so the
 static clip scores exactly 0 on the headline.
 
 Ordering (`order_of`), per scene and score, in the score's good direction (a lower-is-better
@@ -71,10 +71,10 @@ from typing import Any, Callable, Iterable, Protocol
 
 import numpy as np
 
-from visphy_core.cache import Cache
-from visphy_core.headline import Headline, scene_headline
-from visphy_core.metrics import HIGHER, SCENE, Metric
-from visphy_core.scoring import ScoringProtocol, score_scene
+from visphy_core.infra.cache import Cache
+from visphy_core.scoring.headline import Headline, scene_headline
+from visphy_core.api.metrics import HIGHER, SCENE, Metric
+from visphy_core.scoring.score import ScoringProtocol, score_scene
 from visphy_plugins.datasets.visphybench.validity import _materials, scene_of
 
 RIGHT, WRONG, STATIC, FLOW = "right", "wrong", "static", "flow"
@@ -585,7 +585,7 @@ def static_clip(frames: np.ndarray) -> np.ndarray:
 def flow_clip(frames: np.ndarray, fps: float, key_frames: tuple[int, int] = KEY_FRAMES
               ) -> np.ndarray:
     """The ``flow_extrapolate`` baseline's clip from the truth's key frames (1-based)."""
-    from visphy_core.model import OutputContract
+    from visphy_core.api.model import OutputContract
     from visphy_plugins.models.baselines import extrapolate
 
     a, b = key_frames
@@ -658,8 +658,8 @@ def make_clips(truth: Truth, kinds: Iterable[str] = (RIGHT, WRONG, STATIC, FLOW)
 
 
 def twin_clip(truth: Truth) -> np.ndarray:
-    """The ground truth's twin (`visphy_core.normalisation.twin_spec`) drawn like the truth."""
-    from visphy_core.normalisation import twin_spec
+    """The ground truth's twin (`visphy_core.scoring.normalisation.twin_spec`) drawn like the truth."""
+    from visphy_core.scoring.normalisation import twin_spec
 
     return truth.rollout(twin_spec(truth.spec))
 

@@ -1,0 +1,1 @@
+"""Calls to providers: prompts, generation with retries and repair, usage and cost, API keys and secret redaction, judging, reference captions."""

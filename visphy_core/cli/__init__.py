@@ -1,0 +1,1 @@
+"""The `visphy` command line: one module per subcommand group."""

@@ -1,0 +1,360 @@
+"""Command line: ``python -m visphy_core [subcommand | hydra overrides]``.
+
+Subcommands:
+  plugins        list installed plugins and what each registers (also: --plugins)
+  metrics        list installed metrics: direction, family, kind, weights, availability here
+  setup          install the vendored JavaScript libraries (npm ci into the asset cache)
+  build-dataset  generate VisPhyBench: build-dataset [--split S] [--seed N] [--data-dir DIR]
+  ground-truth   a dataset's normalisation anchors and twin renders ahead of any run, into
+                 paths.ground_truth_dir: ground-truth [--workers N] [dataset=… engine=… …]
+  normalise      resample a foreign video to a reference clip: normalise IN --like REF -o OUT
+  render         extract, render and score one reply: render REPLY --engine E --scene ID
+  intervene      change physical parameters, re-simulate, render side by side:
+                 intervene --scene ID (--gt | --run RUN_DIR) --set gravity=-20 [--set ...]
+  rate           model-blind human rating page on localhost: rate PATH... --rater ID
+  score          re-score a finished run (other metrics/judges; no model call, no render):
+                 score RUN_DIR [metrics.names=[...] | judge=... | ...] [--in-place]
+  analyse        tables and figures from finished runs (leaderboard, bootstrap CIs, Spearman):
+                 analyse PATH... [-o OUT] [--study NAME] [--metrics a,b]
+  report         HTML report that opens from disk: report RUN_DIR (a run) or
+                 report RUN_DIR RUN_DIR... [-o OUT] [--title T] (a study)
+  merge          one run from its shards (dataset.shard=i/n), one MLflow parent run:
+                 merge SHARD_RUN_DIR... -o MERGED_RUN_DIR [--partial]
+Anything else is a Hydra run: ``python -m visphy_core engine=threejs model=oracle dataset=mini``.
+
+Bad input (a config value, a missing dataset, a plugin that does not load, Chromium missing) is
+reported as one line, ``error: ...`` on stderr, exit status 2. ``--traceback`` (or
+``VISPHY_TRACEBACK=1``) shows the full traceback instead, for debugging.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from types import TracebackType
+
+from visphy_core.config.check import check_inputs, check_overrides
+from visphy_core.api.errors import UserError
+
+#: A ValueError / FileNotFoundError raised below these (a dataset plugin loading or building its
+#: data) is about the user's dataset, not a bug.
+DATASET_MODULES = ("visphy_core.execute.datasets",)
+HYDRA_FLAGS = ("--help", "-h", "--hydra-help", "--info", "--cfg", "-c", "--resolve",
+               "--package", "-p", "--shell-completion", "-sc")
+
+
+#: Hydra flags followed by a value that is not an override.
+VALUE_FLAGS = ("--config-path", "-cp", "--config-name", "-cn", "--config-dir", "-cd",
+               "--experimental-rerun")
+
+
+def _overrides_of(argv: list[str]) -> list[str]:
+    out, skip = [], False
+    for arg in argv:
+        if skip:
+            skip = False
+        elif arg in VALUE_FLAGS:
+            skip = True
+        elif not arg.startswith("-"):
+            out.append(arg)
+    return out
+
+
+def _traceback_wanted() -> bool:
+    return os.environ.get("VISPHY_TRACEBACK", "").strip().lower() not in ("", "0", "false", "no")
+
+
+def _external_user_errors() -> tuple[type[BaseException], ...]:
+    """Error types of other modules that always mean bad input or a missing prerequisite."""
+    types: list[type[BaseException]] = []
+    for module, name in (("visphy_core.api.registry", "PluginError"),
+                         ("visphy_core.sandbox.browser", "BrowserUnavailable"),
+                         ("visphy_core.infra.js_assets", "AssetsMissing")):
+        try:
+            mod = __import__(module, fromlist=[name])
+            types.append(getattr(mod, name))
+        except Exception:  # noqa: BLE001 - a module that does not import cannot have raised
+            continue
+    return tuple(types)
+
+
+def _raise_site(tb: TracebackType | None) -> str:
+    name = ""
+    while tb is not None:
+        name = tb.tb_frame.f_globals.get("__name__", "")
+        tb = tb.tb_next
+    return name
+
+
+def _in_dataset_loading(tb: TracebackType | None) -> bool:
+    while tb is not None:
+        if tb.tb_frame.f_globals.get("__name__", "").startswith(DATASET_MODULES):
+            return True
+        tb = tb.tb_next
+    return False
+
+
+def is_user_error(exc: BaseException) -> bool:
+    """Whether ``exc`` is the user's input rather than a bug: a `UserError` (config errors
+    included), a plugin that fails to load, Chromium or the browser libraries missing, or a
+    ValueError / FileNotFoundError raised by dataset loading (a missing root, unknown scene
+    ids, an empty selection, a malformed index file)."""
+    if isinstance(exc, UserError) or isinstance(exc, _external_user_errors()):
+        return True
+    tb = exc.__traceback__
+    if isinstance(exc, (FileNotFoundError, NotADirectoryError)) and _in_dataset_loading(tb):
+        return True
+    return isinstance(exc, ValueError) and (_raise_site(tb).startswith(DATASET_MODULES)
+                                            or _in_dataset_loading(tb))
+
+
+def one_line(exc: BaseException) -> str:
+    text = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+    return text or type(exc).__name__
+
+
+def report(exc: BaseException) -> int:
+    print(f"error: {one_line(exc)}", file=sys.stderr)
+    return 2
+
+
+def cmd_plugins(argv: list[str]) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from visphy_core.api.registry import describe_plugins
+
+    table = Table(title="visphy plugins")
+    for col in ("plugin", "distribution", "registers", "hooks"):
+        table.add_column(col)
+    for info in describe_plugins():
+        regs = "; ".join(f"{kind}: {', '.join(sorted(names))}"
+                         for kind, names in sorted(info.registers.items()))
+        table.add_row(info.name, f"{info.distribution} {info.version}", regs or "—",
+                      ", ".join(h.removeprefix("visphy_") for h in info.hooks))
+    Console(width=160).print(table)
+    return 0
+
+
+def cmd_setup(argv: list[str]) -> int:
+    from visphy_core.infra.js_assets import install_assets
+
+    path = install_assets()
+    print(f"browser engine libraries ready in {path}")
+    return 0
+
+
+def cmd_build_dataset(argv: list[str]) -> int:
+    import os
+    import time
+    from pathlib import Path
+
+    from visphy_core.execute.datasets import build_dataset
+
+    home = os.environ.get("VISPHY_HOME", "visphy-out")
+    parser = argparse.ArgumentParser(
+        prog="python -m visphy_core build-dataset",
+        description="Generate a dataset that is built, not downloaded (VisPhyBench by default: "
+                    "simulate every scene, render the requested split).")
+    parser.add_argument("--source", default="generated",
+                        help="the dataset plugin (default: generated, i.e. VisPhyBench)")
+    parser.add_argument("--split", default=None, help="sub, test or mini (default: all scenes)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--data-dir", default=f"{home}/data")
+    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
+    parser.add_argument("--lossless", action="store_true",
+                        help="exact-RGB clips (engine conformance) instead of the published "
+                             "encoding (H.264 yuv420p crf 23)")
+    args = parser.parse_args(argv)
+    start = time.perf_counter()
+    options = {"lossless": True} if args.lossless else {}
+    root = build_dataset(args.source, Path(args.data_dir), seed=args.seed, split=args.split,
+                         workers=args.workers, **options)
+    print(f"{args.source} (seed {args.seed}, split {args.split or 'all'}) ready in {root} "
+          f"({time.perf_counter() - start:.1f} s)")
+    return 0
+
+
+def cmd_normalise(argv: list[str]) -> int:
+    import shutil
+    from pathlib import Path
+
+    from visphy_core.infra.video import (clip_matches, decode_video, decode_video_timed,
+                                   encode_video, resample_by_time)
+
+    parser = argparse.ArgumentParser(
+        prog="python -m visphy_core normalise",
+        description="Resample any video to a reference clip's fps, frame count and size by its "
+                    "own timestamps (frame k = the frame on screen at k / fps; aspect kept, "
+                    "padded with white). A video that already matches is copied unchanged.")
+    parser.add_argument("video", help="the foreign video (a baseline's or upstream output)")
+    parser.add_argument("--like", required=True, help="the reference clip to match")
+    parser.add_argument("-o", "--output", required=True)
+    args = parser.parse_args(argv)
+    frames, times, info = decode_video_timed(Path(args.video))
+    _, target = decode_video(Path(args.like))
+    source = (f"{args.video}: {info.n_frames} frames {info.width}x{info.height} "
+              f"@ {info.fps:g} fps")
+    if clip_matches(info, target):
+        out_path = Path(args.output)
+        out_path.parent.mkdir(parents=True, exist_ok=True)
+        if Path(args.video).resolve() != out_path.resolve():
+            shutil.copyfile(args.video, out_path)
+        print(f"{source} already matches {args.like}: copied byte for byte to {args.output} "
+              "(no re-encode)")
+        return 0
+    out = resample_by_time(frames, times, target)
+    encode_video(out, Path(args.output), target.fps)
+    print(f"{source} -> {args.output}: {target.n_frames} frames {target.width}x{target.height} "
+          f"@ {target.fps:g} fps (resampled by timestamp)")
+    return 0
+
+
+def cmd_metrics(argv: list[str]) -> int:
+    """Every registered metric: direction, family, kind, range, and whether it runs here (the
+    reasons a metric cannot, with how to fix them, follow the table, each once)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from visphy_core.api.registry import get_registry
+
+    registry = get_registry()
+    table = Table(title="visphy metrics")
+    for col in ("metric", "dir", "family", "kind", "range", "here"):
+        table.add_column(col, no_wrap=col == "metric")
+    reasons: dict[str, list[str]] = {}
+    for name in sorted(registry.metrics, key=lambda n: (registry.get("metrics", n).family, n)):
+        d = registry.get("metrics", name).describe()
+        lo, hi = d["range"]
+        why = d["unavailable"]
+        if why is not None:
+            reasons.setdefault(why, []).append(name)
+        here = "available" if why is None else f"unavailable [{list(reasons).index(why) + 1}]"
+        table.add_row(name, "↑" if d["direction"] == "higher" else "↓", d["family"], d["kind"],
+                      f"{lo:g}…{hi:g}", here)
+    console = Console(width=160)
+    console.print(table)
+    for i, (why, names) in enumerate(reasons.items(), 1):
+        console.print(f"[{i}] {', '.join(names)}: {why}", soft_wrap=True)
+    return 0
+
+
+def cmd_render(argv: list[str]) -> int:
+    from visphy_core.execute.render_one import render_reply
+
+    return render_reply(argv)
+
+
+def cmd_intervene(argv: list[str]) -> int:
+    from visphy_core.cli.intervene import intervene_command
+
+    return intervene_command(argv)
+
+
+def cmd_rate(argv: list[str]) -> int:
+    from visphy_core.cli.rate import rate_command
+
+    return rate_command(argv)
+
+
+def cmd_score(argv: list[str]) -> int:
+    from visphy_core.cli.score import cmd_score as score
+
+    return score(argv)
+
+
+def cmd_analyse(argv: list[str]) -> int:
+    from visphy_core.cli.analysis import cmd_analyse as analyse
+
+    return analyse(argv)
+
+
+def cmd_report(argv: list[str]) -> int:
+    from visphy_core.cli.report import main as report_command
+
+    return report_command(argv)
+
+
+def cmd_merge(argv: list[str]) -> int:
+    from visphy_core.cli.merge import cmd_merge as merge
+
+    return merge(argv)
+
+
+def cmd_ground_truth(argv: list[str]) -> int:
+    from visphy_core.cli.ground_truth import cmd_ground_truth as ground_truth
+
+    return ground_truth(argv)
+
+
+SUBCOMMANDS = {"plugins": cmd_plugins, "setup": cmd_setup, "build-dataset": cmd_build_dataset,
+               "normalise": cmd_normalise, "render": cmd_render, "metrics": cmd_metrics,
+               "intervene": cmd_intervene, "rate": cmd_rate, "score": cmd_score,
+               "analyse": cmd_analyse, "report": cmd_report, "merge": cmd_merge,
+               "ground-truth": cmd_ground_truth}
+
+
+def run_hydra(argv: list[str]) -> int:
+    import hydra
+    from hydra.core.global_hydra import GlobalHydra
+
+    from visphy_core.api.registry import get_registry
+
+    show_traceback = _traceback_wanted()
+    try:
+        get_registry()  # plugins store their structured configs before Hydra composes
+        if not any(a in HYDRA_FLAGS or a.startswith("--info") for a in argv):
+            check_overrides(_overrides_of(argv), inputs=True)
+    except Exception as exc:  # noqa: BLE001
+        if show_traceback or not is_user_error(exc):
+            raise
+        return report(exc)
+    GlobalHydra.instance().clear()
+
+    @hydra.main(version_base="1.3", config_path="pkg://visphy_conf", config_name="config")
+    def _main(cfg) -> dict:
+        from visphy_core.execute.run import run_experiment
+
+        try:
+            check_inputs(cfg)
+            return run_experiment(cfg)  # a study's job record reads the run dir from it
+        except Exception as exc:  # noqa: BLE001
+            if show_traceback or not is_user_error(exc):
+                raise
+            # Hydra prints a traceback for any exception out of the task; SystemExit passes.
+            raise SystemExit(report(exc)) from None
+
+    sys.argv = [sys.argv[0]] + argv
+    _main()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if "--traceback" in argv:
+        argv = [a for a in argv if a != "--traceback"]
+        os.environ["VISPHY_TRACEBACK"] = "1"
+    if _traceback_wanted():
+        os.environ.setdefault("HYDRA_FULL_ERROR", "1")
+    from visphy_core.calls.secrets import install_log_redaction
+
+    install_log_redaction()
+    try:
+        from visphy_core.calls.keys import register_env_files
+
+        register_env_files()  # a bad .env is one line; its secrets are redacted everywhere
+    except UserError as exc:
+        if _traceback_wanted():
+            raise
+        return report(exc)
+    if argv and argv[0] in SUBCOMMANDS:
+        try:
+            return SUBCOMMANDS[argv[0]](argv[1:])
+        except Exception as exc:  # noqa: BLE001
+            if _traceback_wanted() or not is_user_error(exc):
+                raise
+            return report(exc)
+    if "--plugins" in argv:
+        return cmd_plugins([])
+    return run_hydra(argv)

@@ -1,0 +1,1 @@
+"""Checking configuration: run config validation and the config of a re-score."""

@@ -1,0 +1,325 @@
+"""What a person sees in the terminal: progress per stage while a run goes, then the summary
+table, the report's path and the command that opens the run in MLflow."""
+
+from __future__ import annotations
+
+import shlex
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+from rich.console import Console
+from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
+                           TimeElapsedColumn)
+from rich.table import Table
+
+# A pipe or a log file gets 120 columns (rich's 80 would truncate the means table); a terminal
+# keeps its own width.
+console = Console(stderr=False, highlight=False,
+                  width=None if sys.stdout.isatty() else 120)
+#: the per-scene table's metric columns, by preference (every column is in the means table)
+SCENE_COLUMNS = ("psnr", "ssim", "st_lpips", "track_pos_err", "flow_epe_dis")
+#: A scene's stages, in the order they run: the model's reply, its render, metrics, judges.
+STAGES = ("generate", "render", "score", "judge")
+
+
+class StageEvents:
+    """What the pipeline reports while a scene goes through its stages. This base class
+    ignores everything (no progress wanted); `StageProgress` shows it. The scheduler's gates
+    (`visphy_core.execute.scheduler.StageGates`) hold a scene at a stage's entrance until the stage's
+    resources are free, so the pipeline enters every stage through `stage`."""
+
+    def begin(self, stage: str, scene_id: str) -> None:
+        """``scene_id`` entered ``stage`` (again, for a repair: the time adds up)."""
+
+    def end(self, stage: str, scene_id: str) -> None:
+        """``scene_id`` left ``stage``; the first end counts the scene as done there."""
+
+    def scene_finished(self, scene_id: str) -> None:
+        """The scene is finished: stages it never reached count as skipped."""
+
+    def check(self) -> None:
+        """Between two steps of a stage: raises when the run is closing (the scheduler's
+        gates); here, nothing."""
+
+    @contextmanager
+    def stage(self, stage: str, scene_id: str) -> Iterator[None]:
+        """``begin`` … ``end`` around the block (no ``end`` when the block raises: the scene's
+        `scene_finished` closes what it left open)."""
+        self.begin(stage, scene_id)
+        yield
+        self.end(stage, scene_id)
+
+
+class StageProgress(StageEvents):
+    """One line per stage: scenes done / total, how many scenes are in that stage now (scenes
+    of a run with several workers go through the stages side by side), the seconds spent in it
+    (summed over scenes) and the time since the run started.
+
+    Drawn live (rich, on stderr) when ``live``; either way `final_line` sums it up (counts,
+    skipped scenes and seconds per stage), printed at the end when nothing was drawn.
+    Thread-safe: every scene's worker reports here.
+    """
+
+    def __init__(self, total: int, stages: tuple[str, ...] | list[str], live: bool,
+                 out: Console | None = None):
+        self.total = total
+        self.stages = [s for s in STAGES if s in stages] + [s for s in stages
+                                                             if s not in STAGES]
+        self.done: dict[str, set[str]] = {s: set() for s in self.stages}
+        self.skipped = dict.fromkeys(self.stages, 0)
+        self.spent = dict.fromkeys(self.stages, 0.0)
+        #: (stage, scene id) -> when the scene entered the stage
+        self._since: dict[tuple[str, str], float] = {}
+        #: the most scenes that were in each stage at once
+        self.most_in_flight = dict.fromkeys(self.stages, 0)
+        self._lock = threading.RLock()
+        self.started = time.monotonic()
+        self.progress = None
+        self.tasks: dict[str, int] = {}
+        if live:
+            self.progress = Progress(
+                TextColumn("[bold]{task.fields[stage]:<8}"), BarColumn(bar_width=24),
+                MofNCompleteColumn(), TextColumn("{task.fields[in_flight]:>11}"),
+                TextColumn("{task.fields[spent]:>7}"), TimeElapsedColumn(),
+                TextColumn("{task.description}"),
+                console=out or Console(file=sys.stderr), transient=False)
+            for stage in self.stages:
+                self.tasks[stage] = self.progress.add_task("", total=total, stage=stage,
+                                                           spent="0.0s", in_flight="")
+
+    def in_flight(self, stage: str) -> list[str]:
+        """The scenes in ``stage`` now, in the order they entered it."""
+        with self._lock:
+            return [sid for (st, sid) in self._since if st == stage]
+
+    def begin(self, stage: str, scene_id: str) -> None:
+        if stage not in self.done:
+            return
+        with self._lock:
+            self._since[(stage, scene_id)] = time.monotonic()
+            now = self.in_flight(stage)
+            self.most_in_flight[stage] = max(self.most_in_flight[stage], len(now))
+            self._show(stage)
+
+    def end(self, stage: str, scene_id: str) -> None:
+        if stage not in self.done:
+            return
+        with self._lock:
+            since = self._since.pop((stage, scene_id), None)
+            if since is not None:
+                self.spent[stage] += time.monotonic() - since
+            self._count(stage, scene_id)
+
+    def scene_finished(self, scene_id: str) -> None:
+        with self._lock:
+            for stage in self.stages:
+                self._since.pop((stage, scene_id), None)
+                if scene_id not in self.done[stage]:
+                    self.skipped[stage] += 1
+                    self._count(stage, scene_id)
+                else:
+                    self._show(stage)
+
+    def _show(self, stage: str, advance: int = 0) -> None:
+        """Redraw ``stage``'s line: in flight now, seconds, the scene(s) in it."""
+        if self.progress is None:
+            return
+        now = self.in_flight(stage)
+        finished = len(self.done[stage]) >= self.total and not now
+        description = ("done" if finished else
+                       now[0] + (f" +{len(now) - 1}" if len(now) > 1 else "") if now else "")
+        self.progress.update(self.tasks[stage], advance=advance,
+                             spent=f"{self.spent[stage]:.1f}s",
+                             in_flight=f"{len(now)} in flight" if now else "",
+                             description=description)
+
+    def _count(self, stage: str, scene_id: str) -> None:
+        first = scene_id not in self.done[stage]
+        self.done[stage].add(scene_id)
+        self._show(stage, advance=1 if first else 0)
+
+    def final_line(self) -> str:
+        parts = []
+        for stage in self.stages:
+            skipped = f", {self.skipped[stage]} skipped" if self.skipped[stage] else ""
+            parts.append(f"{stage} {len(self.done[stage])}/{self.total} "
+                         f"({self.spent[stage]:.1f} s{skipped})")
+        return (f"stages: {' · '.join(parts)} · {time.monotonic() - self.started:.1f} s "
+                "in all")
+
+
+@contextmanager
+def stage_progress(total: int, stages: tuple[str, ...] | list[str], enabled: bool = True,
+                   out: Console | None = None) -> Iterator[StageProgress]:
+    """Yields the `StageProgress` to feed. Live bars when ``enabled`` and stdout is a
+    terminal (``out`` forces them onto that console); otherwise nothing until the end, then the
+    one `final_line` on stderr (also after an interruption: what was done so far)."""
+    live = out is not None or (enabled and sys.stdout.isatty())
+    stages_progress = StageProgress(total, stages, live=live, out=out)
+    try:
+        if stages_progress.progress is not None:
+            with stages_progress.progress:
+                yield stages_progress
+        else:
+            yield stages_progress
+    finally:
+        if stages_progress.progress is None:
+            print(stages_progress.final_line(), file=sys.stderr, flush=True)
+
+
+def mlflow_command(tracking_uri: str) -> str:
+    """How to look at a tracking store: the exact ``mlflow ui`` command for a local store, the
+    server's address for a remote one."""
+    if tracking_uri.split("://", 1)[0].lower() in ("http", "https", "databricks"):
+        return f"open {tracking_uri} (the tracking server holding this run)"
+    return f"mlflow ui --backend-store-uri {shlex.quote(tracking_uri)}"
+
+
+def print_where_to_look(report: Path | None, tracking_uri: str | None) -> None:
+    """After the summary table: the HTML report and the command that opens the run in MLflow
+    (one line each; each only when there is one)."""
+    if report is not None:
+        console.print(f"report: {report}", markup=False, soft_wrap=True)
+    if tracking_uri:
+        console.print(f"MLflow: {mlflow_command(tracking_uri)}", markup=False,
+                      soft_wrap=True)
+
+
+def _fmt(value) -> str:
+    if value is None:
+        return "—"
+    return f"{value:.4f}" if abs(value) < 10 else f"{value:.2f}"
+
+
+def split_column(name: str) -> tuple[str, str]:
+    """A score column as (metric, view): ``psnr`` (visphy), ``psnr.aligned`` / ``align.err``
+    (aligned), ``paper.psnr`` (paper), ``spec.psnr`` (the spec track, unaligned)."""
+    if name.startswith("spec."):
+        base, view = split_column(name[len("spec."):])
+        return base, "spec" if view == "visphy" else f"spec.{view}"
+    if name.startswith("norm."):
+        return name[len("norm."):], "norm"
+    if name.startswith("paper."):
+        return name[len("paper."):], "paper"
+    if name.endswith(".aligned"):
+        return name[:-len(".aligned")], "aligned"
+    if name.startswith("align."):
+        return name, "aligned"
+    return name, "visphy"
+
+
+def print_summary(summary: dict, results: list) -> None:
+    """Per-scene table, then metric means with their denominators, then failures and cache."""
+    # per scene: the primary columns only (visphy, unaligned); every column is in the means
+    primary = [n for n in summary["metrics"] if "." not in n
+               and not summary["metrics"][n]["unavailable"]]
+    head = summary.get("headline") or {}
+    first = [head["metric"]] if head.get("metric") in primary else []
+    metric_names = first + ([n for n in SCENE_COLUMNS if n in primary]
+                            or [n for n in primary if n not in first])[:5 - len(first)]
+    table = Table(title=f"visphy · {summary['model']} × {summary['engine']} · "
+                        f"{summary['dataset']} ({summary['n_scenes']} scenes)")
+    table.add_column("scene")
+    table.add_column("status")
+    for name in metric_names:
+        arrow = "↑" if summary["metrics"][name]["direction"] == "higher" else "↓"
+        table.add_column(f"{name} {arrow}", justify="right")
+    table.add_column("render", justify="right")
+    for r in results:
+        status = ("ok" if r.model_success and r.attempts == 1 else
+                  "repaired" if r.model_success else
+                  f"fallback ({r.failure_class})" if r.fallback else f"failed ({r.failure_class})")
+        render = "cached" if r.render_cached else (
+            f"{r.render_wall_s:.2f}s" if r.render_wall_s is not None else "—")
+        table.add_row(r.scene_id, status, *[_fmt(r.scores.get(n)) for n in metric_names], render)
+    console.print(table)
+    if head.get("metric"):
+        ci = head.get("ci")
+        interval = f" [{_fmt(ci[0])}, {_fmt(ci[1])}]" if ci else ""
+        small = " (fewer than 10 scenes: a wide interval)" if head.get("small_sample") else ""
+        console.print(f"[bold]headline {head['metric']} ↑[/bold] {_fmt(head.get('mean'))}"
+                      f"{interval} over {head.get('n', 0)} scored scene(s), 95% bootstrap "
+                      f"interval; a still clip scores 0, the ground truth about 1{small}",
+                      soft_wrap=True)
+
+    means = Table(title="means over model successes · n · with fallbacks (all scenes)")
+    means.add_column("metric", no_wrap=True)
+    views = [v for v in ("visphy", "aligned", "paper", "spec", "norm")
+             if any(split_column(c)[1] == v for c in summary["metrics"])]
+    for v in views:
+        means.add_column(v, justify="right", no_wrap=True)
+    means.add_column("n", justify="right", no_wrap=True)
+    means.add_column("with fallbacks", justify="right", no_wrap=True)
+    rows: dict[str, dict[str, dict]] = {}
+    unavailable: dict[str, str] = {}
+    for name, m in summary["metrics"].items():
+        base, view = split_column(name)
+        if m["unavailable"]:
+            unavailable.setdefault(base, m["unavailable"])
+            continue
+        rows.setdefault(base, {})[view] = m
+    for base, by_view in rows.items():
+        first = by_view.get("visphy") or by_view.get("aligned") or next(iter(by_view.values()))
+        n = first["n_model_success"]
+        arrow = "↑" if first["direction"] == "higher" else "↓"
+        cells = []
+        for v in views:
+            m = by_view.get(v)
+            cell = "" if m is None else _fmt(m["mean_model_success"])
+            if m is not None and m["n_model_success"] != n:
+                cell += f" (n={m['n_model_success']})"
+            cells.append(cell)
+        means.add_row(f"{base} {arrow}", *cells, str(n),
+                      f"{_fmt(first['mean_with_fallbacks'])} (n={first['n_with_fallbacks']})")
+    for base, why in unavailable.items():
+        means.add_row(base, "unavailable", *[""] * (len(views) + 1))
+    reasons = sorted(set(unavailable.values()))
+    console.print(means)
+    for why in reasons:
+        names = ", ".join(b for b, w in unavailable.items() if w == why)
+        console.print(f"unavailable: {names}: {why}", soft_wrap=True)
+    n = summary["n_scenes"]
+    n_eval = summary.get("n_evaluable", n)
+    failures = summary.get("failures") or {}
+    model_f, other_f = failures.get("model") or {}, failures.get("infra_or_data") or {}
+    console.print(
+        f"model success {summary['model_success']}/{n}"
+        + (f" ({summary['model_success']}/{n_eval} evaluable)" if n_eval != n else "")
+        + f" · system success {summary['system_success']}/{n} · fallbacks "
+        f"{summary['fallbacks']} · repaired {summary['repaired']}"
+        + (f" · model failures {model_f}" if model_f else "")
+        + (f" · not counted (infrastructure/data) {other_f}" if other_f else ""))
+    cache = summary["cache"]
+    render = cache.get("render", {"hits": 0, "misses": 0})
+    dropped = sum(v.get("dropped", 0) for v in cache.values())
+    if dropped:
+        console.print(f"cache: {dropped} corrupt entr{'y' if dropped == 1 else 'ies'} dropped "
+                      "and recomputed (see the warnings above)")
+    console.print(f"cache: renders {render['hits']} hit / {render['misses']} rendered · "
+                  f"replies {cache.get('response', {}).get('hits', 0)} hit · "
+                  f"scores {cache.get('score', {}).get('hits', 0)} hit")
+    usage = summary.get("usage") or {}
+    for stage, t in usage.items():
+        if stage == "all" or not (t["calls"] or t["cache_hits"]):
+            continue
+        cost = f"${t['cost_usd']:.4f}" + (f" (${t['cost_usd_incl_cached']:.4f} incl. cached)"
+                                           if t["cache_hits"] else "")
+        console.print(f"{stage}: {t['calls']} call(s), {t['cache_hits']} cached, "
+                      f"{t['errors']} failed · tokens in {t['input_tokens']:,} / out "
+                      f"{t['output_tokens']:,} · {cost}")
+    spec = summary.get("spec") or {}
+    if spec.get("valid") or spec.get("invalid"):
+        console.print(f"scene spec S: {spec['valid']} valid, {spec['invalid']} invalid, "
+                      f"{spec['absent']} absent")
+    track = summary.get("spec_track") or {}
+    if track:
+        console.print("spec track (S simulated and replayed): " + ", ".join(
+            f"{n} {state.replace('_', ' ')}" for state, n in sorted(track.items())))
+    for key, j in (summary.get("judges") or {}).items():
+        console.print(f"judge {key}: {j['n_valid']} valid verdict(s), {j['n_invalid']} invalid"
+                      + (f" {j['invalid']}" if j["invalid"] else ""))
+    console.print(f"run directory: {summary['run_dir']}", soft_wrap=True)

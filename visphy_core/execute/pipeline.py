@@ -1,0 +1,676 @@
+"""One scene through the pipeline: prompt → model → extract → validate → render → repair →
+fallback → score. Every outcome, failures included, becomes one `SceneResult` row.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from visphy_core.scoring.paper_protocol import frames_needed
+from visphy_core.scoring.headline import Headline
+from visphy_core.infra.cache import Cache, CorruptEntry, content_key, read_json
+from visphy_core.execute.console import StageEvents
+from visphy_core.api.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
+                                RenderFlag, RenderResult, classify_frames)
+from visphy_core.api.errors import UserError
+from visphy_core.api.extract import extract_analysis, extract_spec
+from visphy_core.scoring.ground_truth import writable
+from visphy_core.calls.generation import ModelCaller
+from visphy_core.calls.judging import JudgeCaller
+from visphy_core.api.metrics import Metric
+from visphy_core.api.model import (ImageInput, Model, ModelRequest, ModelResponse, OutputContract,
+                               build_model_request)
+from visphy_core.calls.prompts.build import (PromptSettings, build_prompt, build_repair_prompt,
+                                       repair_version)
+from visphy_core.calls.references import ReferenceWriter
+from visphy_core.spec.reply_spec import spec_problems
+from visphy_core.api.scene import Scene, SceneDataError
+from visphy_core.scoring.scene_scores import (ReferenceClipUnavailable, ScoringServices, frozen_clip,
+                                      one_line, score_columns_of, score_outputs, write_artifact,
+                                      write_scores)
+from visphy_core.scoring.score import ScoringProtocol
+from visphy_core.scoring.normalisation import twin_scene
+from visphy_core.spec.spec_track import SpecTrackError, spec_scene
+from visphy_core.calls.secrets import redact, redact_obj
+from visphy_core.calls.usage import CostCapReached
+from visphy_core.infra.video import decode_video, encode_video, frame_digest, load_clip_for
+
+
+@dataclass
+class SceneResult:
+    """One row of results.parquet."""
+
+    scene_id: str
+    dim: str
+    difficulty: str | None
+    model_success: bool = False    # the model's own program (first or repaired) gave a clip
+    system_success: bool = False   # a clip exists, counting the fallback
+    fallback: bool = False
+    attempts: int = 0
+    failure_class: str | None = None     # why the last model attempt failed (None on success)
+    failure_detail: str | None = None
+    first_failure_class: str | None = None  # why the first attempt failed (retry ablation)
+    flags: list[str] = field(default_factory=list)
+    response_cached: bool = False
+    render_cached: bool = False
+    render_wall_s: float | None = None
+    model_latency_s: float = 0.0
+    # seconds of wall time in the score stage (reference-program renders inside it excluded:
+    # they are ``reference_render_wall_s``) and in the judge stage; None: the stage did not run
+    # (``scoring_``, not ``score_``: every ``score_*`` column of a row is a score)
+    scoring_wall_s: float | None = None
+    reference_render_wall_s: float | None = None
+    judge_wall_s: float | None = None
+    cost_usd: float = 0.0
+    model_calls: int = 0                 # calls actually sent to the model (cache misses)
+    infra_retries: int = 0               # renders repeated after an infra_error
+    isolation: str | None = None         # how the program was isolated (RenderResult.isolation)
+    prompt_version: str | None = None    # templates the first prompt was built from
+    output_kind: str = "program"         # program (rendered) or video (a pixel-space model)
+    finish_reason: str | None = None     # the provider's reason the last reply ended
+    input_tokens: int = 0                # over the replies used (cached ones included)
+    output_tokens: int = 0
+    spec_valid: bool | None = None       # the reply's S against the ground truth's schema
+    spec_problems: list[str] = field(default_factory=list)
+    reference_source: str | None = None  # how the reference description was made
+    spec_track: str | None = None        # S simulated and replayed: rendered, no_spec,
+    spec_track_error: str | None = None  # invalid_spec or failed (why); None: track off
+    judge_errors: dict[str, str] = field(default_factory=dict)  # invalid verdicts, why
+    frame_digests: list[str] = field(default_factory=list)
+    scores: dict[str, float | None] = field(default_factory=dict)
+    unavailable: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def evaluable(self) -> bool:
+        """False when the scene could not be evaluated through no fault of the model
+        (``infra_error``: our side failed; ``data_error``: a bad input of the scene)."""
+        return self.failure_class not in NOT_EVALUABLE
+
+    def row(self) -> dict:
+        d = asdict(self)
+        scores = d.pop("scores")
+        d["unavailable"] = json.dumps(self.unavailable, sort_keys=True)
+        d["flags"] = ",".join(self.flags)
+        for name in JSON_COLUMNS:
+            d[name] = json.dumps(d[name], sort_keys=True)
+        for name, value in scores.items():
+            d[f"score_{name}"] = value
+        return d
+
+    @classmethod
+    def from_row(cls, row: dict) -> "SceneResult":
+        """Inverse of `row` (a resumed run reads its finished scenes back from results.jsonl)."""
+        d = dict(row)
+        scores = {k[len("score_"):]: d.pop(k) for k in list(d) if k.startswith("score_")}
+        known = {f for f in cls.__dataclass_fields__}
+        d = {k: v for k, v in d.items() if k in known}
+        d["flags"] = [f for f in (d.get("flags") or "").split(",") if f]
+        for name in (*JSON_COLUMNS, "unavailable"):
+            if isinstance(d.get(name), str):
+                d[name] = json.loads(d[name])
+            elif name in d and d[name] is None:
+                del d[name]
+        return cls(**d, scores=scores)
+
+
+#: List/dict fields stored as JSON text in results.jsonl and results.parquet.
+JSON_COLUMNS = ("frame_digests", "spec_problems", "judge_errors")
+#: Failure classes that say nothing about the model: not counted against it.
+NOT_EVALUABLE = (FailureClass.INFRA_ERROR.value, FailureClass.DATA_ERROR.value)
+#: Render failures never replayed from the cache: they depend on the time limit or the machine.
+UNCACHED_FAILURES = (FailureClass.TIMEOUT, FailureClass.INFRA_ERROR, FailureClass.RESOURCE_LIMIT)
+
+
+@dataclass
+class RenderOutcome:
+    frames: np.ndarray | None
+    failure: FailureClass | None
+    error: str | None
+    logs: list[str]
+    frame_digests: list[str]
+    video_path: Path | None
+    cached: bool
+    wall_s: float
+    isolation: str | None = None
+    flags: list[str] = field(default_factory=list)  # RenderFlag values (RenderResult.flags)
+    partial_path: Path | None = None  # partial_clip: the frames before a runtime error (mp4)
+
+
+#: Row flags that come from a render (`RenderFlag`): the row shows those of its last render.
+RENDER_FLAGS = tuple(f.value for f in RenderFlag)
+
+
+_one_line = one_line
+
+
+def _safe_render(engine: Engine, program: Program, contract: RenderContract) -> RenderResult:
+    """``engine.render``; an exception (an engine bug, a browser that will not start) is our
+    side's failure: an ``infra_error`` result carrying the exception type and message."""
+    try:
+        return engine.render(program, contract)
+    except Exception as exc:  # noqa: BLE001 - engines must not abort the run
+        return RenderResult(frames=None, failure=FailureClass.INFRA_ERROR,
+                            error=_one_line(f"{type(exc).__name__}: {exc}")[:2000])
+
+
+def render_key(engine: Engine, program: Program, contract: RenderContract) -> str:
+    """The render cache's key: everything that determines a render's frames."""
+    return content_key("render", engine.cache_identity(), program.digest, contract.key())
+
+
+def render_cached(engine: Engine, program: Program, contract: RenderContract,
+                  cache: Cache, memo: dict[str, RenderOutcome] | None = None) -> RenderOutcome:
+    """Render through the content-addressed cache.
+
+    ``memo``: one scene's clips by render key, so a program the scene renders twice (the
+    oracle's program is the reference program of its S) is rendered or decoded once; a clip
+    from it counts as cached.
+
+    Deterministic program failures (syntax or runtime errors, blank output...) are cached: the
+    same program fails the same way. Timeouts, resource limits and infrastructure errors are not:
+    they depend on the time limit and the machine, so they are rendered again next time. Error
+    text and logs are redacted before they are cached. The render's flags and its partial clip
+    (``partial.mp4``: the frames before a runtime error) are cached with it and replayed.
+    """
+    key = render_key(engine, program, contract)
+
+    def parse(entry: Path) -> RenderOutcome:
+        meta = read_json(entry / "meta.json")
+        failure = FailureClass(meta["failure"]) if meta["failure"] else None
+        if failure in UNCACHED_FAILURES:
+            raise CorruptEntry(f"{failure.value} entries are never replayed")
+        video = entry / "video.mp4"
+        frames = None
+        if failure is None:
+            if not video.is_file():
+                raise CorruptEntry(f"missing {video}")
+            frames = decode_video(video)[0]
+            if len(frames) != len(meta["frame_digests"]) or len(frames) != contract.n_frames:
+                raise CorruptEntry(f"{video} has {len(frames)} frames, expected "
+                                   f"{contract.n_frames}")
+        partial = entry / "partial.mp4"
+        if meta.get("partial_frames") and not partial.is_file():
+            raise CorruptEntry(f"missing {partial}")
+        return RenderOutcome(frames=frames, failure=failure, error=meta["error"],
+                             logs=list(meta["logs"]), frame_digests=list(meta["frame_digests"]),
+                             video_path=video if frames is not None else None, cached=True,
+                             wall_s=float(meta["wall_s"]), isolation=meta.get("isolation"),
+                             flags=[str(f) for f in meta.get("flags") or []],
+                             partial_path=partial if meta.get("partial_frames") else None)
+
+    if memo is not None and key in memo:
+        return replace(memo[key], cached=True)
+
+    def remember(outcome: RenderOutcome) -> RenderOutcome:
+        if memo is not None and outcome.failure is None:
+            memo[key] = outcome
+        return outcome
+
+    outcome = cache.load("render", key, parse)
+    if outcome is not None:
+        return remember(outcome)
+    result = _safe_render(engine, program, contract)
+    ok = result.failure is None and result.frames is not None
+    failure = result.failure or (None if ok else FailureClass.INFRA_ERROR)
+    partial = result.partial_frames if failure is not None else None
+    if partial is not None and (len(partial) == 0 or partial.shape[1:] != (
+            contract.height, contract.width, 3)):
+        partial = None
+    meta = {"failure": failure.value if failure else None,
+            "error": redact(result.error), "logs": redact_obj(list(result.logs[-200:])),
+            "wall_s": result.wall_s, "isolation": result.isolation,
+            "frame_digests": [frame_digest(f) for f in result.frames] if ok else [],
+            "flags": [str(f) for f in result.flags],
+            "partial_frames": len(partial) if partial is not None else 0}
+    if failure in UNCACHED_FAILURES:
+        return RenderOutcome(frames=None, failure=failure, error=meta["error"], logs=meta["logs"],
+                             frame_digests=[], video_path=None, cached=False,
+                             wall_s=result.wall_s, isolation=result.isolation,
+                             flags=meta["flags"])
+    files: dict = {"meta.json": json.dumps(meta, indent=1)}
+    here = f"{os.getpid()}-{threading.get_ident()}"  # scenes render on several threads
+    tmp_video = cache.root / "tmp" / f"{key}.{here}.mp4"
+    tmp_partial = cache.root / "tmp" / f"{key}.{here}.partial.mp4"
+    if ok:
+        encode_video(result.frames, tmp_video, contract.fps)
+        files["video.mp4"] = tmp_video
+    if partial is not None:
+        encode_video(partial, tmp_partial, contract.fps)
+        files["partial.mp4"] = tmp_partial
+    try:
+        entry = cache.put("render", key, files)
+    finally:
+        tmp_video.unlink(missing_ok=True)
+        tmp_partial.unlink(missing_ok=True)
+    # Read back what was stored: a fresh render and a cached one give the same decoded frames.
+    outcome = parse(entry)
+    outcome.cached = False
+    return remember(outcome)
+
+
+def error_summary(outcome_error: str | None, logs: list[str], max_lines: int = 12) -> str:
+    """Concise error text for the repair prompt: the error, then the last lines of the log."""
+    lines = [outcome_error or ""] + [line for line in logs if line != outcome_error][-max_lines:]
+    return "\n".join(line[:400] for line in lines if line)
+
+
+@dataclass
+class PipelineSettings:
+    prompt: PromptSettings
+    retry: bool = True
+    fallback: bool = True
+    timeout_s: float = 60.0
+    seed: int = 0
+
+
+_write = write_artifact
+
+
+def mark_not_evaluable(result: SceneResult, failure: FailureClass, detail: str) -> None:
+    """Mark a scene that could not be evaluated (data_error / infra_error): no clip, no scores."""
+    result.model_success = result.system_success = result.fallback = False
+    result.failure_class = failure.value
+    result.failure_detail = redact(_one_line(detail))[:2000]
+    if result.first_failure_class is None:
+        result.first_failure_class = failure.value
+    result.frame_digests = []
+    result.scores = {name: None for name in result.scores}
+    result.unavailable = {}
+
+
+@dataclass
+class SceneServices:
+    """What every scene of a run shares: the model behind its caller, the engine, the metrics,
+    the judges, the reference writer, the settings, the cache, and who hears of each stage's
+    progress."""
+
+    model: Model
+    caller: ModelCaller
+    engine: Engine
+    metrics: list[Metric]
+    settings: PipelineSettings
+    cache: Cache
+    judges: JudgeCaller | None = None
+    references: ReferenceWriter | None = None
+    protocol: ScoringProtocol = field(default_factory=ScoringProtocol)
+    progress: StageEvents = field(default_factory=StageEvents)
+    headline: Headline | None = None
+    ground_truth: Cache | None = None   # the ground-truth store (`visphy_core.scoring.ground_truth`)
+
+    def scoring(self, renders: dict[str, RenderOutcome] | None = None) -> ScoringServices:
+        """The scoring half (`visphy_core.scoring.scene_scores`): reference-program clips rendered by
+        this run's engine (``renders``: the scene's clips so far, `render_cached`'s memo)."""
+        return ScoringServices(metrics=self.metrics, cache=self.cache, protocol=self.protocol,
+                               clips=EngineReferenceClips(self.engine, self.cache,
+                                                          self.progress, renders,
+                                                          self.ground_truth),
+                               judges=self.judges, references=self.references,
+                               progress=self.progress, headline=self.headline,
+                               ground_truth=self.ground_truth)
+
+
+class EngineReferenceClips:
+    """`visphy_core.scoring.scene_scores.ReferenceClips` of a run: the engine's trusted reference
+    program renders S and the twin (through the render cache) into the scene's folder. Each
+    render goes through the ``render`` stage (the run's render lane). The twin's render goes to
+    the ground-truth store when there is one (``ground_truth``), so later runs find it there."""
+
+    def __init__(self, engine: Engine, cache: Cache, progress: StageEvents | None = None,
+                 renders: dict[str, RenderOutcome] | None = None,
+                 ground_truth: Cache | None = None):
+        self.engine = engine
+        self.cache = cache
+        self.progress = progress or StageEvents()
+        self.renders = renders
+        self.twin_cache = ground_truth if writable(ground_truth) else cache
+        self.stores = [c for c in (ground_truth, cache) if c is not None]
+        self._twins: dict[str, Program] = {}
+        self.render_s = 0.0  # wall seconds spent rendering (or reading back) clips here
+
+    def _render(self, scene: Scene, program: Program, contract: RenderContract,
+                cache: Cache | None = None) -> RenderOutcome:
+        start = time.perf_counter()  # waiting for the render lane included
+        try:
+            with self.progress.stage("render", scene.scene_id):
+                return render_cached(self.engine, program, contract, cache or self.cache,
+                                     self.renders)
+        finally:
+            self.render_s += time.perf_counter() - start
+
+    def spec_replay(self, scene: Scene, spec: dict, contract: RenderContract,
+                    scene_dir: Path) -> np.ndarray:
+        try:
+            program = self.engine.program_from_spec(spec_scene(scene, spec))
+        except (SpecTrackError, ValueError, NotImplementedError) as exc:
+            raise ReferenceClipUnavailable(_one_line(str(exc))) from None
+        outcome = self._render(scene, program, contract)
+        if outcome.failure is not None:
+            raise ReferenceClipUnavailable(_one_line(
+                f"the reference program failed to replay S: {outcome.failure.value} "
+                f"{outcome.error or ''}"))
+        _write(scene_dir / "spec_video.mp4", outcome.video_path.read_bytes())
+        return outcome.frames
+
+    def _twin_program(self, scene: Scene) -> Program:
+        if scene.scene_id not in self._twins:
+            try:
+                self._twins[scene.scene_id] = self.engine.program_from_spec(twin_scene(scene))
+            except (SpecTrackError, ValueError, NotImplementedError) as exc:
+                raise ReferenceClipUnavailable(
+                    f"normalisation: no twin of the ground truth: {_one_line(str(exc))}"
+                ) from None
+        return self._twins[scene.scene_id]
+
+    def twin_identity(self, scene: Scene, contract: RenderContract) -> str:
+        return render_key(self.engine, self._twin_program(scene), contract)
+
+    def copy_twin(self, scene: Scene, contract: RenderContract, scene_dir: Path) -> bool:
+        key = self.twin_identity(scene, contract)
+        for store in self.stores:
+            entry = store.get("render", key)
+            if entry is not None and (entry / "video.mp4").is_file():
+                _write(scene_dir / "twin_video.mp4", (entry / "video.mp4").read_bytes())
+                return True
+        return False
+
+    def twin(self, scene: Scene, contract: RenderContract, scene_dir: Path | None
+             ) -> np.ndarray:
+        outcome = self._render(scene, self._twin_program(scene), contract, self.twin_cache)
+        if outcome.failure is not None:
+            raise ReferenceClipUnavailable(
+                f"normalisation: the reference program failed to render the twin: "
+                f"{outcome.failure.value} {_one_line(outcome.error or '')}")
+        if scene_dir is not None:
+            _write(scene_dir / "twin_video.mp4", outcome.video_path.read_bytes())
+        return outcome.frames
+
+
+class ProviderRejectedKey(UserError):
+    """The provider refused the key (HTTP 401/403): every scene would fail the same way."""
+
+
+@dataclass
+class FirstCall:
+    """The first prompt of a scene and the request built from it."""
+
+    prompt: str
+    images: list[ImageInput]
+    version: str
+    request: ModelRequest
+
+
+def first_call(scene: Scene, services: SceneServices) -> FirstCall:
+    """The scene's first prompt and request: the pipeline and the run's prefetch build the same
+    request, so a prefetched call is the one the pipeline asks for."""
+    s, engine = services.settings, services.engine
+    prompt, images, version = build_prompt(scene, engine.instructions(scene.dim), engine.language,
+                                           s.prompt)
+    return FirstCall(prompt, images, version, _request(scene, services, prompt, images, version,
+                                                       attempt=1))
+
+
+def _request(scene: Scene, services: SceneServices, prompt: str, images: list[ImageInput],
+             version: str, attempt: int) -> ModelRequest:
+    c = scene.clip
+    return build_model_request(
+        services.model, scene=scene, engine=services.engine, scene_id=scene.scene_id,
+        prompt=prompt, images=images, engine_name=services.engine.name,
+        detection=scene.detection if services.settings.prompt.detection else None,
+        language=services.engine.language, output=OutputContract(c.fps, c.n_frames, c.width,
+                                                                 c.height),
+        attempt=attempt, prompt_version=version, stage="generate" if attempt == 1 else "repair")
+
+
+def process_scene(scene: Scene, services: SceneServices, scene_dir: Path) -> SceneResult:
+    """Run one scene end to end and write its artifacts under ``scene_dir``.
+
+    Never raises for a fault of this scene: a bad input of the scene is a ``data_error`` row
+    (checked before the model is called), any other exception an ``infra_error`` row with the
+    exception type and message. Raises `CostCapReached` (the run stops before this scene; it is
+    redone on resume) and `ProviderRejectedKey` (every scene would fail). `BaseException`s that
+    are not `Exception`s (an interrupted run, Ctrl-C) propagate.
+    """
+    columns = score_columns_of(services.scoring())
+    result = SceneResult(scene_id=scene.scene_id, dim=scene.dim, difficulty=scene.difficulty,
+                         output_kind=services.model.output_kind,
+                         scores={name: None for name in columns})  # same columns for every row
+    try:
+        settings = services.settings
+        frames = (settings.prompt.frames[:1] if settings.prompt.forecast_only
+                  else settings.prompt.frames)
+        reference = scene.check_inputs(tuple(frames) or (1,))
+        _evaluate(scene, reference, services, scene_dir, result)
+    except (CostCapReached, ProviderRejectedKey):
+        raise
+    except SceneDataError as exc:
+        mark_not_evaluable(result, FailureClass.DATA_ERROR, str(exc))
+    except Exception as exc:  # noqa: BLE001 - one scene's fault never aborts the run
+        mark_not_evaluable(result, FailureClass.INFRA_ERROR, f"{type(exc).__name__}: {exc}")
+    try:
+        write_scores(scene_dir, result)
+        _write(scene_dir / "frames_meta.json", json.dumps(
+            {"fps": scene.clip.fps, "n_frames": scene.clip.n_frames, "width": scene.clip.width,
+             "height": scene.clip.height, "frame_digests": result.frame_digests}, indent=1))
+    except OSError as exc:
+        if result.failure_class is None or result.evaluable:
+            mark_not_evaluable(result, FailureClass.INFRA_ERROR, f"{type(exc).__name__}: {exc}")
+    return result
+
+
+def _model_error(result: SceneResult, response: ModelResponse, attempt: int,
+                 model: Model) -> None:
+    if response.error_kind == "auth":
+        raise ProviderRejectedKey(f"model={model.name}: the provider refused the key in "
+                                  f"${model.needs_key} ({response.error}); check the key")
+    result.failure_class = FailureClass.MODEL_ERROR.value
+    result.failure_detail = redact(_one_line(response.error or ""))[:2000]
+    if attempt == 1:
+        result.first_failure_class = result.failure_class
+
+
+def _reply_failure(response: ModelResponse, exc: ProgramRejected) -> tuple[FailureClass, str]:
+    """The class of a reply the engine could not use, informed by why the reply ended."""
+    if response.finish_reason in ("refusal", "content_filter") and exc.failure in (
+            FailureClass.NO_CODE, FailureClass.WRONG_LANGUAGE):
+        return FailureClass.REFUSAL, (f"the model refused ({response.finish_reason}): "
+                                      f"{response.refusal or response.text[:300]}")
+    if response.truncated and exc.failure is not FailureClass.TRUNCATED:
+        return FailureClass.TRUNCATED, (f"the reply hit the output token limit "
+                                        f"({response.usage.get('output_tokens', '?')} tokens): "
+                                        f"{exc}")
+    return exc.failure, str(exc)
+
+
+def _record_spec(result: SceneResult, spec: dict | None, dim: str, scene_dir: Path,
+                 suffix: str) -> None:
+    if spec is None:
+        result.spec_valid, result.spec_problems = None, []
+        return
+    problems = spec_problems(spec, dim)
+    result.spec_valid, result.spec_problems = not problems, problems
+    _write(scene_dir / f"spec{suffix}.json", json.dumps(spec, indent=1))
+    _write(scene_dir / f"spec_validation{suffix}.json",
+           json.dumps({"valid": not problems, "problems": problems}, indent=1))
+
+
+def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scene_dir: Path,
+              result: SceneResult) -> None:
+    model, engine, settings = services.model, services.engine, services.settings
+    contract = RenderContract.for_scene(scene, timeout_s=settings.timeout_s, seed=settings.seed)
+    first = first_call(scene, services)
+    result.prompt_version = first.version
+    _write(scene_dir / "prompt.json", json.dumps(
+        {"text": first.prompt, "images": [i.name for i in first.images], "engine": engine.name,
+         "prompt_version": first.version, "privileged": model.privileged}, indent=1))
+    outcome: RenderOutcome | None = None
+    clip: np.ndarray | None = None
+    decoded: np.ndarray | None = None   # a video reply's frames by index (the paper protocol)
+    request = first.request
+    analysis, spec = None, None
+    program: Program | None = None
+    attempts = (1, 2) if settings.retry and model.output_kind == "program" else (1,)
+    renders: dict[str, RenderOutcome] = {}  # this scene's clips, by render key
+    for attempt in attempts:
+        result.attempts = attempt
+        with services.progress.stage("generate", scene.scene_id):
+            response, cached = services.caller.call(request)
+        result.response_cached = cached
+        result.model_calls += 0 if cached else 1
+        result.model_latency_s += response.latency_s
+        result.cost_usd += response.cost_usd or 0.0
+        result.input_tokens += int(response.usage.get("input_tokens", 0) or 0)
+        result.output_tokens += int(response.usage.get("output_tokens", 0) or 0)
+        result.finish_reason = response.finish_reason
+        suffix = "" if attempt == 1 else f".attempt{attempt}"
+        _write(scene_dir / f"response{suffix}.txt", response.text)
+        _write(scene_dir / f"response{suffix}.json", json.dumps(
+            {k: getattr(response, k) for k in ("usage", "cost_usd", "latency_s", "error",
+                                                "error_kind", "finish_reason", "refusal",
+                                                "transport_attempts", "prompt_version",
+                                                "model_id")} | {"cached": cached}, indent=1))
+        if response.error:
+            if response.error_kind == "not_recorded" and attempt > 1:
+                break  # a replay without the repair reply: the first failure stands
+            _model_error(result, response, attempt, model)
+            break
+        analysis = extract_analysis(response.text)
+        spec = extract_spec(response.text)
+        if model.output_kind == "program":
+            _record_spec(result, spec, scene.dim, scene_dir, suffix)
+        if model.output_kind == "video":
+            if response.video_path and Path(response.video_path).is_file():
+                # the model's own video, byte for byte: a replay of this run starts from it
+                _write(scene_dir / f"reply{suffix}.mp4", Path(response.video_path).read_bytes())
+            clip, decoded, failure, detail = _video_reply(response, scene, services.protocol)
+            if clip is not None:
+                break
+            failed_source, logs = response.text, []
+        else:
+            try:
+                program = engine.extract(response.text)
+                engine.validate(program)
+            except ProgramRejected as exc:
+                failure, detail = _reply_failure(response, exc)
+                failed_source, logs = response.text, []
+                _set_render_flags(result, [])  # this attempt rendered nothing
+            else:
+                _write(scene_dir / f"program{suffix}."
+                                   f"{'html' if program.language == 'html' else 'py'}",
+                       program.source)
+                with services.progress.stage("render", scene.scene_id):
+                    outcome = _render_with_infra_retry(engine, program, contract,
+                                                       services.cache, scene_dir, suffix,
+                                                       result, services.progress, renders)
+                if outcome.failure is None:
+                    break
+                failure, detail, failed_source, logs = (outcome.failure, outcome.error or "",
+                                                        program.source, outcome.logs)
+                outcome = None
+        result.failure_class, result.failure_detail = failure.value, redact(detail)
+        if attempt == 1:
+            result.first_failure_class = failure.value
+        if not failure.blames_program or attempt == attempts[-1]:
+            break  # no repair call for our own or the provider's failures
+        repair = redact(build_repair_prompt(first.prompt, engine.language, failed_source,
+                                            failure.value, error_summary(detail, logs)))
+        _write(scene_dir / "repair_prompt.txt", repair)
+        request = _request(scene, services, repair, first.images,
+                           repair_version(first.version), attempt=2)
+    if analysis is not None:
+        _write(scene_dir / "analysis.txt", analysis)
+
+    if outcome is not None or clip is not None:
+        result.model_success = result.system_success = True
+        result.failure_class = result.failure_detail = None
+        if outcome is not None:
+            generated = outcome.frames
+            result.frame_digests = outcome.frame_digests
+            _write(scene_dir / "video.mp4", outcome.video_path.read_bytes())
+        else:
+            encode_video(clip, scene_dir / "video.mp4", contract.fps)
+            generated = decode_video(scene_dir / "video.mp4")[0]
+            result.frame_digests = [frame_digest(f) for f in generated]
+        flag = classify_frames(generated)
+        if flag is FailureClass.STATIC_OUTPUT:
+            result.flags.append(flag.value)
+    elif result.failure_class == FailureClass.INFRA_ERROR.value:
+        # Not evaluable (our side failed twice): no fallback clip, nothing counted for the model.
+        result.scores = {name: None for name in result.scores}
+        return
+    elif settings.fallback:
+        # Fallback: the first key frame held for the whole clip ("nothing moves"). It uses only
+        # what the model was given, keeps every metric defined, and is never a model success.
+        result.fallback = result.system_success = True
+        generated = frozen_clip(scene, contract, scene_dir / "video.mp4")
+    else:
+        generated = None
+    score_outputs(scene, reference, generated, analysis, spec, services.scoring(renders),
+                  scene_dir, result, contract, program if outcome is not None else None,
+                  spec_track=model.output_kind == "program",
+                  as_decoded=decoded if clip is not None and outcome is None else None)
+
+
+def _render_with_infra_retry(engine: Engine, program: Program, contract: RenderContract,
+                             cache: Cache, scene_dir: Path, suffix: str,
+                             result: SceneResult,
+                             progress: StageEvents | None = None,
+                             renders: dict[str, RenderOutcome] | None = None) -> RenderOutcome:
+    outcome = render_cached(engine, program, contract, cache, renders)
+    log_lines = []
+    if outcome.failure is FailureClass.INFRA_ERROR:
+        # Our side failed, not the program: render once more (never cached, so this is a
+        # real second render), with no repair call to the model. Not when the run is closing
+        # (its engine may be what failed).
+        (progress or StageEvents()).check()
+        result.infra_retries += 1
+        log_lines += [f"infra_error (retrying the render once): {outcome.error or ''}",
+                      *outcome.logs, "--- retry ---"]
+        outcome = render_cached(engine, program, contract, cache, renders)
+    _write(scene_dir / f"render{suffix}.log", "\n".join(
+        [*log_lines, f"failure: {outcome.failure.value if outcome.failure else 'none'}",
+         f"isolation: {outcome.isolation or 'unknown'}",
+         f"flags: {', '.join(outcome.flags) or 'none'}",
+         *([f"partial clip: partial{suffix}.mp4"] if outcome.partial_path else []),
+         f"error: {outcome.error or ''}", *outcome.logs]))
+    if outcome.partial_path is not None:
+        _write(scene_dir / f"partial{suffix}.mp4", outcome.partial_path.read_bytes())
+    result.render_cached = outcome.cached
+    result.render_wall_s = outcome.wall_s
+    result.isolation = outcome.isolation
+    _set_render_flags(result, outcome.flags)
+    return outcome
+
+
+def _set_render_flags(result: SceneResult, flags: list[str]) -> None:
+    """The row's render flags are those of its last render (the program the row reports)."""
+    result.flags = [f for f in result.flags if f not in RENDER_FLAGS]
+    result.flags += [f for f in flags if f in RENDER_FLAGS and f not in result.flags]
+
+
+def _video_reply(response: ModelResponse, scene: Scene, protocol: ScoringProtocol
+                 ) -> tuple[np.ndarray | None, np.ndarray | None, FailureClass, str]:
+    """A pixel-space model's clip, resampled to the reference by its own timestamps, and (for
+    the ``paper`` protocol, which pairs by index) its first decoded frames as they are."""
+    if not response.video_path:
+        return None, None, FailureClass.NO_CODE, "the video model returned no video"
+    keep: list | None = [] if protocol.paper else None
+    need = frames_needed(scene.clip.n_frames, protocol.paper_params.sample_every,
+                         protocol.paper_params.max_offset)
+    try:
+        clip = load_clip_for(Path(response.video_path), scene.clip, keep_decoded=keep,
+                             keep_max=need)
+    except (ValueError, OSError) as exc:
+        return None, None, FailureClass.BLANK_OUTPUT, \
+            f"unreadable video: {_one_line(str(exc))}"
+    if classify_frames(clip) is FailureClass.BLANK_OUTPUT:
+        return None, None, FailureClass.BLANK_OUTPUT, \
+            "every frame of the video is one flat colour"
+    return clip, (np.stack(keep) if keep else None), FailureClass.BLANK_OUTPUT, ""
+

@@ -1,0 +1,1 @@
+"""Infrastructure with no knowledge of models or metrics: video and PNG I/O, the content-addressed cache, safe file writes, memory trimming, vendored JavaScript assets."""

@@ -1,0 +1,1 @@
+"""Scoring one scene: the scoring protocols (pairings), alignment, the paper protocol, variance normalisation, the ground-truth anchors, the headline, metric weights."""

@@ -1,0 +1,153 @@
+"""The headline physics score: one number per scene that a frozen first frame cannot win.
+
+Error-magnitude metrics (pixels, flow, track velocity) rank "nothing moves" above real models:
+predicting no motion costs less than predicting motion in a slightly wrong place. The headline
+is built only from components that pass the validity suite (``benchmarks/validity_study.py``:
+physics-right clips drawn differently > physics-wrong clips > a still clip and the flow
+extrapolation), and each component is put on one scale by two anchors the scene itself sets:
+
+* **floor** ``f``: what the first key frame held for the whole clip scores (the ``static``
+  baseline, the run's fallback clip). It needs no spec, so it exists for every dataset,
+  the original layout included;
+* **ceiling** ``c``: what the ground truth's twin scores (`visphy_core.scoring.normalisation`: the
+  physics re-simulated after an imperceptible nudge, replayed by the engine being evaluated)
+  where the scene has a spec and normalisation is on; otherwise the metric's ideal value (the
+  good end of its declared range: 1 for an IoU, 0 for an error).
+
+A component's value ``m`` becomes ``(m − f) / (c − f)``, clipped to ``clip`` (default
+[−1, 1]: a component cannot carry the mean alone), and the headline is the mean of the
+components the scene defines (a component is undefined when it has no value, or when its
+anchors do not separate: ``c`` not better than ``f``, e.g. a scene where nothing moves). So a
+still clip scores exactly 0 and the ground truth about 1, on every dataset.
+
+The per-scene value is the score column ``<name>`` (``score_<name>`` in results tables); the
+components, anchors and where each ceiling came from are in the scene's ``headline.json``;
+``summary.json`` has ``"headline": {"metric", "mean", "ci", "n", "components", …}``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Iterable
+
+import numpy as np
+
+from visphy_core.api.metrics import HIGHER, Metric
+
+#: The default components: the motion-mask IoUs (where and when things move) and the object
+#: tracks (where each body is), each chosen by the validity suite (see the README's table).
+DEFAULT_COMPONENTS = ("spatiotemporal_iou", "weighted_spatial_iou", "track_pos_err")
+DEFAULT_NAME = "physics_score"
+BOOTSTRAP_RESAMPLES = 2000
+BOOTSTRAP_SEED = 0
+
+
+@dataclass(frozen=True)
+class Headline:
+    """What the headline is made of (``metrics.headline``)."""
+
+    name: str = DEFAULT_NAME
+    components: tuple[str, ...] = DEFAULT_COMPONENTS
+    clip: tuple[float, float] = (-1.0, 1.0)
+
+    @classmethod
+    def from_cfg(cls, cfg: Any) -> "Headline | None":
+        """From the ``metrics`` config node; None when ``metrics.headline.enabled`` is false or
+        it names no component."""
+        node = (cfg.get("headline") if cfg is not None else None) or {}
+        if not node.get("enabled", True):
+            return None
+        components = tuple(str(c) for c in (node.get("components") or DEFAULT_COMPONENTS))
+        if not components:
+            return None
+        clip = tuple(float(v) for v in (node.get("clip") or (-1.0, 1.0)))
+        return cls(name=str(node.get("name") or DEFAULT_NAME), components=components,
+                   clip=(clip[0], clip[1]))
+
+    @classmethod
+    def for_run(cls, cfg: Any, metrics: Iterable[Metric]) -> "Headline | None":
+        """`from_cfg`, or None when none of its components is among the run's ``metrics``
+        (``metrics.names=[psnr]``: no headline column, ``summary.json`` says why)."""
+        headline = cls.from_cfg(cfg)
+        return headline if headline is not None and headline.metrics_of(metrics) else None
+
+    def metrics_of(self, metrics: Iterable[Metric]) -> list[Metric]:
+        """The run's metrics that are components (in the components' order)."""
+        by_name = {m.name: m for m in metrics}
+        return [by_name[c] for c in self.components if c in by_name]
+
+
+def ideal(metric: Metric) -> float | None:
+    """The metric's best possible value (the good end of its declared range), if finite."""
+    lo, hi = metric.score_range
+    value = hi if metric.direction == HIGHER else lo
+    return float(value) if value is not None and math.isfinite(value) else None
+
+
+def component(value: float | None, floor: float | None, ceiling: float | None, direction: str,
+              clip: tuple[float, float]) -> tuple[float | None, str | None]:
+    """(the clipped normalised value, None) or (None, why)."""
+    if value is None or not math.isfinite(value):
+        return None, "no value"
+    if floor is None or ceiling is None or not (math.isfinite(floor) and math.isfinite(ceiling)):
+        return None, "an anchor is undefined on this scene"
+    gap = (ceiling - floor) if direction == HIGHER else (floor - ceiling)
+    if not gap > 1e-9 * max(1.0, abs(floor), abs(ceiling)):
+        return None, (f"the ceiling ({ceiling:.6g}) is not better than the still clip's "
+                      f"{floor:.6g} on this scene")
+    return float(min(max((value - floor) / (ceiling - floor), clip[0]), clip[1])), None
+
+
+def scene_headline(headline: Headline, metrics: list[Metric], values: dict[str, float | None],
+                   floor: dict[str, float | None], twin: dict[str, float | None]
+                   ) -> tuple[float | None, dict]:
+    """The scene's headline value and its details (``headline.json``). ``twin``: what the
+    ground truth's twin scored (empty without a twin: the ideal values are the ceilings)."""
+    parts: dict[str, dict] = {}
+    used = []
+    for m in headline.metrics_of(metrics):
+        top, source = twin.get(m.name), "twin"
+        if top is None:
+            top, source = ideal(m), "ideal"
+        norm, why = component(values.get(m.name), floor.get(m.name), top, m.direction,
+                              headline.clip)
+        parts[m.name] = {"value": values.get(m.name), "floor": floor.get(m.name),
+                         "ceiling": top, "ceiling_from": source, "normalised": norm}
+        if why:
+            parts[m.name]["undefined"] = why
+        else:
+            used.append(norm)
+    value = float(np.mean(used)) if used else None
+    return value, {"metric": headline.name, "value": value, "clip": list(headline.clip),
+                   "floor": "the first key frame held (the static baseline / fallback clip)",
+                   "components": parts}
+
+
+def bootstrap_ci(values: list[float], level: float = 0.95) -> list[float] | None:
+    """The percentile bootstrap interval of the mean over scenes (seeded: same values, same
+    interval); None for fewer than two values."""
+    if len(values) < 2:
+        return None
+    arr = np.asarray(values, dtype=np.float64)
+    idx = np.random.default_rng(BOOTSTRAP_SEED).integers(0, len(arr),
+                                                         size=(BOOTSTRAP_RESAMPLES, len(arr)))
+    means = arr[idx].mean(axis=1)
+    tail = (1.0 - level) / 2.0
+    lo, hi = np.quantile(means, [tail, 1.0 - tail])
+    return [float(lo), float(hi)]
+
+
+def summary_entry(headline: Headline, success: list[float], with_fallbacks: list[float]) -> dict:
+    """``summary.json``'s ``headline``: the mean over model successes and over every scored
+    scene (fallbacks count 0), each with its 95% bootstrap interval and count."""
+    def block(vals: list[float]) -> tuple[float | None, list[float] | None, int]:
+        return (float(np.mean(vals)) if vals else None), bootstrap_ci(vals), len(vals)
+
+    mean, ci, n = block(with_fallbacks)
+    ok_mean, ok_ci, ok_n = block(success)
+    return {"metric": headline.name, "direction": HIGHER, "mean": mean, "ci": ci, "n": n,
+            "view": "all scored scenes (a fallback clip scores 0)",
+            "mean_model_success": ok_mean, "ci_model_success": ok_ci, "n_model_success": ok_n,
+            "components": list(headline.components),
+            "small_sample": n < 10}

@@ -1,0 +1,376 @@
+"""Scene specification `visphy-scene/1` for generated 2D scenes: JSON Schema, validation, geometry.
+
+The spec is the single source of ground truth for a generated scene: the simulator, the rasteriser,
+the detection context and any engine that re-renders the scene all read the same file, so the
+conventions below are fixed here once:
+
+* lengths are pixels, origin bottom-left, y up; angles radians, counter-clockwise;
+  Box2D metres = pixels / `world.units.px_per_m`;
+* a body's pose is the position of its local origin; shapes are given in local pixel coordinates:
+  circle `{radius_px}`, box `{length_px, thickness_px}` (centred, length along local x),
+  polygon `{vertices_px}` (convex, counter-clockwise), compound `{parts_px}` (convex CCW parts);
+* PHYRE walls are static boxes just outside the canvas, named `wall_bottom|left|right|top`, so
+  contact pairs may name them.
+
+`validate_spec` adds the checks JSON Schema cannot express (unique ids, convexity, constants of
+the PHYRE profile, category consistency) and reports the first problem on one line with its path.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import jsonschema
+import numpy as np
+
+from visphy_core.api.scene import SPEC_SCHEMA
+
+#: Constants of PHYRE's Box2D world (MISSION §5); a spec with profile "phyre" must use them.
+PHYRE_PROFILE: dict[str, Any] = {
+    "px_per_m": 6.0,
+    "canvas_px": [512, 512],
+    "gravity_m_s2": [0.0, -9.8],
+    "dt_s": 1.0 / 60.0,
+    "velocity_iterations": 15,
+    "position_iterations": 20,
+    "steps_per_frame": 60,
+    "first_frame_after_steps": 1,
+    "density_kg_m2": 0.25,
+    "friction": 0.5,
+    "restitution": 0.2,
+    "bar_thickness_px": 512 / 50,
+}
+WALL_IDS = ("wall_bottom", "wall_left", "wall_right", "wall_top")
+CATEGORIES = ("circle", "rectangle", "line", "u_shape", "triangle", "composite_shape")
+#: Box2D's b2_maxPolygonVertices: a convex part may not have more vertices than this.
+MAX_POLYGON_VERTICES = 8
+
+_NUM = {"type": "number"}
+_NONNEG = {"type": "number", "minimum": 0}
+_POS = {"type": "number", "exclusiveMinimum": 0}
+_RGB = {"type": "array", "items": {"type": "integer", "minimum": 0, "maximum": 255},
+        "minItems": 3, "maxItems": 3}
+_VEC2 = {"type": "array", "items": _NUM, "minItems": 2, "maxItems": 2}
+_POLY = {"type": "array", "items": _VEC2, "minItems": 3, "maxItems": MAX_POLYGON_VERTICES}
+
+
+def _obj(props: dict[str, Any], required: list[str] | None = None, extra: bool = False) -> dict:
+    """A closed object schema; every property is required unless ``required`` says otherwise."""
+    return {"type": "object", "properties": props,
+            "required": list(props) if required is None else required,
+            "additionalProperties": extra}
+
+
+def _shape_case(kind: str, props: dict[str, Any]) -> dict:
+    return {"if": {"properties": {"type": {"const": kind}}, "required": ["type"]},
+            "then": _obj({"type": {"const": kind}, **props})}
+
+
+_MATERIAL = _obj({"density_kg_m2": _POS, "friction": _NONNEG, "restitution": _NONNEG})
+_CONTACT = _obj({"friction": _NONNEG, "restitution": _NONNEG})
+_SHAPE = {
+    "type": "object",
+    "required": ["type"],
+    "properties": {"type": {"enum": ["circle", "box", "polygon", "compound"]}},
+    "allOf": [
+        _shape_case("circle", {"radius_px": _POS}),
+        _shape_case("box", {"length_px": _POS, "thickness_px": _POS}),
+        _shape_case("polygon", {"vertices_px": _POLY}),
+        _shape_case("compound", {"parts_px": {"type": "array", "items": _POLY, "minItems": 1}}),
+    ],
+}
+_BODY = {
+    **_obj(
+        {
+            "id": {"type": "string", "pattern": r"^[a-z][a-z0-9_]*$"},
+            "category": {"enum": list(CATEGORIES)},
+            "dynamic": {"type": "boolean"},
+            "color_rgb": _RGB,
+            "shape": _SHAPE,
+            "pose": _obj({"x_px": _NUM, "y_px": _NUM, "angle_rad": _NUM}),
+            "velocity": _obj({"vx_px_s": _NUM, "vy_px_s": _NUM, "omega_rad_s": _NUM}),
+            "material": _MATERIAL,
+        },
+        required=["id", "category", "dynamic", "color_rgb", "shape", "pose"],
+    ),
+    # Dynamic bodies need a mass and an initial state; static ones may omit both.
+    "if": {"properties": {"dynamic": {"const": True}}},
+    "then": {"required": ["velocity", "material"]},
+}
+_EVENT = _obj({"t_s": _NONNEG, "step": {"type": "integer", "minimum": 0},
+               "type": {"enum": ["contact_begin"]}, "a": {"type": "string"},
+               "b": {"type": "string"}, "normal_speed_m_s": _NUM},
+              required=["t_s", "type", "a", "b"])
+_ID_LIST = {"type": "array", "items": {"type": "string"}}
+_PAIR_LIST = {"type": "array", "items": {"type": "array", "items": {"type": "string"},
+                                         "minItems": 2, "maxItems": 2}}
+
+#: JSON Schema (draft 2020-12) of `visphy-scene/1` for 2D scenes.
+SPEC_JSON_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "visphy scene specification (2D)",
+    **_obj(
+        {
+            "schema": {"const": SPEC_SCHEMA},
+            # generated ids (`vpb3-s0-2d-t001-v00`); builds before version 3 used task-style ids
+            "scene_id": {"type": "string",
+                         "pattern": r"^(vpb\d+-s\d+-2d-t\d{3}-v\d{2}|task\d{5}_\d{3})$"},
+            "template_id": {"type": "string", "pattern": r"^\d{5}$"},
+            "variant": {"type": "integer", "minimum": 0},
+            "seed": {"type": "integer", "minimum": 0},
+            "dim": {"const": "2d"},
+            "family": {"type": "string"},
+            "description": {"type": "string"},
+            "difficulty": _obj({"label": {"enum": ["easy", "medium", "hard"]}, "score": _NUM,
+                                "features": {"type": "object"}}),
+            "world": _obj(
+                {
+                    "engine": {"const": "box2d"},
+                    "engine_version": {"type": "string"},
+                    "profile": {"type": "string"},
+                    "units": _obj({"px_per_m": _POS,
+                                   "canvas_px": {"type": "array", "minItems": 2, "maxItems": 2,
+                                                 "items": {"type": "integer", "minimum": 2}},
+                                   "origin": {"const": "bottom-left"}, "y_up": {"const": True},
+                                   "angles": {"const": "rad_ccw"}}),
+                    "gravity_m_s2": _VEC2,
+                    "dt_s": _POS,
+                    "solver": _obj({"velocity_iterations": {"type": "integer", "minimum": 1},
+                                    "position_iterations": {"type": "integer", "minimum": 1}}),
+                    "steps_per_frame": {"type": "integer", "minimum": 1},
+                    "first_frame_after_steps": {"type": "integer", "minimum": 0},
+                    "n_frames": {"type": "integer", "minimum": 1},
+                    "video_fps": _POS,
+                    "walls": _obj({"thickness_px": _POS,
+                                   "sides": {"type": "array", "items": {"enum": ["bottom", "left",
+                                             "right", "top"]}, "uniqueItems": True}}),
+                    "damping": _obj({"linear": _NONNEG, "angular": _NONNEG}),
+                    "allow_sleep": {"type": "boolean"},
+                },
+                required=["engine", "profile", "units", "gravity_m_s2", "dt_s", "solver",
+                          "steps_per_frame", "first_frame_after_steps", "n_frames", "video_fps",
+                          "walls", "damping"],
+            ),
+            "render": _obj({"background_rgb": _RGB, "antialias": {"const": False},
+                            "codec": {"type": "string"}, "pix_fmt": {"type": "string"}},
+                           required=["background_rgb", "antialias"]),
+            "bodies": {"type": "array", "items": _BODY, "minItems": 1},
+            "contacts": _obj({"default": _CONTACT, "pairs": {"type": "array", "items": _obj(
+                {"a": {"type": "string"}, "b": {"type": "string"}, "friction": _NONNEG,
+                 "restitution": _NONNEG})}}),
+            "ground_truth": _obj(
+                {"trajectory": {"type": ["string", "null"]},
+                 "events": {"type": "array", "items": _EVENT},
+                 "identifiable": _obj({"gravity": {"type": "boolean"},
+                                       "initial_velocity": _ID_LIST, "restitution": _PAIR_LIST,
+                                       "friction": _PAIR_LIST, "mass_ratio": _PAIR_LIST})},
+                required=["trajectory", "events", "identifiable"]),
+            "digest_sha256": {"type": ["string", "null"]},
+        },
+        required=["schema", "scene_id", "template_id", "variant", "seed", "dim", "difficulty",
+                  "world", "render", "bodies", "contacts", "ground_truth"],
+    ),
+}
+
+_VALIDATOR = jsonschema.Draft202012Validator(SPEC_JSON_SCHEMA)
+
+
+# ----------------------------------------------------------------------------------- geometry
+def local_polygons(shape: dict) -> list[np.ndarray]:
+    """Convex CCW parts (k×2 float64, local px) of a non-circle shape; circles have none."""
+    kind = shape["type"]
+    if kind == "box":
+        hx, hy = shape["length_px"] / 2.0, shape["thickness_px"] / 2.0
+        return [np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]], dtype=np.float64)]
+    if kind == "polygon":
+        return [np.asarray(shape["vertices_px"], dtype=np.float64)]
+    if kind == "compound":
+        return [np.asarray(p, dtype=np.float64) for p in shape["parts_px"]]
+    return []
+
+
+def transform_points(points: np.ndarray, pose: tuple[float, float, float]) -> np.ndarray:
+    """Rotate local points CCW by the pose angle, then translate (world px, y up)."""
+    x, y, a = pose
+    c, s = math.cos(a), math.sin(a)
+    pts = np.asarray(points, dtype=np.float64)
+    return np.stack([x + c * pts[:, 0] - s * pts[:, 1], y + s * pts[:, 0] + c * pts[:, 1]], axis=1)
+
+
+def polygon_area_centroid(poly: np.ndarray) -> tuple[float, float, float]:
+    """Signed area (positive for CCW) and centroid of a simple polygon (shoelace formula)."""
+    x, y = poly[:, 0], poly[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cross = x * yn - xn * y
+    area = cross.sum() / 2.0
+    if area == 0:
+        return 0.0, float(x.mean()), float(y.mean())
+    return float(area), float(((x + xn) * cross).sum() / (6 * area)), float(
+        ((y + yn) * cross).sum() / (6 * area))
+
+
+def shape_area_centroid(shape: dict) -> tuple[float, float, float]:
+    """Area and local centroid of a shape; compound parts are assumed not to overlap."""
+    if shape["type"] == "circle":
+        return math.pi * shape["radius_px"] ** 2, 0.0, 0.0
+    parts = [polygon_area_centroid(p) for p in local_polygons(shape)]
+    total = sum(a for a, _, _ in parts)
+    return (total, sum(a * cx for a, cx, _ in parts) / total,
+            sum(a * cy for a, _, cy in parts) / total)
+
+
+def _convex_ccw_problem(poly: np.ndarray) -> str | None:
+    """Why a vertex list is not a strictly convex CCW polygon, or None when it is."""
+    edges = np.roll(poly, -1, axis=0) - poly
+    nxt = np.roll(edges, -1, axis=0)
+    cross = edges[:, 0] * nxt[:, 1] - edges[:, 1] * nxt[:, 0]
+    if polygon_area_centroid(poly)[0] <= 1e-9:
+        return "vertices must be counter-clockwise with positive area"
+    if np.any(cross <= 1e-12):
+        return "polygon must be strictly convex"
+    return None
+
+
+# ------------------------------------------------------------------------------- categories
+def category_of(body: dict) -> str:
+    """Detection category of a body, derived from its geometry alone.
+
+    Rule: circle -> "circle"; a box (or a rectangular 4-gon) is a "line" when
+    length / thickness >= 4 (PHYRE bars are W/50 thick) and a "rectangle" otherwise; a 3-vertex
+    polygon is a "triangle"; a compound of exactly three parts is a "u_shape" (PHYRE jar: base plus
+    two walls); any other polygon or compound (e.g. standing sticks, an X of two bars) is a
+    "composite_shape".
+    """
+    shape = body["shape"]
+    kind = shape["type"]
+    if kind == "circle":
+        return "circle"
+    if kind == "box":
+        long, short = max(shape["length_px"], shape["thickness_px"]), min(
+            shape["length_px"], shape["thickness_px"])
+        return "line" if long / short >= 4.0 else "rectangle"
+    if kind == "polygon":
+        poly = np.asarray(shape["vertices_px"], dtype=np.float64)
+        if len(poly) == 3:
+            return "triangle"
+        if len(poly) == 4:
+            e = np.roll(poly, -1, axis=0) - poly
+            dots = np.abs((e * np.roll(e, -1, axis=0)).sum(axis=1))
+            lens = np.hypot(e[:, 0], e[:, 1])
+            if np.all(dots <= 1e-6 * lens * np.roll(lens, -1)):
+                return "line" if lens.max() / lens.min() >= 4.0 else "rectangle"
+        return "composite_shape"
+    return "u_shape" if len(shape["parts_px"]) == 3 else "composite_shape"
+
+
+# ------------------------------------------------------------------------------- validation
+def _path(parts: Any) -> str:
+    out = "$"
+    for p in parts:
+        out += f"[{p}]" if isinstance(p, int) else f".{p}"
+    return out
+
+
+def _fail(spec: Any, path: str, message: str) -> None:
+    sid = spec.get("scene_id", "<no scene_id>") if isinstance(spec, dict) else "<not an object>"
+    raise ValueError(f"invalid scene spec {sid}: {path}: {message}")
+
+
+def validate_spec(spec: dict) -> None:
+    """Raise ValueError("invalid scene spec <id>: <json path>: <problem>") for the first problem."""
+    errors = list(_VALIDATOR.iter_errors(spec))
+    if errors:
+        err = jsonschema.exceptions.best_match(errors)
+        while err.context:  # descend into if/then/allOf to the concrete failure
+            err = jsonschema.exceptions.best_match(err.context)
+        parts = list(err.absolute_path)
+        if err.validator == "required" and isinstance(err.instance, dict):
+            missing = [r for r in err.validator_value if r not in err.instance]
+            parts.append(missing[0] if missing else "?")
+            _fail(spec, _path(parts), "required field is missing")
+        if err.validator == "additionalProperties" and isinstance(err.instance, dict):
+            allowed = set(err.schema.get("properties", {}))
+            unknown = sorted(k for k in err.instance if k not in allowed)
+            parts.append(unknown[0] if unknown else "?")
+            _fail(spec, _path(parts), "unknown field")
+        _fail(spec, _path(parts), err.message)
+    world = spec["world"]
+    if world["profile"] == "phyre":
+        checks = [("units.px_per_m", world["units"]["px_per_m"], "px_per_m"),
+                  ("units.canvas_px", world["units"]["canvas_px"], "canvas_px"),
+                  ("gravity_m_s2", world["gravity_m_s2"], "gravity_m_s2"),
+                  ("dt_s", world["dt_s"], "dt_s"),
+                  ("solver.velocity_iterations", world["solver"]["velocity_iterations"],
+                   "velocity_iterations"),
+                  ("solver.position_iterations", world["solver"]["position_iterations"],
+                   "position_iterations"),
+                  ("steps_per_frame", world["steps_per_frame"], "steps_per_frame"),
+                  ("first_frame_after_steps", world["first_frame_after_steps"],
+                   "first_frame_after_steps")]
+        for where, value, key in checks:
+            if not np.allclose(value, PHYRE_PROFILE[key], rtol=1e-12, atol=1e-12):
+                _fail(spec, f"$.world.{where}", f"profile 'phyre' requires {PHYRE_PROFILE[key]}")
+    w, h = world["units"]["canvas_px"]
+    if w % 2 or h % 2:
+        _fail(spec, "$.world.units.canvas_px", "H.264 needs even canvas dimensions")
+    seen: set[str] = set()
+    for i, body in enumerate(spec["bodies"]):
+        if body["id"] in seen or body["id"] in WALL_IDS:
+            _fail(spec, f"$.bodies[{i}].id", f"duplicate or reserved id {body['id']!r}")
+        seen.add(body["id"])
+        polys = local_polygons(body["shape"])
+        key = "parts_px" if body["shape"]["type"] == "compound" else "vertices_px"
+        for j, poly in enumerate(polys):
+            problem = _convex_ccw_problem(poly)
+            if problem:
+                where = f"$.bodies[{i}].shape.{key}" + (f"[{j}]" if key == "parts_px" else "")
+                _fail(spec, where, problem)
+        if body["category"] != category_of(body):
+            _fail(spec, f"$.bodies[{i}].category",
+                  f"{body['category']!r} but the geometry says {category_of(body)!r}")
+    known = seen | set(WALL_IDS)
+    pairs: set[frozenset[str]] = set()
+    for k, pair in enumerate(spec["contacts"]["pairs"]):
+        for side in ("a", "b"):
+            if pair[side] not in known:
+                _fail(spec, f"$.contacts.pairs[{k}].{side}", f"unknown body id {pair[side]!r}")
+        key2 = frozenset((pair["a"], pair["b"]))
+        if key2 in pairs or len(key2) < 2:
+            _fail(spec, f"$.contacts.pairs[{k}]", "pair repeated or a body paired with itself")
+        pairs.add(key2)
+
+
+def contact_table(spec: dict) -> tuple[dict[str, float], dict[frozenset[str], dict[str, float]]]:
+    """Default contact material and the explicit per-pair overrides, keyed by unordered id pair."""
+    contacts = spec["contacts"]
+    pairs = {frozenset((p["a"], p["b"])): {"friction": float(p["friction"]),
+                                           "restitution": float(p["restitution"])}
+             for p in contacts["pairs"]}
+    return {k: float(v) for k, v in contacts["default"].items()}, pairs
+
+
+#: JSON Schema of the scene specification S a model writes for a 2D scene: the ground truth's
+#: schema for bodies and contacts, with only what a model can infer from the frames required
+#: (no scene id, difficulty, solver or ground-truth sections).
+REPLY_SCHEMA_2D: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "visphy scene specification S written by a model (2D)",
+    "type": "object",
+    "properties": {
+        "schema": {"const": SPEC_SCHEMA},
+        "dim": {"const": "2d"},
+        "world": {"type": "object",
+                  "properties": {"gravity_m_s2": _VEC2,
+                                 "units": {"type": "object", "properties": {"px_per_m": _POS}}},
+                  "required": ["gravity_m_s2"]},
+        "bodies": {"type": "array", "items": _BODY, "minItems": 1},
+        "contacts": {"type": "object", "properties": {
+            "default": _CONTACT,
+            "pairs": {"type": "array", "items": _obj({"a": {"type": "string"},
+                                                      "b": {"type": "string"},
+                                                      "friction": _NONNEG,
+                                                      "restitution": _NONNEG})}}},
+    },
+    "required": ["world", "bodies"],
+}

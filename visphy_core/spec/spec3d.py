@@ -1,0 +1,497 @@
+"""Scene specification `visphy-scene/1` with ``dim: "3d"``: JSON Schema, validation, geometry.
+
+The 3D spec has the same top-level keys as the 2D one (`visphy_core/spec/spec2d.py`) plus a
+``camera``; it is the single source of ground truth for a generated 3D scene (cannon-es rollout,
+three.js replay, detection context). Conventions, fixed here once:
+
+* SI units: metres, kilograms, seconds, radians; right-handed world, **y up**, the floor is the
+  plane y = ``world.floor.y`` (a static body with the reserved id ``floor``);
+* a pose is ``{position_m: [x, y, z], quat: [x, y, z, w]}`` (unit quaternion, body -> world);
+  poses in trajectories are 7-vectors ``(x, y, z, qx, qy, qz, qw)``;
+* the body origin is its centre of mass (cannon-es rotates bodies about their origin), so
+  templates place compound parts around their common centroid;
+* shapes (local frame): ``sphere {radius_m}``; ``box {size_m: [sx, sy, sz]}`` (full extents,
+  centred); ``wedge {length_m, height_m, width_m}``: a right-triangle prism whose triangle lies in
+  the x-y plane with legs ``length_m`` along +x and ``height_m`` along +y meeting at the right
+  angle (low, high-side corner at -x), extruded over ``width_m`` along z and centred on the
+  triangle's centroid, so the slope descends towards +x; ``compound {parts: [{shape: box|sphere,
+  offset_m, quat}]}``;
+* cannon-es mixes materials by multiplying them; every pair that can touch gets an explicit
+  contact material (``contacts.pairs``, falling back to ``contacts.default``), so the ground
+  truth never depends on a mixing rule. Per-body ``material.friction/restitution`` are the
+  template's per-body values the pair values were derived from (documentation only).
+* drawing only (no effect on the physics): a body's optional ``opacity`` (0-1, default 1: a
+  translucent body, e.g. a U container), ``render.antialias`` (multisampled edges) and
+  ``render.shadows`` (shadow-mapped shadows of the directional light).
+
+`validate_spec_3d` adds the checks JSON Schema cannot express (unique ids, unit quaternions,
+profile constants, category consistency, one of mass/density) and reports the first problem on
+one line naming the scene and the JSON path.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import jsonschema
+import numpy as np
+
+from visphy_core.spec.spec2d import (  # schema building blocks shared with the 2D schema
+    _CONTACT,
+    _EVENT,
+    _ID_LIST,
+    _NONNEG,
+    _NUM,
+    _PAIR_LIST,
+    _POS,
+    _RGB,
+    CATEGORIES,
+    _obj,
+    _path,
+    _shape_case,
+)
+from visphy_core.api.scene import SPEC_SCHEMA
+
+#: Constants of the generated 3D subset (MISSION §5): a spec with profile "visphybench-3d" must
+#: use them.
+PROFILE_3D: dict[str, Any] = {
+    "engine": "cannon-es",
+    "engine_version": "0.20.0",
+    "gravity_m_s2": [0.0, -9.82, 0.0],
+    "dt_s": 1.0 / 60.0,
+    "steps_per_frame": 4,
+    "first_frame_after_steps": 0,
+    "n_frames": 75,
+    "video_fps": 15,
+    "width": 512,
+    "height": 512,
+}
+PROFILE_NAME = "visphybench-3d"
+FLOOR_ID = "floor"
+RED_RGB = (243, 79, 70)
+#: Long thin boxes (longest / shortest side >= this) are "line" (planks), others "rectangle".
+LINE_ASPECT = 4.0
+
+_VEC3 = {"type": "array", "items": _NUM, "minItems": 3, "maxItems": 3}
+_POS3 = {"type": "array", "items": _POS, "minItems": 3, "maxItems": 3}
+_QUAT = {"type": "array", "items": _NUM, "minItems": 4, "maxItems": 4}
+
+
+_PRIMITIVE_CASES = [
+    _shape_case("sphere", {"radius_m": _POS}),
+    _shape_case("box", {"size_m": _POS3}),
+    _shape_case("wedge", {"length_m": _POS, "height_m": _POS, "width_m": _POS}),
+]
+_PART_SHAPE = {"type": "object", "required": ["type"],
+               "properties": {"type": {"enum": ["sphere", "box"]}}, "allOf": _PRIMITIVE_CASES}
+_PART = _obj({"shape": _PART_SHAPE, "offset_m": _VEC3, "quat": _QUAT})
+_SHAPE = {
+    "type": "object",
+    "required": ["type"],
+    "properties": {"type": {"enum": ["sphere", "box", "wedge", "compound"]}},
+    "allOf": _PRIMITIVE_CASES + [
+        _shape_case("compound", {"parts": {"type": "array", "items": _PART, "minItems": 1}})],
+}
+_MATERIAL = _obj({"mass_kg": _POS, "density_kg_m3": _POS, "friction": _NONNEG,
+                  "restitution": _NONNEG}, required=["friction", "restitution"])
+_BODY = {
+    **_obj(
+        {
+            "id": {"type": "string", "pattern": r"^[a-z][a-z0-9_]*$"},
+            "category": {"enum": list(CATEGORIES)},
+            "dynamic": {"type": "boolean"},
+            "color_rgb": _RGB,
+            "shape": _SHAPE,
+            "pose": _obj({"position_m": _VEC3, "quat": _QUAT}),
+            "velocity": _obj({"linear_m_s": _VEC3, "angular_rad_s": _VEC3}),
+            "material": _MATERIAL,
+            "opacity": {"type": "number", "exclusiveMinimum": 0, "maximum": 1},
+        },
+        required=["id", "category", "dynamic", "color_rgb", "shape", "pose"],
+    ),
+    "if": {"properties": {"dynamic": {"const": True}}},
+    "then": {"required": ["velocity", "material"]},
+}
+_SPOOK = _obj({"stiffness": _POS, "relaxation": _POS})
+
+#: JSON Schema (draft 2020-12) of `visphy-scene/1` for 3D scenes.
+SCHEMA_3D: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "visphy scene specification (3D)",
+    **_obj(
+        {
+            "schema": {"const": SPEC_SCHEMA},
+            "scene_id": {"type": "string",  # vpb3-s0-3d-t001-v00; before version 3: NN_tmpl_NN
+                         "pattern": r"^(vpb\d+-s\d+-3d-t\d{3}-v\d{2}|\d{2}_tmpl_\d{2})$"},
+            "template_id": {"type": "string", "pattern": r"^\d{2}$"},
+            "variant": {"type": "integer", "minimum": 0},
+            "seed": {"type": "integer", "minimum": 0},
+            "dim": {"const": "3d"},
+            "family": {"type": "string"},
+            "description": {"type": "string"},
+            "splits": _ID_LIST,
+            "difficulty": _obj({"label": {"enum": ["easy", "medium", "hard", None]},
+                                "score": _NUM, "features": {"type": "object"}}),
+            "world": _obj(
+                {
+                    "engine": {"const": "cannon-es"},
+                    "engine_version": {"type": "string"},
+                    "profile": {"type": "string"},
+                    "units": _obj({"length": {"const": "m"}, "mass": {"const": "kg"},
+                                   "time": {"const": "s"}, "angles": {"const": "rad"},
+                                   "up_axis": {"const": "y"},
+                                   "quaternion": {"const": "xyzw"}}),
+                    "gravity_m_s2": _VEC3,
+                    "dt_s": _POS,
+                    "steps_per_frame": {"type": "integer", "minimum": 1},
+                    "first_frame_after_steps": {"type": "integer", "minimum": 0},
+                    "n_frames": {"type": "integer", "minimum": 1},
+                    "video_fps": _POS,
+                    "solver": _obj({"type": {"const": "GSSolver"},
+                                    "iterations": {"type": "integer", "minimum": 1},
+                                    "tolerance": _NONNEG}),
+                    "broadphase": {"const": "naive"},
+                    "contact_equation": _SPOOK,
+                    "friction_equation": _SPOOK,
+                    "damping": _obj({"linear": {"type": "number", "minimum": 0, "maximum": 1},
+                                     "angular": {"type": "number", "minimum": 0, "maximum": 1}}),
+                    "allow_sleep": {"const": False},
+                    "quat_normalize": _obj({"skip": {"type": "integer", "minimum": 0},
+                                            "fast": {"type": "boolean"}}),
+                    "floor": _obj({"y": _NUM, "color_rgb": _RGB, "size_m": _POS},
+                                  required=["y", "color_rgb"]),
+                },
+                required=["engine", "engine_version", "profile", "units", "gravity_m_s2",
+                          "dt_s", "steps_per_frame", "first_frame_after_steps", "n_frames",
+                          "video_fps", "solver", "contact_equation", "friction_equation",
+                          "damping", "allow_sleep", "floor"],
+            ),
+            "camera": _obj(
+                {"type": {"const": "perspective"},
+                 "fov_deg": {"type": "number", "exclusiveMinimum": 0, "exclusiveMaximum": 180},
+                 "near": _POS, "far": _POS, "position": _VEC3, "look_at": _VEC3,
+                 "up": _VEC3, "width": {"type": "integer", "minimum": 2},
+                 "height": {"type": "integer", "minimum": 2}},
+                required=["type", "fov_deg", "position", "look_at", "width", "height"]),
+            "render": _obj(
+                {"background_rgb": _RGB, "antialias": {"type": "boolean"},
+                 "material": {"enum": ["lambert"]},
+                 "shadows": {"type": "boolean"},
+                 "lighting": _obj(
+                     {"description": {"type": "string"},
+                      "hemisphere": _obj({"sky_rgb": _RGB, "ground_rgb": _RGB,
+                                          "intensity": _NONNEG}),
+                      "directional": _obj({"color_rgb": _RGB, "intensity": _NONNEG,
+                                           "position": _VEC3})},
+                     required=["hemisphere", "directional"]),
+                 "codec": {"type": "string"}, "pix_fmt": {"type": "string"}},
+                required=["background_rgb", "antialias", "lighting"]),
+            "bodies": {"type": "array", "items": _BODY, "minItems": 1},
+            "contacts": _obj({"default": _CONTACT, "pairs": {"type": "array", "items": _obj(
+                {"a": {"type": "string"}, "b": {"type": "string"}, "friction": _NONNEG,
+                 "restitution": _NONNEG})}}),
+            "ground_truth": _obj(
+                {"trajectory": {"type": ["string", "null"]},
+                 "events": {"type": "array", "items": _EVENT},
+                 "identifiable": _obj({"gravity": {"type": "boolean"},
+                                       "initial_velocity": _ID_LIST, "restitution": _PAIR_LIST,
+                                       "friction": _PAIR_LIST, "mass_ratio": _PAIR_LIST},
+                                      required=[], extra=True)},
+                required=["trajectory", "events", "identifiable"]),
+            "digest_sha256": {"type": ["string", "null"]},
+        },
+        required=["schema", "scene_id", "template_id", "variant", "seed", "dim", "difficulty",
+                  "world", "camera", "render", "bodies", "contacts", "ground_truth"],
+    ),
+}
+
+_VALIDATOR = jsonschema.Draft202012Validator(SCHEMA_3D)
+
+
+# ------------------------------------------------------------------------------ quaternions
+def quat_to_matrix(q) -> np.ndarray:
+    """3×3 rotation matrix of a unit quaternion (x, y, z, w); body -> world."""
+    x, y, z, w = (float(v) for v in q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def quat_from_axis_angle(axis, angle_rad: float) -> list[float]:
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    s = math.sin(angle_rad / 2.0)
+    return [float(a[0] * s), float(a[1] * s), float(a[2] * s), math.cos(angle_rad / 2.0)]
+
+
+def quat_multiply(q1, q2) -> list[float]:
+    """Hamilton product q1 * q2 (apply q2 first, then q1), both (x, y, z, w)."""
+    x1, y1, z1, w1 = q1
+    x2, y2, z2, w2 = q2
+    return [w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2]
+
+
+def quat_angle_deg(q1, q2) -> float:
+    """Rotation angle (degrees, 0..180) between two orientations."""
+    d = abs(float(np.dot(np.asarray(q1, dtype=np.float64), np.asarray(q2, dtype=np.float64))))
+    return math.degrees(2.0 * math.acos(min(1.0, d)))
+
+
+IDENTITY_QUAT = [0.0, 0.0, 0.0, 1.0]
+
+
+# --------------------------------------------------------------------------------- geometry
+#: Faces of the wedge's 6 vertices (`wedge_vertices`), counter-clockwise seen from outside
+#: (cannon-es ConvexPolyhedron convention): front, back, bottom, vertical back face, slope.
+WEDGE_FACES: list[list[int]] = [[3, 4, 5], [0, 2, 1], [0, 1, 4, 3], [0, 3, 5, 2], [1, 2, 5, 4]]
+
+
+def wedge_vertices(length_m: float, height_m: float, width_m: float) -> np.ndarray:
+    """The wedge's 6 local vertices (centroid at the origin): back face z = -w/2 (0..2) then
+    front face z = +w/2 (3..5), each as right-angle corner, toe (+x), top (+y)."""
+    x0, x1 = -length_m / 3.0, 2.0 * length_m / 3.0
+    y0, y1 = -height_m / 3.0, 2.0 * height_m / 3.0
+    hw = width_m / 2.0
+    return np.array([[x0, y0, -hw], [x1, y0, -hw], [x0, y1, -hw],
+                     [x0, y0, hw], [x1, y0, hw], [x0, y1, hw]], dtype=np.float64)
+
+
+def box_corners(size_m) -> np.ndarray:
+    hx, hy, hz = (float(s) / 2.0 for s in size_m)
+    return np.array([[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1)
+                     for sz in (-1, 1)], dtype=np.float64)
+
+
+def transform_points_3d(points, pose7) -> np.ndarray:
+    """Local points (k×3) to world by a pose (x, y, z, qx, qy, qz, qw)."""
+    p = np.asarray(pose7, dtype=np.float64)
+    return np.asarray(points, dtype=np.float64) @ quat_to_matrix(p[3:7]).T + p[:3]
+
+
+def shape_parts(shape: dict) -> list[tuple[dict, np.ndarray, list[float]]]:
+    """(primitive shape, offset, quat) of every part; a primitive is its own single part."""
+    if shape["type"] == "compound":
+        return [(p["shape"], np.asarray(p["offset_m"], dtype=np.float64), list(p["quat"]))
+                for p in shape["parts"]]
+    return [(shape, np.zeros(3), list(IDENTITY_QUAT))]
+
+
+def primitive_volume(shape: dict) -> float:
+    kind = shape["type"]
+    if kind == "sphere":
+        return 4.0 / 3.0 * math.pi * shape["radius_m"] ** 3
+    if kind == "box":
+        sx, sy, sz = shape["size_m"]
+        return float(sx * sy * sz)
+    if kind == "wedge":
+        return 0.5 * shape["length_m"] * shape["height_m"] * shape["width_m"]
+    raise ValueError(f"not a primitive shape: {kind}")
+
+
+def shape_volume(shape: dict) -> float:
+    """Volume in m³; compound parts are assumed not to overlap."""
+    return sum(primitive_volume(s) for s, _, _ in shape_parts(shape))
+
+
+def body_mass(body: dict) -> float:
+    """Mass in kg (``mass_kg``, else density × volume); 0 for static bodies."""
+    if not body["dynamic"]:
+        return 0.0
+    mat = body["material"]
+    if "mass_kg" in mat:
+        return float(mat["mass_kg"])
+    return float(mat["density_kg_m3"]) * shape_volume(body["shape"])
+
+
+def local_hull_points(shape: dict, sphere_samples: int = 0) -> np.ndarray:
+    """Local points whose convex hull bounds the shape: box corners, wedge vertices and, for
+    spheres, the centre ± r on each axis (or `sphere_samples` points on a Fibonacci sphere)."""
+    pts = []
+    for prim, offset, quat in shape_parts(shape):
+        rot = quat_to_matrix(quat)
+        kind = prim["type"]
+        if kind == "box":
+            local = box_corners(prim["size_m"])
+        elif kind == "wedge":
+            local = wedge_vertices(prim["length_m"], prim["height_m"], prim["width_m"])
+        else:
+            r = prim["radius_m"]
+            if sphere_samples:
+                i = np.arange(sphere_samples) + 0.5
+                phi = np.arccos(1 - 2 * i / sphere_samples)
+                theta = math.pi * (1 + 5 ** 0.5) * i
+                local = r * np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi),
+                                      np.cos(phi)], axis=1)
+            else:
+                local = r * np.vstack([np.eye(3), -np.eye(3)])
+        pts.append(local @ rot.T + offset)
+    return np.concatenate(pts)
+
+
+def bounding_radius(shape: dict) -> float:
+    """Radius of the smallest origin-centred sphere containing the shape."""
+    r = 0.0
+    for prim, offset, quat in shape_parts(shape):
+        if prim["type"] == "sphere":
+            r = max(r, float(np.linalg.norm(offset)) + prim["radius_m"])
+        else:
+            pts = local_hull_points({"type": "compound", "parts": [
+                {"shape": prim, "offset_m": list(offset), "quat": quat}]})
+            r = max(r, float(np.linalg.norm(pts, axis=1).max()))
+    return r
+
+
+def pose7(body: dict) -> np.ndarray:
+    """The spec's initial pose of a body as (x, y, z, qx, qy, qz, qw)."""
+    return np.array(list(body["pose"]["position_m"]) + list(body["pose"]["quat"]),
+                    dtype=np.float64)
+
+
+# ------------------------------------------------------------------------------- categories
+def category_of_3d(body: dict) -> str:
+    """Detection category of a body, from its geometry alone.
+
+    sphere -> "circle"; box -> "line" when longest / shortest side >= 4 (a plank), else
+    "rectangle"; wedge -> "triangle"; a compound of exactly three boxes -> "u_shape" (a
+    container: base plus two walls); any other compound -> "composite_shape".
+    """
+    shape = body["shape"]
+    kind = shape["type"]
+    if kind == "sphere":
+        return "circle"
+    if kind == "box":
+        size = sorted(float(s) for s in shape["size_m"])
+        return "line" if size[2] / size[0] >= LINE_ASPECT else "rectangle"
+    if kind == "wedge":
+        return "triangle"
+    parts = shape["parts"]
+    if len(parts) == 3 and all(p["shape"]["type"] == "box" for p in parts):
+        return "u_shape"
+    return "composite_shape"
+
+
+# ------------------------------------------------------------------------------- validation
+def _fail(spec: Any, path: str, message: str) -> None:
+    sid = spec.get("scene_id", "<no scene_id>") if isinstance(spec, dict) else "<not an object>"
+    raise ValueError(f"invalid 3D scene spec {sid}: {path}: {message}")
+
+
+def _unit_quat(spec: dict, q, where: str) -> None:
+    n = math.sqrt(sum(float(v) ** 2 for v in q))
+    if abs(n - 1.0) > 1e-6:
+        _fail(spec, where, f"quaternion must have unit norm (has {n:.6g})")
+
+
+def validate_spec_3d(spec: dict) -> None:
+    """Raise ValueError("invalid 3D scene spec <id>: <json path>: <problem>") for the first
+    problem (one line)."""
+    errors = list(_VALIDATOR.iter_errors(spec))
+    if errors:
+        err = jsonschema.exceptions.best_match(errors)
+        while err.context:  # descend into if/then/allOf to the concrete failure
+            err = jsonschema.exceptions.best_match(err.context)
+        parts = list(err.absolute_path)
+        if err.validator == "required" and isinstance(err.instance, dict):
+            missing = [r for r in err.validator_value if r not in err.instance]
+            parts.append(missing[0] if missing else "?")
+            _fail(spec, _path(parts), "required field is missing")
+        if err.validator == "additionalProperties" and isinstance(err.instance, dict):
+            allowed = set(err.schema.get("properties", {}))
+            unknown = sorted(k for k in err.instance if k not in allowed)
+            parts.append(unknown[0] if unknown else "?")
+            _fail(spec, _path(parts), "unknown field")
+        _fail(spec, _path(parts), err.message.replace("\n", " ")[:300])
+    world, cam = spec["world"], spec["camera"]
+    if world["profile"] == PROFILE_NAME:
+        checks = [("world.engine", world["engine"], "engine"),
+                  ("world.engine_version", world["engine_version"], "engine_version"),
+                  ("world.gravity_m_s2", world["gravity_m_s2"], "gravity_m_s2"),
+                  ("world.dt_s", world["dt_s"], "dt_s"),
+                  ("world.steps_per_frame", world["steps_per_frame"], "steps_per_frame"),
+                  ("world.first_frame_after_steps", world["first_frame_after_steps"],
+                   "first_frame_after_steps"),
+                  ("world.n_frames", world["n_frames"], "n_frames"),
+                  ("world.video_fps", world["video_fps"], "video_fps"),
+                  ("camera.width", cam["width"], "width"),
+                  ("camera.height", cam["height"], "height")]
+        for where, value, key in checks:
+            want = PROFILE_3D[key]
+            same = value == want if isinstance(want, str) else np.allclose(
+                value, want, rtol=1e-12, atol=1e-12)
+            if not same:
+                _fail(spec, f"$.{where}", f"profile {PROFILE_NAME!r} requires {want}")
+    if cam["width"] % 2 or cam["height"] % 2:
+        _fail(spec, "$.camera.width", "H.264 needs even image dimensions")
+    view = np.asarray(cam["look_at"], dtype=np.float64) - np.asarray(cam["position"], float)
+    up = np.asarray(cam.get("up", [0.0, 1.0, 0.0]), dtype=np.float64)
+    if np.linalg.norm(view) < 1e-9 or np.linalg.norm(np.cross(view, up)) < 1e-9 * np.linalg.norm(
+            view) * max(np.linalg.norm(up), 1e-300):
+        _fail(spec, "$.camera.look_at", "the view direction must be non-zero and not along up")
+    if cam.get("near", 0.1) >= cam.get("far", 100.0):
+        _fail(spec, "$.camera.near", "near must be smaller than far")
+    seen: set[str] = set()
+    for i, body in enumerate(spec["bodies"]):
+        where = f"$.bodies[{i}]"
+        if body["id"] in seen or body["id"] == FLOOR_ID:
+            _fail(spec, f"{where}.id", f"duplicate or reserved id {body['id']!r}")
+        seen.add(body["id"])
+        _unit_quat(spec, body["pose"]["quat"], f"{where}.pose.quat")
+        if body["shape"]["type"] == "compound":
+            for j, part in enumerate(body["shape"]["parts"]):
+                _unit_quat(spec, part["quat"], f"{where}.shape.parts[{j}].quat")
+        if body["dynamic"]:
+            mat = body["material"]
+            if ("mass_kg" in mat) == ("density_kg_m3" in mat):
+                _fail(spec, f"{where}.material", "give exactly one of mass_kg and density_kg_m3")
+        if body["category"] != category_of_3d(body):
+            _fail(spec, f"{where}.category",
+                  f"{body['category']!r} but the geometry says {category_of_3d(body)!r}")
+    known = seen | {FLOOR_ID}
+    pairs: set[frozenset[str]] = set()
+    for k, pair in enumerate(spec["contacts"]["pairs"]):
+        for side in ("a", "b"):
+            if pair[side] not in known:
+                _fail(spec, f"$.contacts.pairs[{k}].{side}", f"unknown body id {pair[side]!r}")
+        key = frozenset((pair["a"], pair["b"]))
+        if key in pairs or len(key) < 2:
+            _fail(spec, f"$.contacts.pairs[{k}]", "pair repeated or a body paired with itself")
+        pairs.add(key)
+
+
+def contact_table_3d(spec: dict
+                     ) -> tuple[dict[str, float], dict[frozenset[str], dict[str, float]]]:
+    """Default contact material and the explicit per-pair values, keyed by unordered id pair."""
+    contacts = spec["contacts"]
+    pairs = {frozenset((p["a"], p["b"])): {"friction": float(p["friction"]),
+                                           "restitution": float(p["restitution"])}
+             for p in contacts["pairs"]}
+    return {k: float(v) for k, v in contacts["default"].items()}, pairs
+
+
+#: JSON Schema of the scene specification S a model writes for a 3D scene (see
+#: `visphy_core.spec.spec2d.REPLY_SCHEMA_2D`): the ground truth's bodies and contacts.
+REPLY_SCHEMA_3D: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "visphy scene specification S written by a model (3D)",
+    "type": "object",
+    "properties": {
+        "schema": {"const": SPEC_SCHEMA},
+        "dim": {"const": "3d"},
+        "world": {"type": "object", "properties": {"gravity_m_s2": _VEC3},
+                  "required": ["gravity_m_s2"]},
+        "bodies": {"type": "array", "items": _BODY, "minItems": 1},
+        "contacts": {"type": "object", "properties": {
+            "default": _CONTACT,
+            "pairs": {"type": "array", "items": _obj({"a": {"type": "string"},
+                                                      "b": {"type": "string"},
+                                                      "friction": _NONNEG,
+                                                      "restitution": _NONNEG})}}},
+    },
+    "required": ["world", "bodies"],
+}
