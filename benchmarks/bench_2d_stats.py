@@ -27,8 +27,8 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from visphy_plugins.datasets.visphybench.catalogue import Unit, draw_scene, units
 from visphy_core.spec.spec2d import CATEGORIES
+from visphy_plugins.datasets.visphybench.catalogue import Unit, draw_scene, units
 
 PUBLISHED = {"radius_px": (17, 39, 56), "nonwhite_pct": (3.3, 4.4, 6.6), "objects": 1523 / 209}
 

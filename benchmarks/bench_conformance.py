@@ -48,10 +48,10 @@ def main() -> None:
                              "lossless one")
     args = parser.parse_args()
 
-    from visphy_plugins.datasets.visphybench.build import build_dataset
-    from visphy_plugins.datasets.visphybench.loader import load_generated
     from visphy_core.api.engine import RenderContract
     from visphy_core.api.registry import get_registry
+    from visphy_plugins.datasets.visphybench.build import build_dataset
+    from visphy_plugins.datasets.visphybench.loader import load_generated
     from visphy_plugins.metrics.pixel import psnr_frame, ssim_frame
 
     # conformance is about the engines, not the codec: the exact (lossless) ground truth

@@ -77,11 +77,11 @@ def main() -> None:
 
     from omegaconf import OmegaConf
 
-    from visphy_plugins.datasets.visphybench.build import build_dataset
-    from visphy_core.infra.cache import Cache
-    from visphy_plugins.datasets.visphybench.loader import load_generated
     from visphy_core.api.registry import get_registry
+    from visphy_core.infra.cache import Cache
     from visphy_core.scoring.score import ScoringProtocol, alignments, score_scene
+    from visphy_plugins.datasets.visphybench.build import build_dataset
+    from visphy_plugins.datasets.visphybench.loader import load_generated
 
     if args.metrics:
         names = args.metrics.split(",")

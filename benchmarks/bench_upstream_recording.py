@@ -82,8 +82,8 @@ def main() -> None:
     from playwright.sync_api import sync_playwright
 
     from visphy_core.api.engine import RenderContract
-    from visphy_core.sandbox.browser import CHROMIUM_ARGS, BrowserPool, find_chromium
     from visphy_core.infra.video import decode_video, frame_digest
+    from visphy_core.sandbox.browser import CHROMIUM_ARGS, BrowserPool, find_chromium
     from visphy_plugins.datasets.visphybench.build import build_dataset
     from visphy_plugins.datasets.visphybench.loader import load_generated
     from visphy_plugins.engines.threejs import ThreeJsEngine

@@ -55,8 +55,8 @@ def _fmt(v, decimals: int | None = None) -> str:
 
 
 def perturbation(specs: list[dict], per_param: int, progress: bool) -> tuple[dict, list]:
-    from visphy_plugins.datasets.visphybench.validity import PARAMS, run_study, summarise
     from visphy_core.api.registry import get_registry
+    from visphy_plugins.datasets.visphybench.validity import PARAMS, run_study, summarise
 
     registry = get_registry()
     metrics = [registry.get("metrics", n) for n in sorted(registry.metrics)]

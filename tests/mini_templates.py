@@ -17,14 +17,14 @@ from typing import Any
 
 import numpy as np
 
-from visphy_plugins.physics.box2d import Rollout, simulate_2d
-from visphy_plugins.datasets.visphybench.raster2d import PALETTE, body_mask
 from visphy_core.spec.spec2d import (
     PHYRE_PROFILE,
     category_of,
     shape_area_centroid,
     validate_spec,
 )
+from visphy_plugins.datasets.visphybench.raster2d import PALETTE, body_mask
+from visphy_plugins.physics.box2d import Rollout, simulate_2d
 
 BAR = PHYRE_PROFILE["bar_thickness_px"]  # 10.24 px
 _STILL = {"vx_px_s": 0.0, "vy_px_s": 0.0, "omega_rad_s": 0.0}

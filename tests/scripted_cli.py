@@ -23,10 +23,9 @@ BROKEN = ("```html\n<html><body><canvas id='c'></canvas><script>undefinedFunctio
 
 
 def main(argv: list[str]) -> int:
-    from visphy_plugins.models.oracle import OracleModel
-
-    from visphy_core.cli.main import main as cli_main
     from visphy_core.api.registry import get_plugin_manager, get_registry
+    from visphy_core.cli.main import main as cli_main
+    from visphy_plugins.models.oracle import OracleModel
 
     script = json.loads(os.environ.get("VISPHY_SCRIPT", "{}"))
     delay = float(os.environ.get("VISPHY_MODEL_DELAY", "0"))

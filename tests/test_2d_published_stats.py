@@ -14,8 +14,9 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from visphy_plugins.datasets.visphybench.catalogue import MAX_ATTEMPTS, scene_seed
+from visphy_core.spec.spec2d import CATEGORIES
 from visphy_plugins.datasets.visphybench import blocks2d as bk
+from visphy_plugins.datasets.visphybench.catalogue import MAX_ATTEMPTS, scene_seed
 from visphy_plugins.datasets.visphybench.filters import (
     shared_pixels,
     validity_problems,
@@ -28,7 +29,6 @@ from visphy_plugins.datasets.visphybench.templates_2d import (
     flight_path,
 )
 from visphy_plugins.physics.box2d import simulate_2d
-from visphy_core.spec.spec2d import CATEGORIES
 
 SLOTS = [(t, v) for t in TEMPLATES_2D for v in range(t.n_variants)]
 AREA_SAMPLE = SLOTS[::4]

@@ -1,5 +1,6 @@
 """Temporal alignment (`visphy_core.scoring.alignment`) and the scoring protocols built on it
-(`visphy_core.scoring.score`): injected offsets are recovered exactly, identical clips align at 0 with
+(`visphy_core.scoring.score`): injected offsets are recovered exactly, identical clips align at 0
+with
 Align-Err 0, and each pairing's columns are the means over exactly its pairs."""
 
 from __future__ import annotations
@@ -9,13 +10,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from visphy_core.scoring.alignment import (EVERY_FRAME, PAPER, AlignParams, align, gray_features,
-                                   unaligned)
-from visphy_core.scoring import paper_protocol
-from visphy_core.infra.cache import Cache
-from visphy_core.config.check import ConfigError, check_overrides
 from visphy_core.api.metrics import LOWER, SCENE, Metric, MetricInput
 from visphy_core.api.scene import ClipInfo, Scene
+from visphy_core.config.check import ConfigError, check_overrides
+from visphy_core.infra.cache import Cache
+from visphy_core.scoring import paper_protocol
+from visphy_core.scoring.alignment import (
+    EVERY_FRAME,
+    PAPER,
+    AlignParams,
+    align,
+    gray_features,
+    unaligned,
+)
 from visphy_core.scoring.score import ScoringProtocol, score_columns, score_scene
 from visphy_plugins.metrics.pixel import PSNR, SSIM, psnr_frame
 

@@ -10,11 +10,15 @@ import pytest
 
 from visphy_core.api.model import ImageInput, ModelRequest, OutputContract
 from visphy_core.api.registry import get_registry
-from visphy_core.infra.video import decode_video, resize_with_padding
 from visphy_core.infra.png import decode_png, png_bytes
-from visphy_plugins.models.baselines import (FlowExtrapolateModel, StaticModel,
-                                             extrapolate, key_frame_index,
-                                             static_frames)
+from visphy_core.infra.video import decode_video, resize_with_padding
+from visphy_plugins.models.baselines import (
+    FlowExtrapolateModel,
+    StaticModel,
+    extrapolate,
+    key_frame_index,
+    static_frames,
+)
 
 SIZE = 128
 CONTRACT = OutputContract(fps=5.0, n_frames=17, width=SIZE, height=SIZE)

@@ -8,15 +8,15 @@ import shutil
 import numpy as np
 import pytest
 
-from visphy_plugins.physics.cannon import simulate_3d, trajectory_digest_3d
-from visphy_plugins.datasets.visphybench.detection3d import detection_from_spec_3d, project_points
 from visphy_core.spec.spec3d import RED_RGB, validate_spec_3d
+from visphy_plugins.datasets.visphybench.detection3d import detection_from_spec_3d, project_points
 from visphy_plugins.datasets.visphybench.screening3d import (
     REASONS,
     difficulty_features_3d,
     validity_problems_3d,
 )
 from visphy_plugins.datasets.visphybench.templates_3d import TEMPLATES_3D
+from visphy_plugins.physics.cannon import simulate_3d, trajectory_digest_3d
 
 pytestmark = pytest.mark.skipif(shutil.which("node") is None,
                                 reason="Node.js not installed (needed by the cannon-es rollouts)")
@@ -243,9 +243,9 @@ def _red_centroid(frame: np.ndarray) -> tuple[np.ndarray, int]:
 
 @pytest.mark.browser
 def test_replay_is_deterministic_and_matches_the_projection(valid_scenes, pool):
+    from visphy_core.infra.video import frame_digest
     from visphy_core.spec.replay import replay_html_3d
     from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
-    from visphy_core.infra.video import frame_digest
 
     spec, rollout, _ = valid_scenes[4]  # sphere collision: the red ball is never hidden
     html = replay_html_3d(spec, rollout.frame_poses, 15, 75)
@@ -274,9 +274,9 @@ def test_replay_is_deterministic_and_matches_the_projection(valid_scenes, pool):
 def test_threejs_engine_runs_the_replay_page_unchanged(valid_scenes, pool):
     """The engine's reference program for 3D scenes (same page, engine's trusted template)
     reproduces the ground-truth frames exactly."""
+    from visphy_core.api.engine import Program, RenderContract
     from visphy_core.spec.replay import replay_html_3d
     from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
-    from visphy_core.api.engine import Program, RenderContract
     from visphy_plugins.engines.threejs import ThreeJsEngine
 
     spec, rollout, _ = valid_scenes[8]

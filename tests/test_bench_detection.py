@@ -1,4 +1,5 @@
-"""Detection context (`visphy_plugins.datasets.visphybench.detection`) against the rendered first frame, and its
+"""Detection context (`visphy_plugins.datasets.visphybench.detection`) against the rendered first
+frame, and its
 conventions (top-left origin, y down, clockwise-positive angles)."""
 
 from __future__ import annotations
@@ -7,10 +8,10 @@ import math
 
 import numpy as np
 import pytest
+from mini_templates import box, jar, mini_scenes, scene
 
 from visphy_plugins.datasets.visphybench.detection import detection_from_spec
 from visphy_plugins.datasets.visphybench.raster2d import render_frame_2d
-from mini_templates import box, jar, mini_scenes, scene
 
 
 @pytest.fixture(scope="module")

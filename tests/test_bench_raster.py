@@ -1,4 +1,5 @@
-"""Rasteriser (`visphy_plugins.datasets.visphybench.raster2d`): the pixel-centre fill rule, orientation, palette
+"""Rasteriser (`visphy_plugins.datasets.visphybench.raster2d`): the pixel-centre fill rule,
+orientation, palette
 only (no anti-aliasing), draw order and a whole clip (its speed: benchmarks/bench_2d_stats.py)."""
 
 from __future__ import annotations
@@ -7,10 +8,10 @@ import math
 
 import numpy as np
 import pytest
-
-from visphy_plugins.physics.box2d import simulate_2d
-from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d, render_frame_2d
 from mini_templates import ball, box, mini_scenes, scene
+
+from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d, render_frame_2d
+from visphy_plugins.physics.box2d import simulate_2d
 
 
 def _one(body: dict) -> dict:

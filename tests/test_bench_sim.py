@@ -8,9 +8,9 @@ import math
 
 import numpy as np
 import pytest
+from mini_templates import ball, box, scene
 
 from visphy_plugins.physics.box2d import simulate_2d, trajectory_digest
-from mini_templates import ball, box, scene
 
 
 def _drop(y: float = 490.0, n_frames: int = 4, **ball_kw) -> dict:

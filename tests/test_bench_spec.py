@@ -6,9 +6,9 @@ from __future__ import annotations
 import copy
 
 import pytest
+from mini_templates import mini_specs
 
 from visphy_core.spec.spec2d import category_of, validate_spec
-from mini_templates import mini_specs
 
 
 @pytest.fixture(scope="module")

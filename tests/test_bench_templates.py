@@ -1,4 +1,5 @@
-"""Hand-made mini scenes (`mini_templates (tests/mini_templates.py)`): PHYRE conventions, a clean initial
+"""Hand-made mini scenes (`mini_templates (tests/mini_templates.py)`): PHYRE conventions, a clean
+initial
 layout, visible motion, honest annotations and deterministic output."""
 
 from __future__ import annotations
@@ -9,10 +10,10 @@ import re
 
 import numpy as np
 import pytest
-
-from visphy_plugins.datasets.visphybench.raster2d import PALETTE, body_mask
-from visphy_core.spec.spec2d import shape_area_centroid
 from mini_templates import mini_scenes
+
+from visphy_core.spec.spec2d import shape_area_centroid
+from visphy_plugins.datasets.visphybench.raster2d import PALETTE, body_mask
 
 
 @pytest.fixture(scope="module")

@@ -187,10 +187,10 @@ def test_oracle_program_of_a_3d_scene_reproduces_the_ground_truth(engine, mini_r
     """A 3D scene rendered by the builder, then by the engine's reference program: same frames."""
     import json
 
+    from visphy_core.sandbox.browser import BrowserPool
     from visphy_plugins.datasets.visphybench.build import write_scene
     from visphy_plugins.datasets.visphybench.catalogue import Entry
     from visphy_plugins.datasets.visphybench.loader import load_generated
-    from visphy_core.sandbox.browser import BrowserPool
 
     data = json.loads((mini_root / "catalogue.json").read_text())
     first_3d = next(s for s in data["scenes"] if s["spec"]["dim"] == "3d")
@@ -214,8 +214,12 @@ def test_oracle_program_of_a_3d_scene_reproduces_the_ground_truth(engine, mini_r
 def test_isolation_level_is_recorded(engine):
     import os
 
-    from visphy_core.sandbox.browser import (ISOLATION_BWRAP, ISOLATION_NETNS,
-                                             browser_isolation_level, netns_prefix)
+    from visphy_core.sandbox.browser import (
+        ISOLATION_BWRAP,
+        ISOLATION_NETNS,
+        browser_isolation_level,
+        netns_prefix,
+    )
     from visphy_core.sandbox.process import isolation_available
 
     result = engine.render(CLOCK_PROGRAM, CONTRACT)

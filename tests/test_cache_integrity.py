@@ -13,10 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from visphy_core.infra.cache import Cache, content_key
-from visphy_core.api.engine import (Engine, FailureClass, Program, RenderContract, RenderResult)
+from visphy_core.api.engine import Engine, FailureClass, Program, RenderContract, RenderResult
 from visphy_core.execute.pipeline import render_cached
-
+from visphy_core.infra.cache import Cache, content_key
 
 # --------------------------------------------------------------------------- unit level
 

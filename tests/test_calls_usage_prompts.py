@@ -23,6 +23,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from visphy_core.api.judge import parse_verdict, uniform_indices
+from visphy_core.api.scene import Scene
+from visphy_core.calls.prompts import build as prompts
 from visphy_core.calls.retry import (
     RETRYABLE,
     AdaptiveLimiter,
@@ -33,12 +36,9 @@ from visphy_core.calls.retry import (
     kind_for_status,
     retry_after_seconds,
 )
-from visphy_core.api.judge import parse_verdict, uniform_indices
-from visphy_core.calls.prompts import build as prompts
-from visphy_core.spec.reply_spec import spec_problems
-from visphy_core.api.scene import Scene
 from visphy_core.calls.usage import CallRecord, CostCapReached, Price, UsageLedger
 from visphy_core.infra.video import ClipInfo
+from visphy_core.spec.reply_spec import spec_problems
 
 PROMPTS_DIR = Path(prompts.__file__).parent
 

@@ -8,9 +8,8 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from visphy_core.config.check import ConfigError, check_overrides, compose
-
 from conftest import REPO, run_cli
+from visphy_core.config.check import ConfigError, check_overrides, compose
 
 CONF = REPO / "conf"
 GROUP_FILES = sorted(p for p in CONF.rglob("*.yaml") if p.name != "config.yaml")

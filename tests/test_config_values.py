@@ -14,9 +14,8 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from visphy_core.config.check import ConfigError, check_overrides
-
 from conftest import run_cli
+from visphy_core.config.check import ConfigError, check_overrides
 
 #: (overrides, fragments the one-line message must contain). All fail before any work.
 BAD_INPUTS = [
@@ -236,9 +235,9 @@ def test_plugin_schemas_get_the_same_range_checks():
 
 
 def test_user_error_classification():
-    from visphy_core.cli.main import is_user_error
     from visphy_core.api.errors import UserError
     from visphy_core.api.registry import PluginError
+    from visphy_core.cli.main import is_user_error
     from visphy_core.sandbox.browser import BrowserUnavailable
 
     assert is_user_error(ConfigError("x")) and is_user_error(UserError("x"))

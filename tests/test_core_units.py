@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from visphy_core.infra.cache import Cache, content_key
-from visphy_core.infra.video import ClipInfo, decode_video, encode_video, frame_digest, normalise_clip
+from visphy_core.infra.video import (
+    ClipInfo,
+    decode_video,
+    encode_video,
+    frame_digest,
+    normalise_clip,
+)
 from visphy_plugins.metrics.pixel import psnr_frame, ssim_frame
 
 

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from visphy_core.infra.video import decode_video
 from visphy_plugins.datasets.visphybench.datasheet import LINE_RULE, write_datasheet
 from visphy_plugins.datasets.visphybench.preview import (
     GAP,
@@ -17,7 +18,6 @@ from visphy_plugins.datasets.visphybench.preview import (
     write_contact_sheet,
     write_preview,
 )
-from visphy_core.infra.video import decode_video
 
 
 def _entry(sid, template, dim, family, splits, difficulty, objects):

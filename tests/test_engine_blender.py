@@ -309,10 +309,11 @@ def test_render_engine_is_an_enum_in_the_schema():
 def jar_scene(tmp_path_factory):
     """A hand-made 2D mini scene (ball into a jar: circle, bars, a compound jar), its spec and
     trajectory written the way a generated dataset stores them, plus its exact reference frames."""
-    from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
     from mini_templates import mini_scenes
+
     from visphy_core.api.scene import Scene
     from visphy_core.infra.video import ClipInfo
+    from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
 
     spec, rollout = mini_scenes()[1]
     d = tmp_path_factory.mktemp("blender_scene")

@@ -15,10 +15,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from visphy_core.infra.cache import Cache
-from visphy_core.api.engine import (Engine, FailureClass, Program, RenderContract, RenderFlag,
-                                RenderResult)
+from visphy_core.api.engine import (
+    Engine,
+    FailureClass,
+    Program,
+    RenderContract,
+    RenderFlag,
+    RenderResult,
+)
 from visphy_core.execute.pipeline import render_cached
+from visphy_core.infra.cache import Cache
 from visphy_core.infra.video import decode_video
 
 CONTRACT = RenderContract(fps=5, n_frames=9, width=128, height=128, timeout_s=30)
@@ -273,10 +279,10 @@ def test_rows_carry_the_render_flags_and_the_scene_dir_the_partial_clip(tmp_path
     import shutil
 
     from conftest import with_fast_metrics
-    from visphy_core.config.check import compose
     from visphy_core.api.hookspecs import hookimpl
     from visphy_core.api.model import Model, ModelResponse
     from visphy_core.api.registry import get_plugin_manager, get_registry
+    from visphy_core.config.check import compose
     from visphy_core.execute.run import run_experiment
 
     class Replies(Model):

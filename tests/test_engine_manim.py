@@ -403,11 +403,12 @@ def reference_error(engine, scene, gt: np.ndarray) -> tuple[float, float]:
 
 def test_reference_program_tracks_ground_truth_handmade(engine, tmp_path):
     """Every hand-made mini scene (circles, boxes, a jar), against the exact rasteriser."""
-    from visphy_plugins.datasets.visphybench.build import _npz_bytes
-    from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
     from mini_templates import mini_scenes
+
     from visphy_core.api.scene import Scene
     from visphy_core.infra.video import ClipInfo
+    from visphy_plugins.datasets.visphybench.build import _npz_bytes
+    from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
 
     for spec, rollout in mini_scenes()[:3]:
         sid = spec["scene_id"]

@@ -7,13 +7,13 @@ import json
 
 import numpy as np
 import pytest
-
-from visphy_plugins.physics.box2d import simulate_2d, trajectory_digest
-from visphy_plugins.datasets.visphybench.detection import detection_from_spec
-from visphy_plugins.datasets.visphybench.raster2d import render_frame_2d
-from visphy_core.spec.spec2d import validate_spec
 from mini_templates import layout_problems, mini_specs
+
+from visphy_core.spec.spec2d import validate_spec
+from visphy_plugins.datasets.visphybench.detection import detection_from_spec
 from visphy_plugins.datasets.visphybench.loader import load_generated
+from visphy_plugins.datasets.visphybench.raster2d import render_frame_2d
+from visphy_plugins.physics.box2d import simulate_2d, trajectory_digest
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
-"""The ground-truth store (`visphy_core.scoring.ground_truth`): normalisation anchors computed ahead of a
-run (``ground-truth``) are the anchors a run computes itself; a run that finds them renders one
+"""The ground-truth store (`visphy_core.scoring.ground_truth`): normalisation anchors computed ahead
+of a run (``ground-truth``) are the anchors a run computes itself; a run that finds them renders one
 clip per oracle scene (no twin, the spec track's replay is the program's render) and scores no
 anchor; entries are keyed by what determines them."""
 
@@ -12,10 +12,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from visphy_core.infra.cache import Cache
 from visphy_core.api.engine import RenderContract
-from visphy_core.scoring.ground_truth import (CEILING, FLOOR, anchor_key, frozen_identity,
-                                      scene_anchors)
+from visphy_core.infra.cache import Cache
+from visphy_core.scoring.ground_truth import (
+    CEILING,
+    FLOOR,
+    anchor_key,
+    frozen_identity,
+    scene_anchors,
+)
 
 METRICS = ["metrics.names=[psnr,spatiotemporal_iou,track_pos_err]", "metrics.spec_track=true",
            "metrics.variance_norm=true"]

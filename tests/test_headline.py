@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 
 from conftest import run_cli
-from visphy_core.scoring.headline import Headline, bootstrap_ci, component, ideal, scene_headline
 from visphy_core.api.metrics import HIGHER, LOWER
+from visphy_core.scoring.headline import Headline, bootstrap_ci, component, ideal, scene_headline
 
 COMPONENTS = "metrics.names=[psnr,spatiotemporal_iou,weighted_spatial_iou,track_pos_err]"
 QUIET = ("tracking=none", "run.progress=false", "metrics.spec_track=false")

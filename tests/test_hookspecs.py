@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from visphy_core.api import hookspecs
+
 REPO = Path(__file__).resolve().parents[1]
 HOOKS = [name for name, fn in inspect.getmembers(hookspecs, inspect.isfunction)
          if name.startswith("visphy_")]

@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 
 from tests.conftest import run_cli
-from visphy_core.cli.intervene import intervene_command
 from visphy_core.api.errors import UserError
+from visphy_core.cli.intervene import intervene_command
+from visphy_core.infra.video import decode_video
 from visphy_core.spec.intervene import intervened_spec
 from visphy_core.spec.spec_track import simulate
-from visphy_core.infra.video import decode_video
 
 #: The red ball falls from rest onto a static tilted bar, bounces, rolls off (mini split).
 SCENE_2D = "vpb3-s0-2d-t001-v00"

@@ -29,13 +29,24 @@ from visphy_core.calls.prompts.build import judge_prompt
 from visphy_core.infra.video import decode_video, encode_video
 from visphy_plugins.judges import api_judges
 from visphy_plugins.judges.api_judges import ApiJudge, ApiJudgeConfig
-from visphy_plugins.judges.videoscore import (VideoScore2Judge, VideoScore2JudgeConfig,
-                                              parse_scores, sample_indices, to_ten)
+from visphy_plugins.judges.videoscore import (
+    VideoScore2Judge,
+    VideoScore2JudgeConfig,
+    parse_scores,
+    sample_indices,
+    to_ten,
+)
 from visphy_plugins.testing.fake_anthropic import FakeAnthropicServer
 from visphy_plugins.testing.fake_gemini import FakeGeminiServer, model_of
 from visphy_plugins.testing.fake_openai import FakeOpenAIServer
-from visphy_plugins.testing.fake_server import (FakeProviderServer, Recorded, ok, refusal,
-                                                status, truncated)
+from visphy_plugins.testing.fake_server import (
+    FakeProviderServer,
+    Recorded,
+    ok,
+    refusal,
+    status,
+    truncated,
+)
 
 CONF = Path(__file__).resolve().parents[1] / "conf" / "judge"
 N_FRAMES, FPS, SIZE = 17, 5.0, 64
@@ -412,8 +423,8 @@ def test_judge_configs_compose_one_or_several():
     from hydra import compose, initialize_config_module
     from hydra.core.global_hydra import GlobalHydra
 
-    from visphy_core.config.check import check_values
     from visphy_core.api.registry import get_registry
+    from visphy_core.config.check import check_values
 
     get_registry()
     GlobalHydra.instance().clear()
@@ -507,9 +518,14 @@ def test_videoscore2_verdict_from_a_reply(monkeypatch, tmp_path, clips):
 def _tiny_qwen25vl(path: Path) -> None:
     """A randomly initialised, tiny Qwen2.5-VL (VideoScore2's architecture and processor)."""
     from tokenizers import Tokenizer, decoders, models, pre_tokenizers, trainers
-    from transformers import (Qwen2_5_VLConfig, Qwen2_5_VLForConditionalGeneration,
-                              Qwen2_5_VLProcessor, Qwen2TokenizerFast, Qwen2VLImageProcessor)
-    from transformers import Qwen2VLVideoProcessor
+    from transformers import (
+        Qwen2_5_VLConfig,
+        Qwen2_5_VLForConditionalGeneration,
+        Qwen2_5_VLProcessor,
+        Qwen2TokenizerFast,
+        Qwen2VLImageProcessor,
+        Qwen2VLVideoProcessor,
+    )
 
     special = ["<|endoftext|>", "<|im_start|>", "<|im_end|>", "<|vision_start|>",
                "<|vision_end|>", "<|image_pad|>", "<|video_pad|>"]

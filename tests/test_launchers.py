@@ -13,9 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from visphy_core.execute.run import STAGE_FIELDS
-
 from conftest import FAST_METRICS, run_cli
+from visphy_core.execute.run import STAGE_FIELDS
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 

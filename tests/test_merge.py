@@ -11,11 +11,10 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-
-from visphy_core.execute.run import STAGE_FIELDS
 import yaml
 
 from conftest import FAST_METRICS, run_cli
+from visphy_core.execute.run import STAGE_FIELDS
 
 BASE = ("dataset=tiny", "model=static", *FAST_METRICS, "run.progress=false", "run.cache=false")
 #: Fields that depend on when a row was made, not on what it is.

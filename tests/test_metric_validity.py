@@ -1,5 +1,6 @@
 """Metric validity: physics departing from the truth in growing steps worsens the motion and
-object-track metrics monotonically (`visphy_plugins.datasets.visphybench.validity`; the README's table comes
+object-track metrics monotonically (`visphy_plugins.datasets.visphybench.validity`; the README's
+table comes
 from benchmarks/validity_study.py on more scenes)."""
 
 from __future__ import annotations
@@ -8,10 +9,17 @@ import json
 
 import pytest
 
-from visphy_plugins.datasets.visphybench.validity import (PARAMS, RELATIVE_STEP, perturb, pick_cases, revealed,
-                                           rho, run_study,
-                                           summarise)
 from visphy_core.api.registry import get_registry
+from visphy_plugins.datasets.visphybench.validity import (
+    PARAMS,
+    RELATIVE_STEP,
+    perturb,
+    pick_cases,
+    revealed,
+    rho,
+    run_study,
+    summarise,
+)
 
 CHECKED = ("track_pos_err", "track_vel_err", "flow_epe_dis", "ssim")
 #: the first-contact time moves with the initial speed and gravity only: restitution and

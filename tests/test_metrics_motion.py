@@ -12,15 +12,22 @@ import pytest
 from scipy.ndimage import gaussian_filter
 from scipy.stats import spearmanr
 
-from visphy_core.scoring import weights
-from visphy_core.scoring.alignment import Alignment, unaligned
-from visphy_core.infra.cache import Cache
 from visphy_core.api.metrics import LOWER, SEQUENCE, MetricInput
 from visphy_core.api.scene import ClipInfo, Scene
+from visphy_core.infra.cache import Cache
+from visphy_core.scoring import weights
+from visphy_core.scoring.alignment import Alignment, unaligned
 from visphy_core.scoring.score import ScoringProtocol, score_scene
 from visphy_plugins.metrics import motion
-from visphy_plugins.metrics.motion import (DIS_NAMES, RAFT_NAMES, RAFT_WEIGHT_NAMES, DISFlow,
-                                           motion_metrics, pair_errors, sequence_errors)
+from visphy_plugins.metrics.motion import (
+    DIS_NAMES,
+    RAFT_NAMES,
+    RAFT_WEIGHT_NAMES,
+    DISFlow,
+    motion_metrics,
+    pair_errors,
+    sequence_errors,
+)
 
 DIS_METRICS = [m for m in motion_metrics() if m.name.endswith("_dis")]
 RAFT_METRICS = [m for m in motion_metrics() if m.name.startswith("raft_")]

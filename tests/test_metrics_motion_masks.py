@@ -13,15 +13,14 @@ import cv2
 import numpy as np
 import pytest
 
-from visphy_core.scoring.alignment import PAPER, EVERY_FRAME, align, unaligned
-from visphy_core.infra.cache import Cache
+from conftest import run_cli
 from visphy_core.api.metrics import HIGHER, LOWER, SEQUENCE, MetricInput
 from visphy_core.api.scene import Scene
-from visphy_core.scoring.score import ScoringProtocol, score_scene
+from visphy_core.infra.cache import Cache
 from visphy_core.infra.video import ClipInfo, decode_video, encode_video
+from visphy_core.scoring.alignment import EVERY_FRAME, PAPER, align, unaligned
+from visphy_core.scoring.score import ScoringProtocol, score_scene
 from visphy_plugins.metrics import motion_masks as M
-
-from conftest import run_cli
 
 IOUS = ("spatial_iou", "spatiotemporal_iou", "weighted_spatial_iou")
 NAMES = M.NAMES
@@ -205,6 +204,7 @@ def phyre():
     benchmark renders them (512², 17 frames at 5 fps), each also under 3 % more gravity (nearly
     right physics) and under 30 % of it (wrong physics: the motion starts right, ends elsewhere)."""
     from mini_templates import mini_scenes as make_mini_scenes
+
     from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
     from visphy_plugins.physics.box2d import simulate_2d
 
@@ -280,8 +280,11 @@ def reference_3d(mini_root, tmp_path_factory):
 
     from visphy_core.infra.js_assets import assets_installed
     from visphy_core.sandbox.browser import BrowserPool
-    from visphy_plugins.datasets.visphybench.build import (dataset_root,
-                                                           load_or_build_catalogue, write_scene)
+    from visphy_plugins.datasets.visphybench.build import (
+        dataset_root,
+        load_or_build_catalogue,
+        write_scene,
+    )
     from visphy_plugins.datasets.visphybench.loader import load_generated
 
     if not assets_installed():

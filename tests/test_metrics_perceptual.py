@@ -34,9 +34,9 @@ piq = pytest.importorskip("piq")
 pytest.importorskip("torchvision")
 
 from visphy_core import weights  # noqa: E402
-from visphy_core.infra.cache import Cache  # noqa: E402
 from visphy_core.api.metrics import HIGHER, LOWER, PAIRS  # noqa: E402
 from visphy_core.api.scene import ClipInfo, Scene  # noqa: E402
+from visphy_core.infra.cache import Cache  # noqa: E402
 from visphy_core.scoring.score import score_scene  # noqa: E402
 from visphy_plugins.metrics import _torch as _T  # noqa: E402
 from visphy_plugins.metrics import perceptual as P  # noqa: E402

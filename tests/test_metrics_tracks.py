@@ -12,20 +12,20 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mini_templates import SCENES
+from mini_templates import mini_scenes as make_mini_scenes
 from scipy.stats import spearmanr
 
+from visphy_core.api.metrics import LOWER, SEQUENCE, MetricInput
+from visphy_core.api.scene import Scene
+from visphy_core.infra.video import ClipInfo, decode_video, encode_video
 from visphy_core.scoring.alignment import PAPER, align, unaligned
-from visphy_plugins.physics.box2d import simulate_2d
+from visphy_core.scoring.score import ScoringProtocol, alignments
 from visphy_plugins.datasets.visphybench.detection import detection_from_spec
 from visphy_plugins.datasets.visphybench.detection3d import detection_from_spec_3d
 from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d, render_frame_2d
-from mini_templates import SCENES
-from mini_templates import mini_scenes as make_mini_scenes
-from visphy_core.api.metrics import LOWER, SEQUENCE, MetricInput
-from visphy_core.api.scene import Scene
-from visphy_core.scoring.score import ScoringProtocol, alignments
-from visphy_core.infra.video import ClipInfo, decode_video, encode_video
 from visphy_plugins.metrics import tracks as T
+from visphy_plugins.physics.box2d import simulate_2d
 
 SCENE_3D = "vpb3-s0-3d-t003-v02"  # a 3D scene of the generated benchmark (template 3)
 NAMES = T.NAMES
@@ -560,12 +560,12 @@ def test_3d_rendered_clip_segments_every_dynamic_body(tmp_path):
 
     if shutil.which("node") is None or not assets_installed():
         pytest.skip("Node.js or the browser engine libraries are missing")
-    from visphy_plugins.physics.cannon import simulate_3d
-    from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
+    from visphy_core.sandbox.browser import BrowserPool
     from visphy_core.spec.spec3d import validate_spec_3d
+    from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
     from visphy_plugins.datasets.visphybench.screening3d import validity_problems_3d
     from visphy_plugins.datasets.visphybench.templates_3d import TEMPLATES_3D
-    from visphy_core.sandbox.browser import BrowserPool
+    from visphy_plugins.physics.cannon import simulate_3d
 
     template = next(t for t in TEMPLATES_3D if t.template_id == 10)  # ball, box, ball
     for k in range(4):
@@ -601,10 +601,13 @@ def built_3d(mini_root, tmp_path_factory) -> Path:
     catalogue, the scene re-simulated against its digest and rendered, and its metadata."""
     import shutil
 
-    from visphy_plugins.datasets.visphybench.build import (dataset_root,
-                                                           load_or_build_catalogue, write_scene)
     from visphy_core.infra.js_assets import assets_installed
     from visphy_core.sandbox.browser import BrowserPool
+    from visphy_plugins.datasets.visphybench.build import (
+        dataset_root,
+        load_or_build_catalogue,
+        write_scene,
+    )
 
     if not assets_installed():
         pytest.skip("browser engine libraries not installed (`python -m visphy_core setup`)")

@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from visphy_core.scoring.alignment import unaligned
 from visphy_core.api.metrics import MetricInput
+from visphy_core.scoring.alignment import unaligned
 from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
 from visphy_plugins.metrics import association as A
 from visphy_plugins.metrics import tracks as T

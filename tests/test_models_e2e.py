@@ -20,13 +20,13 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from conftest import REPO, run_cli, FAST_METRICS
+from conftest import FAST_METRICS, REPO, run_cli
+from visphy_plugins.datasets.tiny import make_tiny_dataset
 from visphy_plugins.testing.fake_anthropic import FakeAnthropicServer
 from visphy_plugins.testing.fake_gemini import FakeGeminiServer
 from visphy_plugins.testing.fake_openai import FakeOpenAIServer
 from visphy_plugins.testing.fake_server import delay, ok
 from visphy_plugins.testing.replies import reply
-from visphy_plugins.datasets.tiny import make_tiny_dataset
 
 pytestmark = pytest.mark.browser
 

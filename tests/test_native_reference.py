@@ -39,9 +39,9 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
 def headline(scene, ref: np.ndarray, gen: np.ndarray, tmp_path) -> tuple[float, dict]:
     """The scene's physics score with the still clip (the first frame held) as floor and the
     metrics' ideal values as ceilings; and the generated clip's component values."""
+    from visphy_core.api.registry import get_registry
     from visphy_core.infra.cache import Cache
     from visphy_core.scoring.headline import Headline, scene_headline
-    from visphy_core.api.registry import get_registry
     from visphy_core.scoring.score import score_scene
 
     head = Headline()

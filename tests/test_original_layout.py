@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from visphy_core.infra.video import encode_video
 from visphy_plugins.datasets.original import (
     difficulty_label,
     load_original,
     probe_clip,
     read_difficulty_table,
 )
-from visphy_core.infra.video import encode_video
 
 ID_2D_A, ID_2D_B, ID_3D = "task10063_000", "task10009_013", "14_tmpl_14"
 

@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
+from visphy_core.api.scene import ClipInfo, Scene
+from visphy_core.infra.cache import Cache
 from visphy_core.scoring import paper_protocol as pp
 from visphy_core.scoring.alignment import PAPER, AlignParams, align
-from visphy_core.infra.cache import Cache
-from visphy_core.api.scene import ClipInfo, Scene
 from visphy_core.scoring.score import ScoringProtocol, score_scene
 from visphy_plugins.metrics.pixel import PSNR, SSIM, psnr_frame, ssim_frame
 

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from conftest import FAST_METRICS
-
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.metrics import HIGHER, Metric
 from visphy_core.api.registry import PluginError, build_plugin_manager, build_registry
@@ -209,8 +208,8 @@ def recorded_run(tmp_path_factory, mini_root):
     """One real run of two mini scenes with the Recorder plugin registered."""
     import shutil
 
-    from visphy_core.config.check import compose
     from visphy_core.api.registry import get_plugin_manager
+    from visphy_core.config.check import compose
     from visphy_core.execute.run import run_experiment
 
     home = tmp_path_factory.mktemp("home")

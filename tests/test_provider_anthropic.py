@@ -14,13 +14,22 @@ import pytest
 from omegaconf import OmegaConf
 from PIL import Image
 
-from visphy_core.calls.retry import CallError, CallErrorKind
 from visphy_core.api.model import ImageInput, ModelRequest, ModelResponse, OutputContract
+from visphy_core.calls.retry import CallError, CallErrorKind
 from visphy_plugins.providers.base import ApiCaller, ApiModel, Part
 from visphy_plugins.providers.config import ApiModelConfig, PriceConfig, RetriesConfig
 from visphy_plugins.testing.fake_anthropic import FakeAnthropicServer
-from visphy_plugins.testing.fake_server import (Recorded, delay, drop, empty, malformed, ok,
-                                                refusal, status, truncated)
+from visphy_plugins.testing.fake_server import (
+    Recorded,
+    delay,
+    drop,
+    empty,
+    malformed,
+    ok,
+    refusal,
+    status,
+    truncated,
+)
 
 # The SDK flags claude-sonnet-4-5 as deprecated on every call; not what these tests are about.
 pytestmark = pytest.mark.filterwarnings("ignore:The model .* is deprecated:DeprecationWarning")

@@ -17,8 +17,17 @@ from visphy_core.api.model import ImageInput, ModelRequest, ModelResponse, Outpu
 from visphy_plugins.providers.base import ApiModel, Part, make_client
 from visphy_plugins.providers.config import ApiModelConfig, PriceConfig, RetriesConfig
 from visphy_plugins.testing.fake_gemini import FakeGeminiServer, blocked_candidate, model_of
-from visphy_plugins.testing.fake_server import (Recorded, delay, drop, empty, malformed, ok,
-                                                refusal, status, truncated)
+from visphy_plugins.testing.fake_server import (
+    Recorded,
+    delay,
+    drop,
+    empty,
+    malformed,
+    ok,
+    refusal,
+    status,
+    truncated,
+)
 
 KEY = "test-gemini-key-3f9a1c"
 PROMPT = "Write a simulator of the scene shown in the key frames."

@@ -17,11 +17,24 @@ from PIL import Image
 
 from visphy_core.api.model import ImageInput, ModelRequest, ModelResponse, OutputContract
 from visphy_plugins.providers.base import ApiCaller, ApiModel, Part
-from visphy_plugins.providers.config import (ApiModelConfig, ConcurrencyConfig, PriceConfig,
-                                             RetriesConfig)
+from visphy_plugins.providers.config import (
+    ApiModelConfig,
+    ConcurrencyConfig,
+    PriceConfig,
+    RetriesConfig,
+)
 from visphy_plugins.testing.fake_openai import FakeOpenAIServer
-from visphy_plugins.testing.fake_server import (Recorded, delay, drop, empty, malformed, ok,
-                                                refusal, status, truncated)
+from visphy_plugins.testing.fake_server import (
+    Recorded,
+    delay,
+    drop,
+    empty,
+    malformed,
+    ok,
+    refusal,
+    status,
+    truncated,
+)
 
 KEY_ENV = "VISPHY_TEST_OPENAI_KEY"
 KEY = "sk-test-0penai-Very5ecretValue-9f3c"

@@ -10,7 +10,6 @@ from pathlib import Path
 import pytest
 
 from conftest import with_fast_metrics
-
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.model import Model, ModelResponse
 
@@ -37,8 +36,8 @@ class ScriptedModel(Model):
 @pytest.fixture
 def run_with(mini_root, tmp_path):
     """Run the pipeline on one mini scene with an inline model whose replies are scripted."""
-    from visphy_core.config.check import compose
     from visphy_core.api.registry import get_plugin_manager, get_registry
+    from visphy_core.config.check import compose
     from visphy_core.execute.run import run_experiment
 
     class Plugin:

@@ -10,7 +10,8 @@
 * ``python -m visphy_core render REPLY ...``: a good reply renders and is scored, a reply
   without a program or an unknown scene id is one clear line and a non-zero exit.
 
-Real specs come from `mini_templates (tests/mini_templates.py).mini_specs()` (the hand-made 2D scenes,
+Real specs come from `mini_templates (tests/mini_templates.py).mini_specs()` (the hand-made 2D
+scenes,
 simulated and annotated by the benchmark's own annotator: contact events included), which costs
 under a second, instead of the `mini_scenes` fixture (which simulates the whole catalogue,
 ~50 s). CLI runs use `make_tiny_dataset` (64x64, 17 frames).
@@ -28,15 +29,15 @@ import pytest
 from omegaconf import OmegaConf
 
 from conftest import run_cli
-from visphy_core.infra.cache import Cache
 from visphy_core.api.errors import UserError
 from visphy_core.api.model import ModelRequest, OutputContract
-from visphy_core.calls.references import ReferenceWriter, describe_detection, describe_spec
 from visphy_core.api.scene import Scene
+from visphy_core.calls.references import ReferenceWriter, describe_detection, describe_spec
+from visphy_core.infra.cache import Cache
 from visphy_core.infra.video import ClipInfo
+from visphy_plugins.datasets.tiny import make_tiny_dataset, scene_id
 from visphy_plugins.models.replay import ReplayConfig, ReplayModel
 from visphy_plugins.testing.replies import ANALYSIS, HTML_PROGRAM, MANIM_PROGRAM, reply
-from visphy_plugins.datasets.tiny import make_tiny_dataset, scene_id
 
 S0, S1, S2, S3 = (scene_id(i) for i in range(4))
 

@@ -26,9 +26,9 @@ import pytest
 from PIL import Image
 
 from conftest import REPO, run_cli
+from visphy_core.infra.video import decode_video
 from visphy_core.report import write_run_report, write_study_report
 from visphy_core.report.media import describe_clip
-from visphy_core.infra.video import decode_video
 
 pytestmark = pytest.mark.browser
 

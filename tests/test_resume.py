@@ -15,7 +15,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from conftest import REPO, FAST_METRICS
+from conftest import FAST_METRICS, REPO
 
 #: the first test's setup makes the uninterrupted reference run (95 s with its own test on a
 #: loaded 2-core dev box, the mini build included); each test makes two or three runs

@@ -14,15 +14,14 @@ from pathlib import Path
 import pytest
 
 from conftest import with_fast_metrics
-
 from visphy_core.api.engine import Engine, FailureClass, Program, RenderResult
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.model import Model, ModelResponse
 
 
 def _compose_run(home: Path, *overrides: str, plugins: dict | None = None):
-    from visphy_core.config.check import compose
     from visphy_core.api.registry import get_plugin_manager, get_registry
+    from visphy_core.config.check import compose
     from visphy_core.execute.run import run_experiment
 
     pm = get_plugin_manager()
@@ -118,8 +117,8 @@ def test_a_broken_middle_scene_is_one_data_error_row(home, mini_root, kind):
 def test_the_original_layout_keeps_a_broken_scene_for_a_row(tmp_path, mini_scenes):
     """The lenient loader a run uses turns a scene's bad files into a data_error scene, while
     split-level errors still fail before any work."""
-    from visphy_plugins.datasets.original import load_original
     from visphy_core.api.scene import SceneDataError
+    from visphy_plugins.datasets.original import load_original
 
     split = tmp_path / "sub"
     (split / "videos").mkdir(parents=True)

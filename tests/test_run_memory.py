@@ -1,5 +1,5 @@
-"""A run's memory stays bounded over its scenes (`visphy_core.infra.heap`, `visphy_core.execute.scheduler`,
-`visphy_core.sandbox.browser`).
+"""A run's memory stays bounded over its scenes (`visphy_core.infra.heap`,
+`visphy_core.execute.scheduler`, `visphy_core.sandbox.browser`).
 
 What grew with the number of scenes: every rendered clip's frames, held by the finished page's
 handlers in reference cycles that only CPython's cycle collector frees (and its full
@@ -11,7 +11,6 @@ young generation. Each test below fails without the fix it names.
 from __future__ import annotations
 
 import gc
-import json
 import os
 import subprocess
 import sys
@@ -157,8 +156,8 @@ def test_one_arena_serves_every_thread(mark):
 
 
 def test_the_run_caps_the_arenas_before_its_threads_start(monkeypatch):
-    from visphy_core.infra import heap
     from visphy_core.execute import scheduler
+    from visphy_core.infra import heap
     calls = []
     monkeypatch.setattr(scheduler, "limit_arenas", lambda: calls.append(1))
     scheduler.pin_torch_threads()
@@ -351,8 +350,13 @@ def test_3d_scenes_in_flight_are_fewer_than_the_threads(monkeypatch):
 
 def test_clip_pixels_and_the_limit_setting(monkeypatch):
     from visphy_core.api.errors import ConfigError
-    from visphy_core.execute.scheduler import (INFLIGHT_PIXELS_ENV, SCORE_PIXELS_ENV, clip_pixels,
-                                       inflight_pixels, score_pixels)
+    from visphy_core.execute.scheduler import (
+        INFLIGHT_PIXELS_ENV,
+        SCORE_PIXELS_ENV,
+        clip_pixels,
+        inflight_pixels,
+        score_pixels,
+    )
 
     assert clip_pixels(_Scene("s", _Clip(17))) == 17 * 512 * 512
     assert clip_pixels(object()) == 0

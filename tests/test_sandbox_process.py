@@ -16,12 +16,19 @@ import time
 from pathlib import Path
 
 import pytest
-
 from hostile.conftest import wait_no_survivors  # tests/ is on sys.path (pytest rootdir)
+
 from visphy_core.sandbox import process as sp
-from visphy_core.sandbox.process import (MAX_OUTPUT_BYTES, NOBODY_UID, Limits, child_env,
-                                         isolation_available, isolation_level, python_ro_paths,
-                                         run_sandboxed)
+from visphy_core.sandbox.process import (
+    MAX_OUTPUT_BYTES,
+    NOBODY_UID,
+    Limits,
+    child_env,
+    isolation_available,
+    isolation_level,
+    python_ro_paths,
+    run_sandboxed,
+)
 
 PY = sys.executable
 ISOLATED, WHY = isolation_available()

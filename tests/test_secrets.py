@@ -84,8 +84,7 @@ def test_public_config_strips_url_credentials_and_secret_values():
 
 def test_dotenv_secrets_are_registered_and_redacted_without_being_looked_up(tmp_path,
                                                                             monkeypatch):
-    from visphy_core.calls import keys
-    from visphy_core.calls import secrets
+    from visphy_core.calls import keys, secrets
     env = tmp_path / ".env"
     env.write_text("MY_SERVICE_TOKEN=t0ken-value-123\nPLAIN=not-a-secret-xyz\n"
                    "VISPHY_SECRET_ENV=ODD_NAME\nODD_NAME=odd-value-456\n")
@@ -99,8 +98,8 @@ def test_dotenv_secrets_are_registered_and_redacted_without_being_looked_up(tmp_
 def test_a_bad_dotenv_is_a_user_error_naming_the_file(tmp_path, monkeypatch):
     import pytest
 
-    from visphy_core.calls import keys
     from visphy_core.api.errors import UserError
+    from visphy_core.calls import keys
 
     env = tmp_path / ".env"
     env.write_bytes(b"KEY=\xff\xfe\x00")

@@ -6,11 +6,10 @@ from __future__ import annotations
 
 import pytest
 
+from conftest import run_cli
 from visphy_core.config.check import ConfigError, check_overrides, compose
 from visphy_core.execute.datasets import load_dataset
 from visphy_core.execute.shard import interleave, parse_shard, select_shard
-
-from conftest import run_cli
 
 
 @pytest.mark.parametrize("size", [0, 1, 2, 7, 12])

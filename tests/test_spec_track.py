@@ -8,9 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from visphy_core.spec.spec_track import SpecTrackError, merged_spec, simulate, spec_scene
-
 from conftest import run_cli
+from visphy_core.spec.spec_track import SpecTrackError, merged_spec, simulate, spec_scene
 
 
 def _reply_of(spec: dict) -> dict:

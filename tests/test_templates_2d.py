@@ -8,12 +8,6 @@ import re
 import numpy as np
 import pytest
 
-from visphy_plugins.datasets.visphybench import blocks2d as bk
-from visphy_plugins.datasets.visphybench import templates_2d as t2d
-from visphy_plugins.physics.box2d import simulate_2d
-from visphy_plugins.datasets.visphybench.features import difficulty_features, difficulty_score
-from visphy_plugins.datasets.visphybench.filters import REASONS, validity_problems
-from visphy_plugins.datasets.visphybench.raster2d import PALETTE
 from visphy_core.spec.spec2d import (
     PHYRE_PROFILE,
     WALL_IDS,
@@ -21,7 +15,17 @@ from visphy_core.spec.spec2d import (
     shape_area_centroid,
     validate_spec,
 )
-from visphy_plugins.datasets.visphybench.templates_2d import TARGET_SHARES, TEMPLATES_2D, category_shares
+from visphy_plugins.datasets.visphybench import blocks2d as bk
+from visphy_plugins.datasets.visphybench import templates_2d as t2d
+from visphy_plugins.datasets.visphybench.features import difficulty_features, difficulty_score
+from visphy_plugins.datasets.visphybench.filters import REASONS, validity_problems
+from visphy_plugins.datasets.visphybench.raster2d import PALETTE
+from visphy_plugins.datasets.visphybench.templates_2d import (
+    TARGET_SHARES,
+    TEMPLATES_2D,
+    category_shares,
+)
+from visphy_plugins.physics.box2d import simulate_2d
 
 DRAWS = 4
 DYNAMIC_RGB = {tuple(PALETTE[c]) for c in ("gray", "green", "blue")}

@@ -14,10 +14,10 @@ import math
 
 import numpy as np
 import pytest
-
 from mini_templates import mini_specs
-from visphy_core.scoring.headline import Headline
+
 from visphy_core.api.metrics import HIGHER, LOWER
+from visphy_core.scoring.headline import Headline
 from visphy_core.scoring.normalisation import twin_spec
 from visphy_plugins.datasets.visphybench import validity_order as vo
 

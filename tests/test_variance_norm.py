@@ -11,13 +11,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_spec_track import _reply_of, _reply_text
 
 from visphy_core.api.metrics import HIGHER, LOWER
-from visphy_core.scoring.normalisation import (NUDGE_M, NUDGE_PX, SPEED_JITTER, norm_column, normalised,
-                                       twin_scene, twin_spec)
+from visphy_core.results.columns import norm_column
+from visphy_core.scoring.normalisation import (
+    NUDGE_M,
+    NUDGE_PX,
+    SPEED_JITTER,
+    normalised,
+    twin_scene,
+    twin_spec,
+)
 from visphy_core.scoring.score import ScoringProtocol, score_columns
-
-from test_spec_track import _reply_of, _reply_text
 
 
 def _spec_3d() -> dict:
@@ -123,8 +129,8 @@ def test_a_run_scores_the_oracle_near_1_and_the_fallback_at_exactly_0(tmp_path, 
     """One replayed reply is the ground truth's own reference program, the other a broken
     program (fallback) with a sound S: the oracle lands near the twin, the frozen fallback at
     0 on every metric, S's spec track between."""
-    from visphy_core.config.check import compose
     from visphy_core.api.registry import get_registry
+    from visphy_core.config.check import compose
     from visphy_core.execute.run import run_experiment
 
     home = tmp_path / "home"
@@ -183,12 +189,12 @@ def test_without_a_ground_truth_spec_the_columns_are_unavailable_with_the_reason
         tmp_path, mini_scenes):
     """A dataset without specs (the published layout): no twin, so each norm column is
     unavailable with why — never a number — while the plain columns are scored."""
+    from test_original_layout import ID_2D_A, _clip, make_split
+
     from visphy_core.config.check import compose
     from visphy_core.execute.run import run_experiment
-    from visphy_core.spec.spec_track import SpecTrackError
-
-    from test_original_layout import ID_2D_A, _clip, make_split
     from visphy_core.infra.video import encode_video
+    from visphy_core.spec.spec_track import SpecTrackError
 
     bare = copy.copy(mini_scenes[0])
     bare.__dict__["spec"] = None

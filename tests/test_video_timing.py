@@ -17,11 +17,19 @@ import av
 import numpy as np
 import pytest
 
-from visphy_core.infra.cache import Cache
 from visphy_core.api.scene import Scene
+from visphy_core.infra.cache import Cache
+from visphy_core.infra.video import (
+    ClipInfo,
+    decode_video,
+    decode_video_timed,
+    encode_video,
+    load_clip_for,
+    normalise_clip,
+    resample_by_time,
+    shown_at,
+)
 from visphy_core.scoring.score import score_scene, to_contract
-from visphy_core.infra.video import (ClipInfo, decode_video, decode_video_timed, encode_video,
-                               load_clip_for, normalise_clip, resample_by_time, shown_at)
 from visphy_plugins.metrics.pixel import PSNR
 
 TARGET = ClipInfo(fps=5.0, n_frames=17, width=64, height=64)

@@ -1,4 +1,5 @@
-"""Scenes side by side (`run.workers`, visphy_core/execute/scheduler.py): the same rows, frames and scores
+"""Scenes side by side (`run.workers`, visphy_core/execute/scheduler.py): the same rows, frames and
+scores
 with one worker and with two; the scheduler's gates (slots, the render lane in scene order, the
 call lane of ``run.prefetch=0``), rows handed back in scene order, cancelling and draining; the
 progress lines' in-flight counts; and ``run.workers`` itself."""
@@ -16,14 +17,18 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-
-from visphy_core.execute.run import STAGE_FIELDS
 from rich.console import Console
 
 from conftest import REPO, run_cli
 from visphy_core.execute.console import StageEvents, StageProgress, stage_progress
-from visphy_core.execute.scheduler import (SceneCancelled, SceneScheduler, StageGates, resolve_workers,
-                                   usable_cores)
+from visphy_core.execute.run import STAGE_FIELDS
+from visphy_core.execute.scheduler import (
+    SceneCancelled,
+    SceneScheduler,
+    StageGates,
+    resolve_workers,
+    usable_cores,
+)
 
 # --------------------------------------------------------------------------- one vs two workers
 

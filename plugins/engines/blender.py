@@ -61,15 +61,23 @@ from typing import Any, Optional
 import numpy as np
 
 from visphy_core.api.config_schema import EngineConfig
-from visphy_core.api.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
-                                RenderFlag, RenderResult, classify_frames)
+from visphy_core.api.engine import (
+    Engine,
+    FailureClass,
+    Program,
+    ProgramRejected,
+    RenderContract,
+    RenderFlag,
+    RenderResult,
+    classify_frames,
+)
 from visphy_core.api.extract import extract_code, extract_spec, fenced_blocks
 from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.scene import Scene
+from visphy_core.api.settings import cfg_get
+from visphy_core.calls.secrets import redact
 from visphy_core.infra.png import DeadlineExceeded, FrameRejected
 from visphy_core.spec.replay import replay_payload
-from visphy_core.api.scene import Scene
-from visphy_core.calls.secrets import redact
-from visphy_core.api.settings import cfg_get
 
 HERE = Path(__file__).resolve().parent
 RUNNER = HERE / "blender_runner.py"

@@ -42,11 +42,19 @@ from urllib.parse import urlparse
 
 import numpy as np
 
-from visphy_core.api.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
-                                RenderFlag, RenderResult, classify_frames)
+from visphy_core.api.engine import (
+    Engine,
+    FailureClass,
+    Program,
+    ProgramRejected,
+    RenderContract,
+    RenderFlag,
+    RenderResult,
+    classify_frames,
+)
 from visphy_core.api.extract import extract_code, extract_spec
-from visphy_core.spec.replay import fill, replay_payload
 from visphy_core.sandbox.browser import BrowserPool, PageCapture
+from visphy_core.spec.replay import fill, replay_payload
 
 TEMPLATES = Path(__file__).with_name("templates")
 

@@ -46,8 +46,8 @@ explicit opt-out) → ``infra_error`` with the reason. The isolation the program
 
 Frames cross the sandbox boundary as one raw file (``frames.rgb``: no codec, no header, the
 runner writes clip-sized RGB frames); the program runs in the runner's process and could rewrite
-it, so the host reads it with `visphy_core.infra.video.read_untrusted_raw_frames`: no symbolic link, a
-regular file, at most ``n_frames`` clip-sized frames (a larger file is refused by its size,
+it, so the host reads it with `visphy_core.infra.video.read_untrusted_raw_frames`: no symbolic link,
+a regular file, at most ``n_frames`` clip-sized frames (a larger file is refused by its size,
 unread: ``runtime_error`` "frame output refused: frames.rgb is N bytes, more than the clip's ...
 refused unread"), straight into one clip-sized array. Reading it counts against the scene's
 wall-clock limit (one deadline: sandbox start + ``timeout_s``); past it the render is a
@@ -73,17 +73,31 @@ from pathlib import Path
 import numpy as np
 
 from visphy_core.api.config_schema import EngineConfig
-from visphy_core.api.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
-                                RenderFlag, RenderResult, classify_frames)
+from visphy_core.api.engine import (
+    Engine,
+    FailureClass,
+    Program,
+    ProgramRejected,
+    RenderContract,
+    RenderFlag,
+    RenderResult,
+    classify_frames,
+)
 from visphy_core.api.extract import extract_code, extract_spec
 from visphy_core.api.hookspecs import hookimpl
-from visphy_core.infra.png import DeadlineExceeded, FrameRejected
-from visphy_core.spec.replay import replay_payload
-from visphy_core.sandbox.process import (Limits, ProcessResult, describe_limit, python_ro_paths,
-                                         read_untrusted, run_sandboxed)
-from visphy_core.calls.secrets import redact
-from visphy_core.api.settings import cfg_get
 from visphy_core.api.scene import Scene
+from visphy_core.api.settings import cfg_get
+from visphy_core.calls.secrets import redact
+from visphy_core.infra.png import DeadlineExceeded, FrameRejected
+from visphy_core.sandbox.process import (
+    Limits,
+    ProcessResult,
+    describe_limit,
+    python_ro_paths,
+    read_untrusted,
+    run_sandboxed,
+)
+from visphy_core.spec.replay import replay_payload
 
 log = logging.getLogger(__name__)
 

@@ -7,8 +7,8 @@ from pathlib import Path
 
 from visphy_core.api.engine import Program
 from visphy_core.api.hookspecs import hookimpl
-from visphy_core.spec.replay import fill, replay_payload
 from visphy_core.api.scene import Scene
+from visphy_core.spec.replay import fill, replay_payload
 from visphy_plugins.engines.browser_base import BrowserEngine
 from visphy_plugins.engines.native import native_payload
 

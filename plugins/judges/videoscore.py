@@ -38,11 +38,11 @@ from typing import Any, Optional
 
 import numpy as np
 
-from visphy_core.calls.retry import CallErrorKind
 from visphy_core.api.config_schema import JudgeConfig
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.judge import Judge, JudgeInput, Verdict
 from visphy_core.api.settings import cfg_get
+from visphy_core.calls.retry import CallErrorKind
 from visphy_core.infra.video import decode_video
 
 DIMENSIONS = ("visual_quality", "text_alignment", "physical_consistency")

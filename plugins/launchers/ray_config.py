@@ -9,8 +9,8 @@
 * ``forward_env``: names or glob patterns of the launching process's environment variables that
   every job receives (through Ray's ``runtime_env``), since the workers of an existing cluster
   do not share the shell visphy was started from. API keys are deliberately not among them: put
-  them in ``$VISPHY_HOME/.env`` on the shared path (`visphy_core.calls.keys`) instead of sending them
-  through the cluster's metadata store.
+  them in ``$VISPHY_HOME/.env`` on the shared path (`visphy_core.calls.keys`) instead of sending
+  them through the cluster's metadata store.
 """
 
 from __future__ import annotations

@@ -85,7 +85,6 @@ from scipy.optimize import linear_sum_assignment
 
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.metrics import LOWER, SCENE, Metric, MetricInput
-
 from visphy_plugins.metrics.association import COLOUR_GATE, colour_cost, colour_features
 from visphy_plugins.metrics.program_params import analyse_program, match_name, name_tokens
 

@@ -28,9 +28,10 @@ Learned (models load once per process, cached by weight file and device, and run
 are looked up with `visphy_core.scoring.weights.find` (``metrics.weights_dir``, ``$VISPHY_WEIGHTS``,
 ``$TORCH_HOME/hub/checkpoints``); a missing file makes the metric unavailable with the reason.
 Every file is checked against its published SHA-256 before it is loaded
-(`visphy_core.scoring.weights.check`: torchvision's checkpoints against the hash prefix in their names,
-the packaged LPIPS/ST-LPIPS files against the table in `visphy_core.scoring.weights`): a file with the
-right name and the wrong content makes the metric unavailable (``checksum mismatch (<file>:
+(`visphy_core.scoring.weights.check`: torchvision's checkpoints against the hash prefix in their
+names,
+the packaged LPIPS/ST-LPIPS files against the table in `visphy_core.scoring.weights`): a file with
+the right name and the wrong content makes the metric unavailable (``checksum mismatch (<file>:
 expected …, got …)``), never a number. Every metric's identity carries the digest of the files
 it loaded.
 
@@ -53,8 +54,8 @@ it loaded.
   torchvision's VGG16 backbone ``vgg16-397923af.pth`` and piq's DISTS α/β ``dists_weights.pt``
   (the files piq would download from torchvision and from its v0.4.1 release), both from the
   weight search. piq publishes no SHA-256 for ``dists_weights.pt`` (it downloads the file
-  unchecked): record the one you trust in ``SHA256SUMS`` (`visphy_core.scoring.weights`), else the file
-  is not used. α and β are divided by their joint sum as in DISTS' definition (a no-op for
+  unchecked): record the one you trust in ``SHA256SUMS`` (`visphy_core.scoring.weights`), else the
+  file is not used. α and β are divided by their joint sum as in DISTS' definition (a no-op for
   piq's file). piq resizes frames whose shorter side exceeds 256 to 256 itself.
 
 Inputs: LPIPS and ST-LPIPS get the frames in [−1, 1] (their convention), DISTS and the piq
@@ -147,9 +148,9 @@ from typing import Any, Callable
 import cv2
 import numpy as np
 
-from visphy_core.scoring import weights as _weights
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.metrics import HIGHER, LOWER, PAIRS, Metric
+from visphy_core.scoring import weights as _weights
 from visphy_plugins.metrics import _torch
 
 #: Pairs per forward pass.

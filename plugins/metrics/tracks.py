@@ -179,7 +179,6 @@ import numpy as np
 
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.metrics import LOWER, SEQUENCE, Metric, MetricInput
-
 from visphy_plugins.metrics.association import Row, associate, dominant_colours, find_blobs
 
 FLAT_MAX_DIST = 90.0            # RGB units, 2D

@@ -23,10 +23,15 @@ from enum import Enum
 
 from visphy_core.api.config_schema import ModelConfig
 from visphy_core.api.hookspecs import hookimpl
-from visphy_core.api.model import Model, ModelRequest, ModelResponse, PrivilegedRequest, \
-    config_identity
-from visphy_core.calls.references import describe_spec
+from visphy_core.api.model import (
+    Model,
+    ModelRequest,
+    ModelResponse,
+    PrivilegedRequest,
+    config_identity,
+)
 from visphy_core.api.settings import cfg_get
+from visphy_core.calls.references import describe_spec
 
 
 class OracleStyle(str, Enum):

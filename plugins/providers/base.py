@@ -1,7 +1,8 @@
 """The provider-neutral half of every API caller: parts, completions, retries, cost.
 
 A `ProviderClient` makes exactly one HTTP attempt through its provider's official async SDK and
-either returns a `Completion` or raises a classified `visphy_core.calls.retry.CallError`. `ApiCaller`
+either returns a `Completion` or raises a classified `visphy_core.calls.retry.CallError`.
+`ApiCaller`
 adds the rest, once for every provider: the key, retries with backoff and ``Retry-After``, the
 endpoint's adaptive concurrency, empty replies retried, usage normalised, cost from the price
 table. `ApiModel` is the model adapter built on it; judges use `ApiCaller` directly.
@@ -15,10 +16,15 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from visphy_core.calls.retry import (CallError, CallErrorKind, RetryPolicy, call_with_retries,
-                               limiter_for)
-from visphy_core.calls.keys import require_key
 from visphy_core.api.model import Model, ModelRequest, ModelResponse
+from visphy_core.calls.keys import require_key
+from visphy_core.calls.retry import (
+    CallError,
+    CallErrorKind,
+    RetryPolicy,
+    call_with_retries,
+    limiter_for,
+)
 from visphy_core.calls.usage import Price
 
 

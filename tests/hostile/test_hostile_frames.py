@@ -4,8 +4,8 @@ Frames cross the sandbox boundary as files (Blender: ``frames/frame_*.png``; Man
 ``frames.rgb``) that the program can rewrite after the trusted runner has finished (an
 ``atexit`` handler runs after ``result.json`` is written). The host reads them only through the
 shared untrusted-media readers (`visphy_core.infra.png.read_untrusted_png`,
-`visphy_core.infra.video.read_untrusted_frames` / `read_untrusted_raw_frames` / `VideoBudget`), which
-check the header (PNG IHDR; a video's stream size, frame count, duration) against the render
+`visphy_core.infra.video.read_untrusted_frames` / `read_untrusted_raw_frames` / `VideoBudget`),
+which check the header (PNG IHDR; a video's stream size, frame count, duration) against the render
 contract before decoding anything, never follow links, cap file sizes and frame counts, and
 charge the host's reading to the scene's wall-clock deadline.
 
@@ -33,11 +33,23 @@ import numpy as np
 import pytest
 
 from visphy_core.api.engine import FailureClass, RenderContract
-from visphy_core.infra.png import (PNG_HEADER_BYTES, DeadlineExceeded, FrameRejected, png_bytes,
-                             read_untrusted_png)
-from visphy_core.infra.video import (ClipInfo, VideoBudget, decode_untrusted_video_timed,
-                               encode_video, load_clip_for, probe_untrusted_video,
-                               read_untrusted_frames, read_untrusted_raw_frames)
+from visphy_core.infra.png import (
+    PNG_HEADER_BYTES,
+    DeadlineExceeded,
+    FrameRejected,
+    png_bytes,
+    read_untrusted_png,
+)
+from visphy_core.infra.video import (
+    ClipInfo,
+    VideoBudget,
+    decode_untrusted_video_timed,
+    encode_video,
+    load_clip_for,
+    probe_untrusted_video,
+    read_untrusted_frames,
+    read_untrusted_raw_frames,
+)
 
 F = FailureClass
 W, H = 64, 64

@@ -34,8 +34,7 @@ import pytest
 from visphy_core.api.engine import FailureClass, Program, RenderContract
 from visphy_core.sandbox import process as sp
 from visphy_core.sandbox import syscall_filter
-from visphy_core.sandbox.process import (Limits, isolation_available, isolation_level,
-                                         run_sandboxed)
+from visphy_core.sandbox.process import Limits, isolation_available, isolation_level, run_sandboxed
 
 from .conftest import wait_no_survivors
 

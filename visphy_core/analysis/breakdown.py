@@ -15,7 +15,7 @@ import pandas as pd
 from visphy_core.analysis.columns import MODEL_SUCCESS, header, view_rows
 from visphy_core.analysis.load import RunData
 from visphy_core.api.engine import FailureClass
-from visphy_core.execute.pipeline import NOT_EVALUABLE
+from visphy_core.results.row import NOT_EVALUABLE
 
 DIFFICULTY_ORDER = ("easy", "medium", "hard")
 NOT_EVALUABLE_SUFFIX = " (not evaluable)"

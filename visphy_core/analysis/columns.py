@@ -17,8 +17,8 @@ import numpy as np
 import pandas as pd
 
 from visphy_core.api.errors import UserError
-from visphy_core.execute.pipeline import NOT_EVALUABLE
-from visphy_core.scoring.score import SPEC_PREFIX
+from visphy_core.results.columns import SPEC_PREFIX
+from visphy_core.results.row import NOT_EVALUABLE
 
 if TYPE_CHECKING:
     from visphy_core.analysis.load import RunData

@@ -14,10 +14,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from visphy_core.analysis.columns import (MODEL_SUCCESS, WITH_FALLBACKS, header, scene_values)
+from visphy_core.analysis.columns import MODEL_SUCCESS, WITH_FALLBACKS, header, scene_values
 from visphy_core.analysis.human import summarise_ratings
 from visphy_core.analysis.load import RunData
-from visphy_core.execute.pipeline import NOT_EVALUABLE
+from visphy_core.results.row import NOT_EVALUABLE
 
 
 def _rate(num: int, den: int) -> float:

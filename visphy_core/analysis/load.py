@@ -1,6 +1,7 @@
 """Finished run directories as data: find them, load them, and name them for a comparison.
 
-A run directory (written by `visphy_core.execute.run`) holds ``summary.json``, ``results.parquet`` and/or
+A run directory (written by `visphy_core.execute.run`) holds ``summary.json``, ``results.parquet``
+and/or
 ``results.jsonl`` (one row per scene), ``config.yaml`` and ``manifest.json``; the human-rating
 page may add ``human_ratings.jsonl``. `find_runs` accepts run directories and any folder above
 them (``visphy-out/runs``, a Hydra multirun sweep), and follows a study's job records
@@ -18,9 +19,9 @@ from typing import Any, Iterable
 
 import pandas as pd
 
-from visphy_core.infra import files
 from visphy_core.analysis.human import read_ratings
 from visphy_core.api.errors import UserError
+from visphy_core.infra import files
 
 SUMMARY = "summary.json"
 #: The scene-row fields the analysis reads, with the value a row without the field means.

@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from visphy_core.analysis.load import RunData
-from visphy_core.execute.pipeline import NOT_EVALUABLE
+from visphy_core.results.row import NOT_EVALUABLE
 
 #: The paper's success rates (first attempt, with one retry), per engine.
 PAPER = {"threejs": (0.979, 0.990), "p5": (0.853, 0.979)}

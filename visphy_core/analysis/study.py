@@ -20,11 +20,24 @@ from pathlib import Path
 
 import pandas as pd
 
-from visphy_core.analysis import (breakdown, correlation, figures, leaderboard, params, retry,
-                                  small_sample)
+from visphy_core.analysis import (
+    breakdown,
+    correlation,
+    figures,
+    leaderboard,
+    params,
+    retry,
+    small_sample,
+)
 from visphy_core.analysis.bootstrap import RESAMPLES, SEED, bootstrap_table
-from visphy_core.analysis.columns import (MODEL_SUCCESS, VIEWS, has_values, pick_columns,
-                                          score_columns, unavailable_reason)
+from visphy_core.analysis.columns import (
+    MODEL_SUCCESS,
+    VIEWS,
+    has_values,
+    pick_columns,
+    score_columns,
+    unavailable_reason,
+)
 from visphy_core.analysis.export import to_markdown, write_table
 from visphy_core.analysis.human import summarise_ratings
 from visphy_core.analysis.load import RunData, label_runs

@@ -23,8 +23,8 @@ from typing import Any, Optional
 
 from omegaconf import MISSING
 
-from visphy_core.scoring.headline import DEFAULT_COMPONENTS, DEFAULT_NAME
 from visphy_core.api.hookspecs import hookimpl
+from visphy_core.scoring.headline import DEFAULT_COMPONENTS, DEFAULT_NAME
 
 
 class TrackingBackend(StrEnum):
@@ -155,7 +155,8 @@ class MetricsConfig:
     align: VisphyAlignConfig = field(default_factory=VisphyAlignConfig)
     paper: PaperAlignConfig = field(default_factory=PaperAlignConfig)
     # Model weights (LPIPS/DISTS backbones, CLIP, DINO, RAFT, RoBERTa): searched here first, then
-    # $VISPHY_WEIGHTS and $TORCH_HOME/hub/checkpoints (visphy_core.scoring.weights). Never downloaded.
+    # $VISPHY_WEIGHTS and $TORCH_HOME/hub/checkpoints (visphy_core.scoring.weights). Never
+    # downloaded.
     weights_dir: Optional[str] = None
     # The spec track: the model's S simulated by visphy and replayed by the engine's reference
     # program, scored under the same protocol (``spec.`` columns; visphy_core.spec.spec_track).
@@ -165,8 +166,8 @@ class MetricsConfig:
     variance_norm: bool = True
     device: str = "cpu"           # torch device of the learned metrics (cpu, cuda, cuda:1…)
     max_pairs: dict[str, int] = field(default_factory=dict)  # per metric: pairs scored at most
-    # The headline physics score (visphy_core.scoring.headline): its components, each between the still
-    # clip (0) and the twin or the ideal value (1), clipped, averaged per scene.
+    # The headline physics score (visphy_core.scoring.headline): its components, each between the
+    # still clip (0) and the twin or the ideal value (1), clipped, averaged per scene.
     headline: HeadlineConfig = field(default_factory=HeadlineConfig)
 
 

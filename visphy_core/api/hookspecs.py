@@ -95,7 +95,8 @@ def visphy_scene_done(run: Any, scene: Any, result: Any) -> None:
 
     :param run: the ``visphy_core.execute.run.RunContext``.
     :param scene: the ``visphy_core.api.scene.Scene`` that was processed.
-    :param result: the ``visphy_core.execute.pipeline.SceneResult`` row (status, failure class, scores).
+    :param result: the ``visphy_core.execute.pipeline.SceneResult`` row (status, failure class,
+    scores).
     """
 
 

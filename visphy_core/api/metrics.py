@@ -1,7 +1,8 @@
 """The metric contract: what a metric is, declared once next to its computation (pyiqa style).
 
 Every metric declares its ``name``, ``direction`` (``higher`` or ``lower`` is better),
-``score_range``, ``family`` (pixel, perceptual, semantic, text, motion, motion_mask, physics), ``needs``
+``score_range``, ``family`` (pixel, perceptual, semantic, text, motion, motion_mask, physics),
+``needs``
 (``frames``, ``analysis``, ``reference_text``, ``spec``…) and ``weights`` (None: weight-free;
 else what it loads and how to supply it). A metric that cannot run here (weights missing, extra
 not installed) says so through `unavailable_reason`, with the reason and how to fix it; the

@@ -18,6 +18,7 @@ from typing import Any, Callable
 import pluggy
 
 from visphy_core.api import hookspecs
+
 ENTRY_POINT_GROUP = "visphy"
 KINDS = ("configs", "models", "engines", "metrics", "judges", "datasets", "physics")
 

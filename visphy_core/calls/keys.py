@@ -2,7 +2,8 @@
 
 Lookup order for a variable such as ``ANTHROPIC_API_KEY``: the process environment, then
 ``$VISPHY_ENV_FILE`` when set, else ``.env`` in the working directory, then ``.env`` in
-``$VISPHY_HOME``. A key read from a file is registered with `visphy_core.calls.secrets`, so redaction
+``$VISPHY_HOME``. A key read from a file is registered with `visphy_core.calls.secrets`, so
+redaction
 covers it exactly like an exported one. The key never enters ``os.environ``: the sandboxes start
 from allow-listed environments anyway, and a key that is not exported cannot leak through one.
 """

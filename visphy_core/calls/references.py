@@ -19,8 +19,8 @@ import hashlib
 import math
 from typing import Any
 
-from visphy_core.infra.cache import Cache, content_key, read_json
 from visphy_core.api.scene import Scene
+from visphy_core.infra.cache import Cache, content_key, read_json
 
 #: Bump when `describe_spec` changes: part of the cache key.
 SPEC_DESCRIBER_VERSION = "1"

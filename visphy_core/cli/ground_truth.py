@@ -56,16 +56,16 @@ def cmd_ground_truth(argv: list[str]) -> int:
 def prepare(overrides: list[str], workers: int = 2, progress: bool = True) -> int:
     from rich.progress import Progress
 
-    from visphy_core.infra.cache import Cache
-    from visphy_core.config.check import compose
-    from visphy_core.execute.datasets import load_dataset
     from visphy_core.api.engine import RenderContract
     from visphy_core.api.errors import UserError
-    from visphy_core.scoring.ground_truth import open_store, scene_anchors, store_path, writable
-    from visphy_core.execute.pipeline import EngineReferenceClips
     from visphy_core.api.registry import get_registry
-    from visphy_core.scoring.scene_scores import ReferenceClipUnavailable
+    from visphy_core.config.check import compose
+    from visphy_core.execute.datasets import load_dataset
+    from visphy_core.execute.pipeline import EngineReferenceClips
     from visphy_core.execute.scheduler import pin_torch_threads
+    from visphy_core.infra.cache import Cache
+    from visphy_core.scoring.ground_truth import open_store, scene_anchors, store_path, writable
+    from visphy_core.scoring.scene_scores import ReferenceClipUnavailable
     from visphy_core.scoring.score import select_metrics
 
     registry = get_registry()  # plugins store their structured configs before Hydra composes

@@ -28,8 +28,13 @@ from pathlib import Path
 import numpy as np
 
 from visphy_core.api.errors import UserError
-from visphy_core.spec.intervene import (PARAMETERS, compare_rollouts, effect_lines, intervened_spec,
-                                   parse_assignment)
+from visphy_core.spec.intervene import (
+    PARAMETERS,
+    compare_rollouts,
+    effect_lines,
+    intervened_spec,
+    parse_assignment,
+)
 
 LABEL_HEIGHT = 18
 
@@ -64,11 +69,11 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def intervene_command(argv: list[str]) -> int:
-    from visphy_core.infra.cache import Cache
-    from visphy_core.config.check import check_overrides
     from visphy_core.api.engine import RenderContract
     from visphy_core.api.registry import get_registry
+    from visphy_core.config.check import check_overrides
     from visphy_core.execute.run import _isolation
+    from visphy_core.infra.cache import Cache
 
     args = _parser().parse_intermixed_args(argv)
     for text in args.assignments:
@@ -144,8 +149,8 @@ def _gt_start(cfg, scene_id: str):
 
 
 def _run_start(run_dir: Path, scene_id: str):
-    from visphy_core.execute.run_scenes import load_run_scenes
     from visphy_core.api.scene import read_json
+    from visphy_core.execute.run_scenes import load_run_scenes
     from visphy_core.spec.spec_track import SpecTrackError, merged_spec
 
     path = run_dir / "scenes" / scene_id / "spec.json"

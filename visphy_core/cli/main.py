@@ -34,8 +34,8 @@ import os
 import sys
 from types import TracebackType
 
-from visphy_core.config.check import check_inputs, check_overrides
 from visphy_core.api.errors import UserError
+from visphy_core.config.check import check_inputs, check_overrides
 
 #: A ValueError / FileNotFoundError raised below these (a dataset plugin loading or building its
 #: data) is about the user's dataset, not a bug.
@@ -180,8 +180,13 @@ def cmd_normalise(argv: list[str]) -> int:
     import shutil
     from pathlib import Path
 
-    from visphy_core.infra.video import (clip_matches, decode_video, decode_video_timed,
-                                   encode_video, resample_by_time)
+    from visphy_core.infra.video import (
+        clip_matches,
+        decode_video,
+        decode_video_timed,
+        encode_video,
+        resample_by_time,
+    )
 
     parser = argparse.ArgumentParser(
         prog="python -m visphy_core normalise",

@@ -1,5 +1,6 @@
 """``python -m visphy_core merge SHARD_RUN_DIR... -o MERGED_RUN_DIR``: the shards of one run
-(``dataset.shard=i/n``) merged into one run directory and one MLflow run (`visphy_core.execute.merge`);
+(``dataset.shard=i/n``) merged into one run directory and one MLflow run
+(`visphy_core.execute.merge`);
 ``merge --study SWEEP_DIR -o OUT_DIR``: every run a study's shards belong to, each into
 ``OUT_DIR/<model>_<engine>_<hash8>``."""
 

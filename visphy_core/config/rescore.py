@@ -23,9 +23,15 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from visphy_core.config.check import (check_names, check_overrides, check_protocol, check_ranges,
-                                      check_tracking, group_options)
 from visphy_core.api.errors import ConfigError
+from visphy_core.config.check import (
+    check_names,
+    check_overrides,
+    check_protocol,
+    check_ranges,
+    check_tracking,
+    group_options,
+)
 
 #: Groups whose option re-scoring may select.
 SCORING_GROUPS = ("metrics", "judge", "tracking")

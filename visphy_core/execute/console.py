@@ -12,8 +12,7 @@ from pathlib import Path
 from typing import Iterator
 
 from rich.console import Console
-from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
-                           TimeElapsedColumn)
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 # A pipe or a log file gets 120 columns (rich's 80 would truncate the means table); a terminal
@@ -29,7 +28,8 @@ STAGES = ("generate", "render", "score", "judge")
 class StageEvents:
     """What the pipeline reports while a scene goes through its stages. This base class
     ignores everything (no progress wanted); `StageProgress` shows it. The scheduler's gates
-    (`visphy_core.execute.scheduler.StageGates`) hold a scene at a stage's entrance until the stage's
+    (`visphy_core.execute.scheduler.StageGates`) hold a scene at a stage's entrance until the
+    stage's
     resources are free, so the pipeline enters every stage through `stage`."""
 
     def begin(self, stage: str, scene_id: str) -> None:

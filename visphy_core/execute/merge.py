@@ -9,8 +9,8 @@ on purpose), and writes one run directory as the unsharded run would have: ``con
 (``dataset.shard: null``), ``results.jsonl`` / ``results.parquet`` in the unsharded scene order,
 ``calls.jsonl``, ``scenes/<id>/`` (hard links to the shards' files, copies across file
 systems), a ``manifest.json`` that records ``merged_from``, and a ``summary.json`` computed
-afresh from all rows by `visphy_core.execute.run.summarise` (so the means are over every scene, never
-means of shard means).
+afresh from all rows by `visphy_core.execute.run.summarise` (so the means are over every scene,
+never means of shard means).
 
 The merged run goes through the tracking hooks like any run (one MLflow run, its metrics and
 files), and each shard's MLflow run in the same store becomes its child (``mlflow.parentRunId``);
@@ -31,13 +31,13 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from visphy_core.scoring.headline import Headline
-from visphy_core.calls.secrets import public_yaml
-from visphy_core.infra import files
-from visphy_core.execute.shard import interleave, parse_shard
 from visphy_core.api.errors import UserError
-from visphy_core.execute.pipeline import SceneResult
+from visphy_core.calls.secrets import public_yaml
+from visphy_core.execute.shard import interleave, parse_shard
+from visphy_core.infra import files
+from visphy_core.results.row import SceneResult
 from visphy_core.results.run_dir import FINISHED, config_hash
+from visphy_core.scoring.headline import Headline
 
 log = logging.getLogger("visphy.merge")
 RUN_FILES = ("config.yaml", "manifest.json", "summary.json", "results.jsonl")
@@ -240,11 +240,11 @@ def _merged_from(shards: list[Shard]) -> list[dict]:
 
 def _write_merged(out: Path, cfg: DictConfig, shards: list[Shard],
                   results: list[SceneResult], partial: bool) -> Merged:
-    from visphy_core.infra.cache import Cache
     from visphy_core.api.registry import get_plugin_manager, get_registry
-    from visphy_core.execute.run import RunContext, summarise, write_json
-    from visphy_core.scoring.score import ScoringProtocol, select_metrics
     from visphy_core.calls.usage import UsageLedger
+    from visphy_core.execute.run import RunContext, summarise, write_json
+    from visphy_core.infra.cache import Cache
+    from visphy_core.scoring.score import ScoringProtocol, select_metrics
 
     for shard in shards:
         for scene_id in shard.rows:

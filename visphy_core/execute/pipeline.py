@@ -8,122 +8,66 @@ import json
 import os
 import threading
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from visphy_core.scoring.paper_protocol import frames_needed
-from visphy_core.scoring.headline import Headline
-from visphy_core.infra.cache import Cache, CorruptEntry, content_key, read_json
-from visphy_core.execute.console import StageEvents
-from visphy_core.api.engine import (Engine, FailureClass, Program, ProgramRejected, RenderContract,
-                                RenderFlag, RenderResult, classify_frames)
+from visphy_core.api.engine import (
+    Engine,
+    FailureClass,
+    Program,
+    ProgramRejected,
+    RenderContract,
+    RenderFlag,
+    RenderResult,
+    classify_frames,
+)
 from visphy_core.api.errors import UserError
 from visphy_core.api.extract import extract_analysis, extract_spec
-from visphy_core.scoring.ground_truth import writable
+from visphy_core.api.metrics import Metric
+from visphy_core.api.model import (
+    ImageInput,
+    Model,
+    ModelRequest,
+    ModelResponse,
+    OutputContract,
+    build_model_request,
+)
+from visphy_core.api.scene import Scene, SceneDataError
 from visphy_core.calls.generation import ModelCaller
 from visphy_core.calls.judging import JudgeCaller
-from visphy_core.api.metrics import Metric
-from visphy_core.api.model import (ImageInput, Model, ModelRequest, ModelResponse, OutputContract,
-                               build_model_request)
-from visphy_core.calls.prompts.build import (PromptSettings, build_prompt, build_repair_prompt,
-                                       repair_version)
+from visphy_core.calls.prompts.build import (
+    PromptSettings,
+    build_prompt,
+    build_repair_prompt,
+    repair_version,
+)
 from visphy_core.calls.references import ReferenceWriter
-from visphy_core.spec.reply_spec import spec_problems
-from visphy_core.api.scene import Scene, SceneDataError
-from visphy_core.scoring.scene_scores import (ReferenceClipUnavailable, ScoringServices, frozen_clip,
-                                      one_line, score_columns_of, score_outputs, write_artifact,
-                                      write_scores)
-from visphy_core.scoring.score import ScoringProtocol
-from visphy_core.scoring.normalisation import twin_scene
-from visphy_core.spec.spec_track import SpecTrackError, spec_scene
 from visphy_core.calls.secrets import redact, redact_obj
 from visphy_core.calls.usage import CostCapReached
+from visphy_core.execute.console import StageEvents
+from visphy_core.infra.cache import Cache, CorruptEntry, content_key, read_json
 from visphy_core.infra.video import decode_video, encode_video, frame_digest, load_clip_for
+from visphy_core.results.row import SceneResult
+from visphy_core.scoring.ground_truth import writable
+from visphy_core.scoring.headline import Headline
+from visphy_core.scoring.normalisation import twin_scene
+from visphy_core.scoring.paper_protocol import frames_needed
+from visphy_core.scoring.scene_scores import (
+    ReferenceClipUnavailable,
+    ScoringServices,
+    frozen_clip,
+    one_line,
+    score_columns_of,
+    score_outputs,
+    write_artifact,
+    write_scores,
+)
+from visphy_core.scoring.score import ScoringProtocol
+from visphy_core.spec.reply_spec import spec_problems
+from visphy_core.spec.spec_track import SpecTrackError, spec_scene
 
-
-@dataclass
-class SceneResult:
-    """One row of results.parquet."""
-
-    scene_id: str
-    dim: str
-    difficulty: str | None
-    model_success: bool = False    # the model's own program (first or repaired) gave a clip
-    system_success: bool = False   # a clip exists, counting the fallback
-    fallback: bool = False
-    attempts: int = 0
-    failure_class: str | None = None     # why the last model attempt failed (None on success)
-    failure_detail: str | None = None
-    first_failure_class: str | None = None  # why the first attempt failed (retry ablation)
-    flags: list[str] = field(default_factory=list)
-    response_cached: bool = False
-    render_cached: bool = False
-    render_wall_s: float | None = None
-    model_latency_s: float = 0.0
-    # seconds of wall time in the score stage (reference-program renders inside it excluded:
-    # they are ``reference_render_wall_s``) and in the judge stage; None: the stage did not run
-    # (``scoring_``, not ``score_``: every ``score_*`` column of a row is a score)
-    scoring_wall_s: float | None = None
-    reference_render_wall_s: float | None = None
-    judge_wall_s: float | None = None
-    cost_usd: float = 0.0
-    model_calls: int = 0                 # calls actually sent to the model (cache misses)
-    infra_retries: int = 0               # renders repeated after an infra_error
-    isolation: str | None = None         # how the program was isolated (RenderResult.isolation)
-    prompt_version: str | None = None    # templates the first prompt was built from
-    output_kind: str = "program"         # program (rendered) or video (a pixel-space model)
-    finish_reason: str | None = None     # the provider's reason the last reply ended
-    input_tokens: int = 0                # over the replies used (cached ones included)
-    output_tokens: int = 0
-    spec_valid: bool | None = None       # the reply's S against the ground truth's schema
-    spec_problems: list[str] = field(default_factory=list)
-    reference_source: str | None = None  # how the reference description was made
-    spec_track: str | None = None        # S simulated and replayed: rendered, no_spec,
-    spec_track_error: str | None = None  # invalid_spec or failed (why); None: track off
-    judge_errors: dict[str, str] = field(default_factory=dict)  # invalid verdicts, why
-    frame_digests: list[str] = field(default_factory=list)
-    scores: dict[str, float | None] = field(default_factory=dict)
-    unavailable: dict[str, str] = field(default_factory=dict)
-
-    @property
-    def evaluable(self) -> bool:
-        """False when the scene could not be evaluated through no fault of the model
-        (``infra_error``: our side failed; ``data_error``: a bad input of the scene)."""
-        return self.failure_class not in NOT_EVALUABLE
-
-    def row(self) -> dict:
-        d = asdict(self)
-        scores = d.pop("scores")
-        d["unavailable"] = json.dumps(self.unavailable, sort_keys=True)
-        d["flags"] = ",".join(self.flags)
-        for name in JSON_COLUMNS:
-            d[name] = json.dumps(d[name], sort_keys=True)
-        for name, value in scores.items():
-            d[f"score_{name}"] = value
-        return d
-
-    @classmethod
-    def from_row(cls, row: dict) -> "SceneResult":
-        """Inverse of `row` (a resumed run reads its finished scenes back from results.jsonl)."""
-        d = dict(row)
-        scores = {k[len("score_"):]: d.pop(k) for k in list(d) if k.startswith("score_")}
-        known = {f for f in cls.__dataclass_fields__}
-        d = {k: v for k, v in d.items() if k in known}
-        d["flags"] = [f for f in (d.get("flags") or "").split(",") if f]
-        for name in (*JSON_COLUMNS, "unavailable"):
-            if isinstance(d.get(name), str):
-                d[name] = json.loads(d[name])
-            elif name in d and d[name] is None:
-                del d[name]
-        return cls(**d, scores=scores)
-
-
-#: List/dict fields stored as JSON text in results.jsonl and results.parquet.
-JSON_COLUMNS = ("frame_digests", "spec_problems", "judge_errors")
-#: Failure classes that say nothing about the model: not counted against it.
-NOT_EVALUABLE = (FailureClass.INFRA_ERROR.value, FailureClass.DATA_ERROR.value)
 #: Render failures never replayed from the cache: they depend on the time limit or the machine.
 UNCACHED_FAILURES = (FailureClass.TIMEOUT, FailureClass.INFRA_ERROR, FailureClass.RESOURCE_LIMIT)
 
@@ -305,7 +249,8 @@ class SceneServices:
     ground_truth: Cache | None = None   # the ground-truth store (`visphy_core.scoring.ground_truth`)
 
     def scoring(self, renders: dict[str, RenderOutcome] | None = None) -> ScoringServices:
-        """The scoring half (`visphy_core.scoring.scene_scores`): reference-program clips rendered by
+        """The scoring half (`visphy_core.scoring.scene_scores`): reference-program clips rendered
+        by
         this run's engine (``renders``: the scene's clips so far, `render_cached`'s memo)."""
         return ScoringServices(metrics=self.metrics, cache=self.cache, protocol=self.protocol,
                                clips=EngineReferenceClips(self.engine, self.cache,

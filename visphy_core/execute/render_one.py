@@ -41,16 +41,16 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def render_reply(argv: list[str]) -> int:
-    from visphy_core.infra.cache import Cache
-    from visphy_core.config.check import check_overrides
-    from visphy_core.execute.datasets import load_dataset
+    from visphy_core.api.registry import get_registry
     from visphy_core.calls.generation import ModelCaller
     from visphy_core.calls.judging import JudgeCaller
-    from visphy_core.execute.pipeline import PipelineSettings, SceneServices, process_scene
-    from visphy_core.api.registry import get_registry
     from visphy_core.calls.prompts.build import PromptSettings
     from visphy_core.calls.references import ReferenceWriter
     from visphy_core.calls.usage import UsageLedger
+    from visphy_core.config.check import check_overrides
+    from visphy_core.execute.datasets import load_dataset
+    from visphy_core.execute.pipeline import PipelineSettings, SceneServices, process_scene
+    from visphy_core.infra.cache import Cache
 
     args = _parser().parse_intermixed_args(argv)  # overrides before or after the options
     reply = Path(args.reply).resolve()

@@ -4,7 +4,8 @@
 (``scenes/<id>/video.mp4``: the model's own or the fallback), the replies the analysis and S were
 extracted from, and the reference-program clips it rendered (``spec_video.mp4`` for the spec
 track, ``twin_video.mp4`` for normalisation), then scores every evaluable row again with the
-same code a run uses (`visphy_core.scoring.scene_scores`). No model is called and nothing is rendered:
+same code a run uses (`visphy_core.scoring.scene_scores`). No model is called and nothing is
+rendered:
 a clip the run did not make leaves its columns unavailable, saying why. Scores and verdicts
 come from the content-addressed cache when the same metric or judge has seen the same clips.
 
@@ -29,29 +30,35 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from visphy_core.scoring.headline import Headline
-from visphy_core.infra.files import atomic_write
-from visphy_core.calls.secrets import public_yaml
-from visphy_core.infra.cache import Cache
-from visphy_core.execute.console import print_summary, print_where_to_look, stage_progress
 from visphy_core.api.engine import FailureClass, Program, RenderContract
 from visphy_core.api.errors import UserError
 from visphy_core.api.extract import extract_analysis, extract_spec
+from visphy_core.api.scene import Scene, SceneDataError
 from visphy_core.calls.generation import ModelCaller
 from visphy_core.calls.judging import JudgeCaller
-from visphy_core.execute.pipeline import SceneResult, mark_not_evaluable
 from visphy_core.calls.references import ReferenceWriter
-from visphy_core.config.rescore import rescore_config
-from visphy_core.results.run_dir import FINISHED, INTERRUPTED, RUNNING, RunLock, config_hash
-from visphy_core.infra import files
-from visphy_core.api.scene import Scene, SceneDataError
-from visphy_core.scoring.scene_scores import (ReferenceClipUnavailable, ScoringServices,
-                                      score_columns_of, score_outputs, write_scores)
-from visphy_core.scoring.score import ScoringProtocol, select_metrics
+from visphy_core.calls.secrets import public_yaml
 from visphy_core.calls.usage import UsageLedger
-from visphy_core.scoring.paper_protocol import frames_needed
-from visphy_core.scoring.ground_truth import open_store, store_path
+from visphy_core.config.rescore import rescore_config
+from visphy_core.execute.console import print_summary, print_where_to_look, stage_progress
+from visphy_core.execute.pipeline import mark_not_evaluable
+from visphy_core.infra import files
+from visphy_core.infra.cache import Cache
+from visphy_core.infra.files import atomic_write
 from visphy_core.infra.video import decode_video, load_clip_for
+from visphy_core.results.row import SceneResult
+from visphy_core.results.run_dir import FINISHED, INTERRUPTED, RUNNING, RunLock, config_hash
+from visphy_core.scoring.ground_truth import open_store, store_path
+from visphy_core.scoring.headline import Headline
+from visphy_core.scoring.paper_protocol import frames_needed
+from visphy_core.scoring.scene_scores import (
+    ReferenceClipUnavailable,
+    ScoringServices,
+    score_columns_of,
+    score_outputs,
+    write_scores,
+)
+from visphy_core.scoring.score import ScoringProtocol, select_metrics
 
 #: Written anew by re-scoring (the rest of a run directory is carried over as it is).
 REWRITTEN = ("config.yaml", "manifest.json", "summary.json", "results.jsonl",
@@ -337,8 +344,8 @@ def rescore_run(run_dir: Path, overrides: list[str], in_place: bool = False) -> 
 def _rescore_into(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, changed: dict,
                   overrides: list[str], judges, reference_model, backup: Path | None
                   ) -> Rescored:
-    from visphy_core.execute.datasets import load_dataset
     from visphy_core.api.registry import get_registry
+    from visphy_core.execute.datasets import load_dataset
 
     registry = get_registry()
     cache = Cache(Path(str(cfg.paths.cache_dir)).resolve(), enabled=bool(cfg.run.cache))

@@ -28,33 +28,47 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
-from visphy_core.scoring.headline import Headline, summary_entry
-from visphy_core.infra.files import atomic_write
-from visphy_core.calls.secrets import install_log_redaction, public_config, public_yaml
-from visphy_core.infra.cache import Cache
-from visphy_core.execute.console import print_summary, print_where_to_look, stage_progress
-from visphy_core.execute.datasets import load_dataset
 from visphy_core.api.errors import ConfigError
+from visphy_core.api.metrics import Metric
+from visphy_core.api.registry import get_plugin_manager, get_registry
+from visphy_core.api.scene import Scene
 from visphy_core.calls.generation import ModelCaller, get_service
 from visphy_core.calls.judging import JudgeCaller
-from visphy_core.api.metrics import Metric
-from visphy_core.scoring.score import SPEC_PREFIX, ScoringProtocol, score_columns, select_metrics
-from visphy_core.execute.pipeline import (NOT_EVALUABLE, PipelineSettings, SceneResult, SceneServices,
-                                  first_call, process_scene)
-from visphy_core.api.registry import get_plugin_manager, get_registry
 from visphy_core.calls.prompts.build import PromptSettings
 from visphy_core.calls.references import ReferenceWriter
+from visphy_core.calls.secrets import install_log_redaction, public_config, public_yaml
 from visphy_core.calls.usage import CostCapReached, UsageLedger
-from visphy_core.results.run_dir import (COST_CAP, FAILED, FINISHED, INTERRUPTED, RUNNING, RunLock,
-                                  config_hash, find_resumable, new_run_dir, read_rows)
-from visphy_core.api.scene import Scene
-from visphy_core.scoring.ground_truth import open_store, store_path
+from visphy_core.execute.console import print_summary, print_where_to_look, stage_progress
+from visphy_core.execute.datasets import load_dataset
+from visphy_core.execute.pipeline import PipelineSettings, SceneServices, first_call, process_scene
+from visphy_core.execute.scheduler import (
+    SceneScheduler,
+    StageGates,
+    pin_torch_threads,
+    resolve_workers,
+)
+from visphy_core.infra.cache import Cache
+from visphy_core.infra.files import atomic_write
 from visphy_core.infra.heap import release_free_memory
-from visphy_core.execute.scheduler import (SceneScheduler, StageGates, pin_torch_threads,
-                                   resolve_workers)
-
+from visphy_core.results.columns import SPEC_PREFIX
+from visphy_core.results.row import NOT_EVALUABLE, SceneResult
+from visphy_core.results.run_dir import (
+    COST_CAP,
+    FAILED,
+    FINISHED,
+    INTERRUPTED,
+    RUNNING,
+    RunLock,
+    config_hash,
+    find_resumable,
+    new_run_dir,
+    read_rows,
+)
+from visphy_core.scoring.ground_truth import open_store, store_path
+from visphy_core.scoring.headline import Headline, summary_entry
+from visphy_core.scoring.score import ScoringProtocol, score_columns, select_metrics
 
 log = logging.getLogger("visphy.run")
 

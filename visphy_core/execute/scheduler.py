@@ -47,8 +47,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Callable, Iterator, Sequence, TypeVar
 
-from visphy_core.execute.console import StageEvents
 from visphy_core.api.errors import ConfigError
+from visphy_core.execute.console import StageEvents
 from visphy_core.infra.heap import BudgetTrim, limit_arenas
 
 log = logging.getLogger("visphy.scheduler")
@@ -173,8 +173,8 @@ def pin_torch_threads() -> str:
     scores depend on it. One thread per worker is also the fast setting where workers fill the
     cores. Returns the value in force.
 
-    Also caps glibc's arenas (`visphy_core.infra.heap.limit_arenas`): it must happen before the run's
-    threads start, as this does, and one arena lets a scene's thread reuse what the scenes
+    Also caps glibc's arenas (`visphy_core.infra.heap.limit_arenas`): it must happen before the
+    run's threads start, as this does, and one arena lets a scene's thread reuse what the scenes
     before it freed on other threads."""
     limit_arenas()
     value = os.environ.setdefault(TORCH_THREADS_ENV, "1")

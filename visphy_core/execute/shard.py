@@ -5,7 +5,8 @@ Shard i (0-based) takes every n-th scene of the selection starting at position i
 dataset's own order and ``dataset.limit``: the n shards are disjoint, together they are exactly
 the unsharded selection, their sizes differ by at most one, and each mixes the whole dataset's
 templates and difficulties. Interleaving the shards' scenes back (shard 0's first scene, shard
-1's first, …) gives the unsharded order, which is how `visphy_core.execute.merge` orders a merged run.
+1's first, …) gives the unsharded order, which is how `visphy_core.execute.merge` orders a merged
+run.
 """
 
 from __future__ import annotations

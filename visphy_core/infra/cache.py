@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, Callable, TypeVar
 
 from visphy_core.infra import files as files_mod
+
 log = logging.getLogger("visphy.cache")
 
 T = TypeVar("T")

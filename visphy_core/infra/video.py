@@ -28,8 +28,12 @@ from typing import Iterator, Sequence
 import av
 import numpy as np
 
-from visphy_core.infra.png import (DeadlineExceeded, FrameRejected, open_untrusted,
-                             read_untrusted_png)
+from visphy_core.infra.png import (
+    DeadlineExceeded,
+    FrameRejected,
+    open_untrusted,
+    read_untrusted_png,
+)
 
 #: x264 settings used for every clip visphy writes. One thread and a fixed preset make the
 #: encoder's output byte-identical for identical frames; crf 12 keeps the flat PHYRE palette
@@ -293,8 +297,8 @@ def read_untrusted_frames(paths: Sequence[str | os.PathLike], width: int, height
     """Untrusted PNG frames (files a sandboxed program could have rewritten) as N×H×W×3 uint8.
 
     At most ``max_frames`` files (the contract's frame count; more is `FrameRejected`); each is
-    read by `visphy_core.infra.png.read_untrusted_png`: no symbolic links, regular files only, a size
-    cap, and its header must say exactly ``width×height`` before it is decoded. The clip's
+    read by `visphy_core.infra.png.read_untrusted_png`: no symbolic links, regular files only, a
+    size cap, and its header must say exactly ``width×height`` before it is decoded. The clip's
     memory is allocated once, at the contract size. ``deadline`` (`time.monotonic`) is checked
     before every frame: past it, `DeadlineExceeded` says how far reading got.
     """

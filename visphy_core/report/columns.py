@@ -3,7 +3,7 @@ other pairings and tracks of the same metrics (see README, *Metrics and scoring 
 
 from __future__ import annotations
 
-from visphy_core.report.run_data import column_direction
+from visphy_core.results.columns import column_direction
 
 #: Groups in display order: (key, heading).
 GROUPS = (

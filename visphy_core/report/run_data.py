@@ -4,8 +4,8 @@ A finished run has ``summary.json`` and ``results.parquet``; a run that was inte
 killed may have only ``results.jsonl`` (with a half-written last line) and ``manifest.json``.
 The report needs the same view of both, so rows come from ``results.jsonl`` (parquet when the
 lines are gone) and, when ``summary.json`` is missing, the summary's counts and means are
-recomputed from the rows with the run's own rule (`visphy_core.execute.run.summarise`: means over model
-successes, and over every scored scene with fallbacks). Nothing here writes to the run.
+recomputed from the rows with the run's own rule (`visphy_core.execute.run.summarise`: means over
+model successes, and over every scored scene with fallbacks). Nothing here writes to the run.
 """
 
 from __future__ import annotations
@@ -16,10 +16,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from visphy_core.infra import files
 from visphy_core.api.errors import UserError
-from visphy_core.execute.pipeline import NOT_EVALUABLE, SceneResult
-from visphy_core.scoring.score import SPEC_PREFIX
+from visphy_core.infra import files
+from visphy_core.results.columns import SPEC_PREFIX, column_direction
+from visphy_core.results.row import NOT_EVALUABLE, SceneResult
 
 #: What a directory needs to be read as a run (any one of them).
 RUN_MARKERS = ("manifest.json", "config.yaml", "results.jsonl", "summary.json")
@@ -163,21 +163,6 @@ def load_run(run_dir: Path) -> RunData:
 
 
 # ------------------------------------------------------------------ a summary from rows
-
-
-def column_direction(column: str, base: dict[str, str]) -> str:
-    """``higher``/``lower`` of a score column from its metric's declared direction: derived
-    pairings keep the metric's direction, variance-normalised scores and judges are ↑,
-    alignment offsets and costs ↓."""
-    if column.startswith("judge_"):
-        return "higher"
-    name = column.removeprefix(SPEC_PREFIX)
-    if name.startswith("norm."):
-        return "higher"
-    name = name.removeprefix("paper.").removesuffix(".aligned")
-    if name.startswith("align."):
-        return "lower"
-    return base.get(name, "higher")
 
 
 def summarise_rows(results: list[SceneResult], manifest: dict[str, Any]) -> dict[str, Any]:

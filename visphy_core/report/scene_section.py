@@ -14,12 +14,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from visphy_core.execute.pipeline import NOT_EVALUABLE, SceneResult
 from visphy_core.report.columns import HEADINGS, PRIMARY, direction_of, grouped, label
 from visphy_core.report.ground_truth import GroundTruth
 from visphy_core.report.markup import arrow, attr, details, esc, fmt, pre, table, url
 from visphy_core.report.media import MediaStore, Placed, clip_timing
 from visphy_core.report.spec_diff import diff_table
+from visphy_core.results.row import NOT_EVALUABLE, SceneResult
 
 #: Untrusted texts longer than this are cut in the page (the file keeps everything).
 MAX_TEXT = 200_000

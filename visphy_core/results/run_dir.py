@@ -16,7 +16,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from visphy_core.infra.cache import content_key
-from visphy_core.execute.pipeline import SceneResult
+from visphy_core.results.row import SceneResult
 
 #: Manifest statuses; every one but "finished" can be resumed by rerunning the same command
 #: ("cost_cap": stopped by run.cost_cap_usd; raise the cap and rerun to continue).

@@ -48,22 +48,40 @@ import tempfile
 import threading
 import time
 import weakref
-from dataclasses import dataclass, field, fields, replace
 from contextlib import contextmanager
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Iterator, Mapping, Sequence
 
 import numpy as np
 
-from visphy_core.sandbox.chromium import (CHROMIUM_UID, MERGE_FEATURES_SH, ChromiumProcess,
-                                          bwrap_for_chromium, bwrap_launcher, chromium_env,
-                                          kill_all, netns_prefix, rss_bytes, sh_quote)
-from visphy_core.sandbox.policy import (ALLOW_UNISOLATED_ENV, set_allow_unisolated,
-                                        unisolated_allowed)
+from visphy_core.sandbox.chromium import (
+    CHROMIUM_UID,
+    MERGE_FEATURES_SH,
+    ChromiumProcess,
+    bwrap_for_chromium,
+    bwrap_launcher,
+    chromium_env,
+    kill_all,
+    netns_prefix,
+    rss_bytes,
+    sh_quote,
+)
+from visphy_core.sandbox.policy import (
+    ALLOW_UNISOLATED_ENV,
+    set_allow_unisolated,
+    unisolated_allowed,
+)
 from visphy_core.sandbox.prepared import PreparedPage, discard, open_page
 from visphy_core.sandbox.readback import frame_from_capture, png_bytes_to_rgb
-from visphy_core.sandbox.routing import (ORIGIN, ORIGIN_HOST, Asset, close_quietly,  # noqa: F401
-                                         on_console, on_popup)
+from visphy_core.sandbox.routing import (  # noqa: F401
+    ORIGIN,
+    ORIGIN_HOST,
+    Asset,
+    close_quietly,
+    on_console,
+    on_popup,
+)
 
 VIRTUAL_TIME_JS = (Path(__file__).with_name("virtual_time.js")).read_text()
 CAPTURE_MODES = ("canvas", "screenshot")

@@ -19,8 +19,14 @@ import asyncio
 from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
-from visphy_core.sandbox.routing import (ORIGIN, Asset, PageSlot, close_quietly, make_router,
-                                         make_ws_router)
+from visphy_core.sandbox.routing import (
+    ORIGIN,
+    Asset,
+    PageSlot,
+    close_quietly,
+    make_router,
+    make_ws_router,
+)
 
 #: Loads the given script URLs into the current (blank) document and waits for each to load or
 #: fail; runs in the page before any program, with no virtual clock installed.

@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import errno
 import functools
-import glob
 import importlib.machinery
 import importlib.util
 import os

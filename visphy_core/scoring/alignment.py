@@ -47,7 +47,8 @@ class AlignParams:
     dtw_size: int = 48
     dtw_step_penalty: float = 0.005
     # "visphy": this module's search (DTW, when on, replaces it); "upstream": the paper
-    # protocol's rules (visphy_core.scoring.paper_protocol; DTW, when on, runs after the offset step)
+    # protocol's rules (visphy_core.scoring.paper_protocol; DTW, when on, runs after the offset
+    # step)
     rules: str = "visphy"
 
 

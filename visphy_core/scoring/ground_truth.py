@@ -1,8 +1,8 @@
 """A scene's ground-truth artefacts, computed once and kept with the data: the twin's render and
 the anchors of variance normalisation and of the headline.
 
-Normalising a scene (`visphy_core.scoring.normalisation`) needs two clips that depend on the scene and
-the engine only, never on the model: the **twin** (the ground truth re-simulated after an
+Normalising a scene (`visphy_core.scoring.normalisation`) needs two clips that depend on the scene
+and the engine only, never on the model: the **twin** (the ground truth re-simulated after an
 imperceptible nudge, replayed by the engine's reference program) and the **frozen clip** (the
 first key frame held). Their scores against the ground truth — the ceiling and the floor of
 every frame and sequence metric — are the same for every model and every run. They are
@@ -41,8 +41,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from visphy_core.infra.cache import Cache, CorruptEntry, content_key, read_json
 from visphy_core.api.metrics import SCENE, Metric
+from visphy_core.infra.cache import Cache, CorruptEntry, content_key, read_json
 
 if TYPE_CHECKING:
     from visphy_core.api.engine import RenderContract

@@ -43,9 +43,8 @@ import numpy as np
 
 from visphy_core.api.metrics import HIGHER
 from visphy_core.api.scene import Scene
-from visphy_core.scoring.score import SPEC_PREFIX
+from visphy_core.results.columns import NORM_PREFIX, norm_column  # noqa: F401
 
-NORM_PREFIX = "norm."
 NUDGE_PX = 0.25        # 2D: a quarter pixel
 NUDGE_M = 0.001        # 3D: 1 mm (≈ 0.1 px at the benchmark's camera distances)
 SPEED_JITTER = 0.002   # relative
@@ -110,10 +109,3 @@ def normalised(value: float | None, floor: float | None, ceiling: float | None,
         return None, ("the twin is not better than the frozen clip on this scene "
                       f"(ceiling {ceiling:.6g}, floor {floor:.6g})")
     return (value - floor) / (ceiling - floor), None
-
-
-def norm_column(column: str) -> str:
-    """``psnr`` → ``norm.psnr``; ``spec.psnr`` → ``spec.norm.psnr``."""
-    if column.startswith(SPEC_PREFIX):
-        return SPEC_PREFIX + NORM_PREFIX + column[len(SPEC_PREFIX):]
-    return NORM_PREFIX + column

@@ -1,8 +1,8 @@
 """Scoring one scene's outputs: metrics, judges, the spec track and variance normalisation.
 
 Shared by the pipeline (right after a scene's clip is made) and by re-scoring
-(`visphy_core.execute.rescore`: a finished run directory scored again with other metrics or judges), so
-both write the same columns, the same per-scene files and hit the same cache entries.
+(`visphy_core.execute.rescore`: a finished run directory scored again with other metrics or judges),
+so both write the same columns, the same per-scene files and hit the same cache entries.
 
 The only step that differs is where the trusted reference program's clips come from (S replayed
 for the spec track, the ground truth's twin for normalisation): a run renders them with its
@@ -21,26 +21,26 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from visphy_core.scoring.ground_truth import scene_anchors
-from visphy_core.scoring.headline import Headline, scene_headline
-from visphy_core.infra.files import atomic_write
-from visphy_core.infra.cache import Cache, content_key
-from visphy_core.execute.console import StageEvents
 from visphy_core.api.engine import RenderContract
 from visphy_core.api.judge import JudgeInput
-from visphy_core.calls.judging import JudgeCaller
 from visphy_core.api.metrics import SCENE, Metric
-from visphy_core.scoring.normalisation import norm_column, normalised, perturbation
-from visphy_core.calls.references import ReferenceWriter
 from visphy_core.api.scene import Scene
-from visphy_core.scoring.score import (SPEC_PREFIX, ScoringProtocol, clip_digest, score_columns,
-                                 score_scene)
+from visphy_core.calls.judging import JudgeCaller
+from visphy_core.calls.references import ReferenceWriter
 from visphy_core.calls.secrets import redact
+from visphy_core.execute.console import StageEvents
+from visphy_core.infra.cache import Cache, content_key
+from visphy_core.infra.files import atomic_write
 from visphy_core.infra.video import decode_video, encode_video
+from visphy_core.results.columns import SPEC_PREFIX, norm_column
+from visphy_core.scoring.ground_truth import scene_anchors
+from visphy_core.scoring.headline import Headline, scene_headline
+from visphy_core.scoring.normalisation import normalised, perturbation
+from visphy_core.scoring.score import ScoringProtocol, clip_digest, score_columns, score_scene
 
 if TYPE_CHECKING:
     from visphy_core.api.engine import Program
-    from visphy_core.execute.pipeline import SceneResult
+    from visphy_core.results.row import SceneResult
 
 
 def one_line(text: str) -> str:

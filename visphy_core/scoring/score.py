@@ -21,7 +21,8 @@ The ``paper`` pairing follows upstream's ``evaluate_pair`` on the generated clip
 frames in decode order, stretched to the reference's size), not on the clip brought to the
 contract by time: upstream reads no timestamps, so a clip at a foreign frame rate is paired by
 index there (`paper_clip`). Its ``paper.psnr`` and ``paper.ssim`` are upstream's own frame
-scores (`visphy_core.scoring.paper_protocol.FRAME_SCORES`), averaged over the pairs that gave a number.
+scores (`visphy_core.scoring.paper_protocol.FRAME_SCORES`), averaged over the pairs that gave a
+number.
 
 A ``scene`` metric (text, spec) has one column. Values are cached by the content of both clips,
 the pairing and the metric's identity, so re-scoring never recomputes.
@@ -33,19 +34,27 @@ import copy
 import hashlib
 import json
 import math
-
 from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
-from visphy_core.scoring.alignment import EVERY_FRAME, PAPER, AlignParams, Alignment, align, unaligned
-from visphy_core.scoring import paper_protocol
-from visphy_core.infra.cache import Cache, content_key
 from visphy_core.api.metrics import HIGHER, LOWER, PAIRS, SCENE, Metric, MetricInput
 from visphy_core.api.scene import Scene
+from visphy_core.infra.cache import Cache, content_key
 from visphy_core.infra.video import resample_by_time, resize_with_padding
-from visphy_core.scoring import weights
+from visphy_core.results.columns import SPEC_PREFIX, norm_column
+from visphy_core.scoring import paper_protocol, weights
+from visphy_core.scoring.alignment import (
+    EVERY_FRAME,
+    PAPER,
+    Alignment,
+    AlignParams,
+    align,
+    unaligned,
+)
+
+
 def clip_digest(frames: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(frames).tobytes()).hexdigest()
 
@@ -55,7 +64,8 @@ def to_contract(scene: Scene, generated: np.ndarray,
     """``generated`` as the scene's clip (fps, frame count, size), paired by time.
 
     With ``generated_times_s`` (each frame's presentation time in seconds, e.g. from
-    `visphy_core.infra.video.decode_video_timed`) the frame shown at k / fps becomes frame k. Without
+    `visphy_core.infra.video.decode_video_timed`) the frame shown at k / fps becomes frame k.
+    Without
     them the clip must already have the contract's frame count (a render made to the contract):
     only its size is fitted; a different frame count is refused rather than paired by index.
     """
@@ -141,7 +151,6 @@ def _align_columns(view: str) -> list[tuple[str, str]]:
     return [(f"{prefix}.offset", LOWER), (f"{prefix}.err", LOWER)]
 
 
-SPEC_PREFIX = "spec."  # the spec track's columns (visphy_core.spec.spec_track)
 
 
 def score_columns(metrics: list[Metric], protocol: ScoringProtocol | None = None
@@ -152,7 +161,6 @@ def score_columns(metrics: list[Metric], protocol: ScoringProtocol | None = None
     protocol = protocol or ScoringProtocol()
     frame = [m for m in metrics if m.kind != SCENE]
     if protocol.variance_norm:
-        from visphy_core.scoring.normalisation import norm_column
 
         plain = replace(protocol, variance_norm=False)
         prefixes = ("", SPEC_PREFIX) if protocol.spec_track else ("",)

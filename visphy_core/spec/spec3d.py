@@ -37,6 +37,7 @@ from typing import Any
 import jsonschema
 import numpy as np
 
+from visphy_core.api.scene import SPEC_SCHEMA
 from visphy_core.spec.spec2d import (  # schema building blocks shared with the 2D schema
     _CONTACT,
     _EVENT,
@@ -51,7 +52,6 @@ from visphy_core.spec.spec2d import (  # schema building blocks shared with the 
     _path,
     _shape_case,
 )
-from visphy_core.api.scene import SPEC_SCHEMA
 
 #: Constants of the generated 3D subset (MISSION §5): a spec with profile "visphybench-3d" must
 #: use them.

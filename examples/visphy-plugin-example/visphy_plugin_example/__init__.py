@@ -41,8 +41,9 @@ class StillModel(Model):
 
     def generate(self, request: ModelRequest) -> ModelResponse:
         first = request.images[0]
-        from PIL import Image
         import io
+
+        from PIL import Image
 
         w, h = Image.open(io.BytesIO(first.png)).size
         html = PAGE.format(png=base64.b64encode(first.png).decode(), w=w, h=h)

@@ -27,10 +27,10 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
+from visphy_core.api.scene import SPEC_SCHEMA
+from visphy_core.spec.spec2d import PHYRE_PROFILE, category_of, local_polygons, transform_points
 from visphy_plugins.datasets.visphybench.filters import window_mask
 from visphy_plugins.datasets.visphybench.raster2d import PALETTE
-from visphy_core.spec.spec2d import PHYRE_PROFILE, category_of, local_polygons, transform_points
-from visphy_core.api.scene import SPEC_SCHEMA
 
 BAR = PHYRE_PROFILE["bar_thickness_px"]  # 10.24 px, PHYRE bars are W/50 thick
 CANVAS = tuple(int(v) for v in PHYRE_PROFILE["canvas_px"])  # (512, 512)

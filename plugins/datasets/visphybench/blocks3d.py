@@ -14,6 +14,7 @@ from typing import Callable
 
 import numpy as np
 
+from visphy_core.api.scene import SPEC_SCHEMA
 from visphy_core.spec.spec3d import (
     FLOOR_ID,
     IDENTITY_QUAT,
@@ -26,7 +27,6 @@ from visphy_core.spec.spec3d import (
     shape_parts,
     transform_points_3d,
 )
-from visphy_core.api.scene import SPEC_SCHEMA
 
 try:  # share the dataclass with the 2D templates when they exist (and import cleanly)
     from visphy_plugins.datasets.visphybench.templates_2d import Template

@@ -1,7 +1,7 @@
 """Write the generated VisPhyBench to disk: the VisPhyBench layout plus visphy's exact ground truth.
 
-``<data_dir>/visphybench-v<version>-seed<seed>[-lossless]/`` holds ``catalogue.json`` (every scene's annotated spec,
-labels, splits, rejection counts: simulated, not rendered), and per rendered scene
+``<data_dir>/visphybench-v<version>-seed<seed>[-lossless]/`` holds ``catalogue.json`` (every scene's
+annotated spec, labels, splits, rejection counts: simulated, not rendered), and per rendered scene
 ``videos/<id>.mp4``, ``detection_json/<id>_frame_01.json``, ``keyframes/<id>_frame_01.png`` and
 ``_frame_10.png``, ``specs/<id>.json``, ``trajectories/<id>.npz`` and ``meta/<id>.json`` (written
 last: its presence means the scene is complete). ``metadata.jsonl``, ``difficulty_table.json``
@@ -23,9 +23,12 @@ import numpy as np
 from visphy_core.infra.files import atomic_write
 from visphy_core.infra.png import png_bytes
 from visphy_core.infra.video import PUBLISHED_CRF
-
-from visphy_plugins.datasets.visphybench.catalogue import (GENERATOR_VERSION, Catalogue, Entry,
-                                                            build_catalogue)
+from visphy_plugins.datasets.visphybench.catalogue import (
+    GENERATOR_VERSION,
+    Catalogue,
+    Entry,
+    build_catalogue,
+)
 
 #: The written files' version (= the generator's): a build of another version is never mixed
 #: with this one (each version has its own folder, `dataset_root`).
@@ -258,8 +261,8 @@ def _write_indexes(root: Path, catalogue: Catalogue, metas: list[dict],
 def _write_previews(root: Path, metas: list[dict]) -> None:
     from PIL import Image
 
-    from visphy_plugins.datasets.visphybench.preview import write_contact_sheet, write_preview
     from visphy_core.infra.video import decode_video
+    from visphy_plugins.datasets.visphybench.preview import write_contact_sheet, write_preview
 
     firsts = [(m["scene_id"], np.asarray(Image.open(
         root / "keyframes" / f"{m['scene_id']}_frame_01.png").convert("RGB"))) for m in metas]

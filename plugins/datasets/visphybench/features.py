@@ -23,8 +23,8 @@ import math
 
 import numpy as np
 
-from visphy_plugins.physics.box2d import Rollout, simulate_2d, total_steps
 from visphy_plugins.datasets.visphybench.raster2d import PALETTE
+from visphy_plugins.physics.box2d import Rollout, simulate_2d, total_steps
 
 PERTURB_PX = 0.5
 CHAOTIC_PX = 16.0

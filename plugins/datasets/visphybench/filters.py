@@ -24,8 +24,8 @@ import math
 
 import numpy as np
 
-from visphy_plugins.physics.box2d import Rollout, total_steps
 from visphy_core.spec.spec2d import local_polygons, transform_points
+from visphy_plugins.physics.box2d import Rollout, total_steps
 
 REASONS = ("overlap", "offscreen", "static", "tunnelling", "speed_cap")
 MIN_MOTION_PX = 15.0

@@ -5,8 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from visphy_core.infra import files
 from visphy_core.api.scene import Scene
+from visphy_core.infra import files
 from visphy_core.infra.video import ClipInfo
 
 

@@ -1,6 +1,7 @@
 """The reference clip of a 3D scene: the ground-truth poses replayed by three.js in Chromium.
 
-`visphy_core.spec.replay.replay_html_3d` fills ``visphy_core/spec/replay3d.html`` with a JSON payload
+`visphy_core.spec.replay.replay_html_3d` fills ``visphy_core/spec/replay3d.html`` with a JSON
+payload
 (camera, lights, floor, bodies' shapes and colours, per-frame poses); it is a pure function of
 (spec, poses, fps, n_frames), and the threejs engine's reference program for 3D scenes is the
 same page. `render_clip_3d` renders it in the sandbox's virtual time (frame k captured at

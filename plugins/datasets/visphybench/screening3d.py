@@ -95,8 +95,8 @@ def _projected_circles(spec: dict, frame_poses: np.ndarray, radii: np.ndarray
 def sensitivity_px_3d(spec: dict, rollout) -> float:
     """Max final-frame displacement (px) of any body's projected centre when the action ball
     starts 1 mm further along +x (one extra simulation)."""
-    from visphy_plugins.physics.cannon import simulate_3d
     from visphy_plugins.datasets.visphybench.detection3d import project_points
+    from visphy_plugins.physics.cannon import simulate_3d
 
     idx = action_index_3d(spec)
     if idx is None:

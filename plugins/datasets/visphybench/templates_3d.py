@@ -26,9 +26,9 @@ import numpy as np
 
 from visphy_core.spec.spec3d import IDENTITY_QUAT, validate_spec_3d
 from visphy_plugins.datasets.visphybench.blocks3d import (
-    G,
     GAP,
     QUAT_Y_PI,
+    G,
     Template,
     Wedge,
     add_backstop,
@@ -54,6 +54,7 @@ from visphy_plugins.datasets.visphybench.screening3d import (  # noqa: F401 - re
     difficulty_features_3d,
     validity_problems_3d,
 )
+
 
 # ------------------------------------------------------------------------------ templates
 def _t01_ramp_to_container(rng: np.random.Generator, variant: int) -> dict:

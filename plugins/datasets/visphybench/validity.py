@@ -24,11 +24,11 @@ from typing import Callable, Iterable
 import numpy as np
 from scipy.stats import spearmanr
 
-from visphy_core.infra.cache import Cache
 from visphy_core.api.metrics import LOWER, SCENE, Metric
 from visphy_core.api.scene import Scene
-from visphy_core.scoring.score import ScoringProtocol, score_scene
+from visphy_core.infra.cache import Cache
 from visphy_core.infra.video import ClipInfo
+from visphy_core.scoring.score import ScoringProtocol, score_scene
 
 STEPS = 5
 #: one step: +0.08 restitution or friction, or ×1.08 initial speed or gravity; small enough to
@@ -88,8 +88,8 @@ def revealed(spec: dict, param: str) -> bool:
 
 def clip_2d(spec: dict) -> np.ndarray:
     """The clip of a 2D spec: Box2D rollout, rendered like the ground truth (raw frames)."""
-    from visphy_plugins.physics.box2d import simulate_2d
     from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
+    from visphy_plugins.physics.box2d import simulate_2d
 
     return render_clip_2d(spec, simulate_2d(spec).frame_poses)
 

@@ -41,9 +41,9 @@ ground truth X (the raw render, no codec) under visphy's unaligned pairing:
 
 Scores: every frame and sequence metric of the suite (`visphy_core.scoring.score.score_scene`,
 ``ScoringProtocol(unaligned=True, aligned=False, paper=False)``) and the headline
-(`visphy_core.scoring.headline.scene_headline`): floor = the static clip's component values, ceiling =
-the twin's (`visphy_core.scoring.normalisation.twin_spec`, simulated and drawn like the truth), so the
-static clip scores exactly 0 on the headline.
+(`visphy_core.scoring.headline.scene_headline`): floor = the static clip's component values, ceiling
+= the twin's (`visphy_core.scoring.normalisation.twin_spec`, simulated and drawn like the truth), so
+the static clip scores exactly 0 on the headline.
 
 Ordering (`order_of`), per scene and score, in the score's good direction (a lower-is-better
 value is negated), over the clips whose value is defined:
@@ -71,9 +71,9 @@ from typing import Any, Callable, Iterable, Protocol
 
 import numpy as np
 
+from visphy_core.api.metrics import HIGHER, SCENE, Metric
 from visphy_core.infra.cache import Cache
 from visphy_core.scoring.headline import Headline, scene_headline
-from visphy_core.api.metrics import HIGHER, SCENE, Metric
 from visphy_core.scoring.score import ScoringProtocol, score_scene
 from visphy_plugins.datasets.visphybench.validity import _materials, scene_of
 

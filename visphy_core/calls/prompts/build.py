@@ -18,10 +18,9 @@ from functools import lru_cache
 from pathlib import Path
 from string import Template
 
-
 from visphy_core.api.model import ImageInput
-from visphy_core.infra.png import png_bytes
 from visphy_core.api.scene import Scene
+from visphy_core.infra.png import png_bytes
 
 _DIR = Path(__file__).parent
 
