@@ -286,7 +286,7 @@ def test_find_and_load_runs(tmp_path):
     runs = load_runs([tmp_path / "sweep"])
     assert [r.label for r in runs] == ["m/threejs", "static/threejs"]
     # a study's sweep folder: its job records point at runs kept elsewhere (paths.runs_dir)
-    from visphy_core.study.records import write_job
+    from visphy_core.results.study_records import write_job
 
     elsewhere = make_run(tmp_path / "runs", "run_c", rows, model="flow").run_dir
     write_job(tmp_path / "study" / "jobs" / "0", num=0, status="completed",

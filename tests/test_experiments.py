@@ -217,7 +217,7 @@ def test_judge_replacement_against_the_fake_servers_tabulates_agreement(judge_st
 
 
 def _fake_study(tmp_path: Path, jobs: list[dict]) -> Path:
-    from visphy_core.study import records
+    from visphy_core.results import study_records as records
 
     sweep = tmp_path / "studies" / "leaderboard-x"
     records.write_json(records.study_file(sweep), {"name": "leaderboard", "status": "running",

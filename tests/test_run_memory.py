@@ -238,8 +238,8 @@ class _Scene:
 def _run_scenes(scenes, workers: int, budget_mpx: str, monkeypatch) -> list[int]:
     """Each scene renders, then scores for a while; returns the clip pixels scoring at once,
     as seen from inside every score stage."""
-    from visphy_core.execute.console import StageEvents
     from visphy_core.execute.scheduler import SCORE_PIXELS_ENV, SceneScheduler, StageGates
+    from visphy_core.infra.events import StageEvents
 
     monkeypatch.setenv(SCORE_PIXELS_ENV, budget_mpx)
     gates = StageGates(StageEvents(), workers)
@@ -281,8 +281,8 @@ def test_2d_scenes_score_side_by_side_and_beside_a_3d_scene(monkeypatch):
 
 
 def test_a_scene_waiting_for_scoring_memory_is_abandoned_on_cancel(monkeypatch):
-    from visphy_core.execute.console import StageEvents
     from visphy_core.execute.scheduler import SCORE_PIXELS_ENV, SceneCancelled, StageGates
+    from visphy_core.infra.events import StageEvents
 
     monkeypatch.setenv(SCORE_PIXELS_ENV, "32")
     gates = StageGates(StageEvents(), 2)
@@ -322,8 +322,8 @@ def test_3d_scenes_in_flight_are_fewer_than_the_threads(monkeypatch):
     """Scenes hold their decoded ground truth from their start: with 3D clips, no more of them
     are taken than `INFLIGHT_PIXELS` allows, though threads are free (and without the limit
     they are)."""
-    from visphy_core.execute.console import StageEvents
     from visphy_core.execute.scheduler import INFLIGHT_PIXELS_ENV, SceneScheduler, StageGates
+    from visphy_core.infra.events import StageEvents
 
     def run(limit: str) -> tuple[int, int]:
         monkeypatch.setenv(INFLIGHT_PIXELS_ENV, limit)

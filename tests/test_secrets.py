@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from visphy_core.calls.secrets import is_secret_name, redact, redact_obj, secret_values
+from visphy_core.infra.secrets import is_secret_name, redact, redact_obj, secret_values
 
 
 def test_secret_names_by_marker_and_by_explicit_list():
@@ -48,7 +48,7 @@ def test_redact_reads_the_process_environment_by_default(monkeypatch):
 
 
 def test_credentials_are_redacted_by_their_shape_wherever_they_come_from():
-    from visphy_core.calls.secrets import redact
+    from visphy_core.infra.secrets import redact
 
     cases = {
         "DATABASE_URL=postgres://u:password@db/x": "postgres://[REDACTED]@db/x",
@@ -72,7 +72,7 @@ def test_credentials_are_redacted_by_their_shape_wherever_they_come_from():
 
 
 def test_public_config_strips_url_credentials_and_secret_values():
-    from visphy_core.calls.secrets import public_config, public_url
+    from visphy_core.infra.secrets import public_config, public_url
 
     assert public_url("https://user:pa55@api.example/v1") == "https://api.example/v1"
     cfg = {"model": {"base_url": "http://u:p4ssw0rd@127.0.0.1:9/v1", "name": "x"},
@@ -84,7 +84,8 @@ def test_public_config_strips_url_credentials_and_secret_values():
 
 def test_dotenv_secrets_are_registered_and_redacted_without_being_looked_up(tmp_path,
                                                                             monkeypatch):
-    from visphy_core.calls import keys, secrets
+    from visphy_core.calls import keys
+    from visphy_core.infra import secrets
     env = tmp_path / ".env"
     env.write_text("MY_SERVICE_TOKEN=t0ken-value-123\nPLAIN=not-a-secret-xyz\n"
                    "VISPHY_SECRET_ENV=ODD_NAME\nODD_NAME=odd-value-456\n")
@@ -111,7 +112,7 @@ def test_a_bad_dotenv_is_a_user_error_naming_the_file(tmp_path, monkeypatch):
 def test_log_records_are_redacted_when_formatted(monkeypatch):
     import logging
 
-    from visphy_core.calls.secrets import install_log_redaction
+    from visphy_core.infra.secrets import install_log_redaction
 
     previous = logging.getLogRecordFactory()
     install_log_redaction()

@@ -9,7 +9,7 @@ import pytest
 from conftest import run_cli
 from visphy_core.config.check import ConfigError, check_overrides, compose
 from visphy_core.execute.datasets import load_dataset
-from visphy_core.execute.shard import interleave, parse_shard, select_shard
+from visphy_core.infra.shard import interleave, parse_shard, select_shard
 
 
 @pytest.mark.parametrize("size", [0, 1, 2, 7, 12])

@@ -20,7 +20,7 @@ import pytest
 from rich.console import Console
 
 from conftest import REPO, run_cli
-from visphy_core.execute.console import StageEvents, StageProgress, stage_progress
+from visphy_core.execute.console import StageProgress, stage_progress
 from visphy_core.execute.run import STAGE_FIELDS
 from visphy_core.execute.scheduler import (
     SceneCancelled,
@@ -29,6 +29,7 @@ from visphy_core.execute.scheduler import (
     resolve_workers,
     usable_cores,
 )
+from visphy_core.infra.events import StageEvents
 
 # --------------------------------------------------------------------------- one vs two workers
 

@@ -95,7 +95,7 @@ def log_params(client, run_id: str, params: dict[str, Any]) -> None:
     """Params in batches (one request per 100 over a tracking server); MLflow's length limits."""
     from mlflow.entities import Param
 
-    from visphy_core.calls.secrets import public_config
+    from visphy_core.infra.secrets import public_config
 
     client.log_batch(run_id, params=[Param(key[:250], str(public_config(str(value)))[:6000])
                                      for key, value in sorted(params.items())])
@@ -187,7 +187,7 @@ def end_study_run(parent: dict[str, str], status: str, metrics: dict[str, float]
 
 def _study_parent(uri: str) -> tuple[dict, dict] | None:
     """(job record, parent run) when this run is a job of a study tracked in the same store."""
-    from visphy_core.study.records import current_job
+    from visphy_core.results.study_records import current_job
 
     found = current_job()
     if found is None:

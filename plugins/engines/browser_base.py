@@ -528,7 +528,7 @@ class BrowserEngine(Engine):
             lines.append("[visphy] two three.js instances were loaded in this page (three.js "
                          f"warned: {THREE_TWICE}); the page references "
                          + (", ".join(builds.values()) or "no vendored build"))
-        from visphy_core.calls.secrets import redact
+        from visphy_core.infra.secrets import redact
 
         result.logs += [redact(line) for line in lines]  # last: the cached log keeps its tail
 
@@ -594,7 +594,7 @@ def classify_capture(cap: PageCapture, contract: RenderContract,
     """Turn what the page did into frames or a failure class, with the evidence in the logs,
     and the flags of what was done to it (`RenderFlag`; ``expects_recording_call``: flag a page
     that never called ``setupRecording``)."""
-    from visphy_core.calls.secrets import redact, redact_obj
+    from visphy_core.infra.secrets import redact, redact_obj
 
     logs = list(cap.errors) + list(cap.console)
     logs += [f"blocked request: {url}" for url in cap.blocked_requests]

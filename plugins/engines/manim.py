@@ -87,8 +87,8 @@ from visphy_core.api.extract import extract_code, extract_spec
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.scene import Scene
 from visphy_core.api.settings import cfg_get
-from visphy_core.calls.secrets import redact
 from visphy_core.infra.png import DeadlineExceeded, FrameRejected
+from visphy_core.infra.secrets import redact
 from visphy_core.sandbox.process import (
     Limits,
     ProcessResult,

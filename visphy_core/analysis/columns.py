@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from visphy_core.api.errors import UserError
+from visphy_core.infra.errors import UserError
 from visphy_core.results.columns import SPEC_PREFIX
 from visphy_core.results.row import NOT_EVALUABLE
 

@@ -20,8 +20,8 @@ from typing import Any, Iterable
 import pandas as pd
 
 from visphy_core.analysis.human import read_ratings
-from visphy_core.api.errors import UserError
 from visphy_core.infra import files
+from visphy_core.infra.errors import UserError
 
 SUMMARY = "summary.json"
 #: The scene-row fields the analysis reads, with the value a row without the field means.
@@ -120,7 +120,7 @@ def find_runs(*paths: str | Path) -> list[Path]:
 def _study_runs(folder: Path) -> list[Path]:
     """The run directories a study's job records under ``folder`` point at (a study's runs live
     in ``paths.runs_dir``, not in its sweep folder), in job order."""
-    from visphy_core.study.records import read_jobs
+    from visphy_core.results.study_records import read_jobs
 
     out = []
     for job in read_jobs(folder):

@@ -41,7 +41,7 @@ from visphy_core.analysis.columns import (
 from visphy_core.analysis.export import to_markdown, write_table
 from visphy_core.analysis.human import summarise_ratings
 from visphy_core.analysis.load import RunData, label_runs
-from visphy_core.api.errors import UserError
+from visphy_core.infra.errors import UserError
 
 #: What each study produces (besides the runs table and the leaderboard, always there).
 STUDIES: dict[str, tuple[str, ...]] = {

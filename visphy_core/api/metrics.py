@@ -23,17 +23,43 @@ from __future__ import annotations
 
 from abc import ABC
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from visphy_core.api.scene import Scene
 
-if TYPE_CHECKING:  # pragma: no cover
-    from visphy_core.scoring.alignment import Alignment
-
 HIGHER, LOWER = "higher", "lower"
 PAIRS, SEQUENCE, SCENE = "pairs", "sequence", "scene"
+
+
+@dataclass
+class Alignment:
+    """Which generated frame is paired with each reference frame (`visphy_core.scoring.alignment`
+    makes it; a ``sequence`` metric reads it)."""
+
+    ref_idx: np.ndarray            # reference frame indices, in time order
+    gen_idx: np.ndarray            # the generated frame paired with each
+    offset: int = 0                # generated = reference + offset (frames of the input clips)
+    align_err: float = 0.0         # the cost of the chosen pairing, penalty excluded
+    method: str = "unaligned"      # unaligned | offset | dtw
+    candidates: list[tuple[int, float]] = field(default_factory=list)  # (offset, cost) refined
+
+    @property
+    def n_pairs(self) -> int:
+        return int(len(self.ref_idx))
+
+    def pairs(self) -> list[tuple[int, int]]:
+        return list(zip(self.ref_idx.tolist(), self.gen_idx.tolist()))
+
+
+
+
+def unaligned(n_ref: int, n_gen: int) -> Alignment:
+    """Frame k with frame k (both clips already on the reference's time grid)."""
+    n = min(n_ref, n_gen)
+    idx = np.arange(n)
+    return Alignment(ref_idx=idx, gen_idx=idx.copy(), offset=0, align_err=0.0,
+                     method="unaligned")
 
 
 @dataclass

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from visphy_core.infra.errors import SceneDataError, one_line
 from visphy_core.infra.video import ClipInfo, decode_video
 
 #: Version tag of the scene specification schema (`visphy_core/spec/spec2d.py`).
@@ -37,11 +38,6 @@ def scene_dim(scene_id: str) -> str:
         f"scene id {scene_id!r} is neither 2D (taskNNNNN_NNN) nor 3D (NN_tmpl_NN) nor a "
         "generated id (vpb3-s0-2d-t001-v00)"
     )
-
-
-class SceneDataError(ValueError):
-    """A bad input of one scene (a malformed or missing file): the scene's row is ``data_error``,
-    the run goes on. The message is one line naming the file."""
 
 
 def read_json(path: Path) -> Any:
@@ -97,7 +93,7 @@ class Scene:
             with npz:
                 return {k: npz[k] for k in npz.files}
         except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
-            reason = "not an .npz archive" if "pickle" in str(exc) else _one_line(str(exc))
+            reason = "not an .npz archive" if "pickle" in str(exc) else one_line(str(exc))
             raise ValueError(f"unreadable trajectory {path}: {reason}") from None
 
     def reference_frames(self) -> np.ndarray:
@@ -114,7 +110,7 @@ class Scene:
         clip does not have.
         """
         if self.load_error:
-            raise SceneDataError(_one_line(self.load_error))
+            raise SceneDataError(one_line(self.load_error))
         for path, read in ((self.detection_path, lambda: self.detection),
                            (self.spec_path, lambda: self.spec),
                            (self.trajectory_path, lambda: self.trajectory)):
@@ -167,13 +163,9 @@ class Scene:
         return frames[index - 1]
 
 
-def _one_line(text: str) -> str:
-    return " ".join(str(text).split())
-
-
 def _describe(exc: BaseException, path: Path) -> str:
     """One line for a failed read, naming the file even when the exception does not."""
-    message = _one_line(str(exc)) or type(exc).__name__
+    message = one_line(str(exc)) or type(exc).__name__
     if str(path) not in message:
         message = f"{path}: {type(exc).__name__}: {message}"
     return message[:500]

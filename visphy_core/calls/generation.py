@@ -24,9 +24,9 @@ from pathlib import Path
 from typing import Any, Awaitable, Coroutine, TypeVar
 
 from visphy_core.api.model import Model, ModelRequest, ModelResponse
-from visphy_core.calls.secrets import redact, redact_obj
 from visphy_core.calls.usage import CallRecord, UsageLedger
 from visphy_core.infra.cache import Cache, CorruptEntry, read_json
+from visphy_core.infra.secrets import redact, redact_obj
 
 T = TypeVar("T")
 

@@ -12,9 +12,9 @@ from pathlib import Path
 
 from visphy_core.api.judge import Judge, JudgeInput, Verdict
 from visphy_core.calls.generation import GenerationService, get_service
-from visphy_core.calls.secrets import redact
 from visphy_core.calls.usage import CallRecord, UsageLedger
 from visphy_core.infra.cache import Cache, content_key, read_json
+from visphy_core.infra.secrets import redact
 
 
 def _verdict_from_entry(entry: Path) -> Verdict:

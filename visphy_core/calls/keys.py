@@ -2,7 +2,7 @@
 
 Lookup order for a variable such as ``ANTHROPIC_API_KEY``: the process environment, then
 ``$VISPHY_ENV_FILE`` when set, else ``.env`` in the working directory, then ``.env`` in
-``$VISPHY_HOME``. A key read from a file is registered with `visphy_core.calls.secrets`, so
+``$VISPHY_HOME``. A key read from a file is registered with `visphy_core.infra.secrets`, so
 redaction
 covers it exactly like an exported one. The key never enters ``os.environ``: the sandboxes start
 from allow-listed environments anyway, and a key that is not exported cannot leak through one.
@@ -14,8 +14,8 @@ import io
 import os
 from pathlib import Path
 
-from visphy_core.api.errors import UserError
-from visphy_core.calls.secrets import SECRET_ENV_LIST, is_secret_name, register_secret
+from visphy_core.infra.errors import UserError
+from visphy_core.infra.secrets import SECRET_ENV_LIST, is_secret_name, register_secret
 
 
 class MissingKey(UserError):
@@ -69,7 +69,7 @@ def read_env_file(path: Path) -> dict[str, str]:
 
 def register_env_files() -> None:
     """Register every secret of the ``.env`` files (by name, or listed in
-    ``VISPHY_SECRET_ENV`` of the environment or of the file) with `visphy_core.calls.secrets`, so
+    ``VISPHY_SECRET_ENV`` of the environment or of the file) with `visphy_core.infra.secrets`, so
     redaction covers them even when no key is looked up. The CLI calls it first: a bad ``.env``
     is one line before any work."""
     for path in env_files():

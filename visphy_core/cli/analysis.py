@@ -37,7 +37,7 @@ def cmd_analyse(argv: list[str]) -> int:
     from visphy_core.analysis.load import load_runs
     from visphy_core.analysis.printing import print_study
     from visphy_core.analysis.study import analyse
-    from visphy_core.api.errors import UserError
+    from visphy_core.infra.errors import UserError
 
     if args.resamples < 100:
         raise UserError(f"--resamples {args.resamples}: use at least 100")

@@ -21,7 +21,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-from visphy_core.execute.console import StageEvents
+from visphy_core.infra.events import StageEvents
 
 
 class _RenderLane(StageEvents):
@@ -57,15 +57,15 @@ def prepare(overrides: list[str], workers: int = 2, progress: bool = True) -> in
     from rich.progress import Progress
 
     from visphy_core.api.engine import RenderContract
-    from visphy_core.api.errors import UserError
     from visphy_core.api.registry import get_registry
     from visphy_core.config.check import compose
     from visphy_core.execute.datasets import load_dataset
     from visphy_core.execute.pipeline import EngineReferenceClips
     from visphy_core.execute.scheduler import pin_torch_threads
     from visphy_core.infra.cache import Cache
+    from visphy_core.infra.errors import UserError
     from visphy_core.scoring.ground_truth import open_store, scene_anchors, store_path, writable
-    from visphy_core.scoring.scene_scores import ReferenceClipUnavailable
+    from visphy_core.scoring.reference_clips import ReferenceClipUnavailable
     from visphy_core.scoring.score import select_metrics
 
     registry = get_registry()  # plugins store their structured configs before Hydra composes

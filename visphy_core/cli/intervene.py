@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from visphy_core.api.errors import UserError
+from visphy_core.infra.errors import UserError
 from visphy_core.spec.intervene import (
     PARAMETERS,
     compare_rollouts,

@@ -34,8 +34,8 @@ import os
 import sys
 from types import TracebackType
 
-from visphy_core.api.errors import UserError
 from visphy_core.config.check import check_inputs, check_overrides
+from visphy_core.infra.errors import UserError
 
 #: A ValueError / FileNotFoundError raised below these (a dataset plugin loading or building its
 #: data) is about the user's dataset, not a bug.
@@ -342,7 +342,7 @@ def main(argv: list[str] | None = None) -> int:
         os.environ["VISPHY_TRACEBACK"] = "1"
     if _traceback_wanted():
         os.environ.setdefault("HYDRA_FULL_ERROR", "1")
-    from visphy_core.calls.secrets import install_log_redaction
+    from visphy_core.infra.secrets import install_log_redaction
 
     install_log_redaction()
     try:

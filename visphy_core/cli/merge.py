@@ -10,7 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from visphy_core.api.errors import UserError
+from visphy_core.infra.errors import UserError
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -50,7 +50,7 @@ def rate_command(argv: list[str]) -> int:
             server = RatingServer(session, PlayableCopies(Path(tmp)), host=args.host,
                                   port=args.port, quiet=not args.verbose)
         except OSError as exc:
-            from visphy_core.api.errors import UserError
+            from visphy_core.infra.errors import UserError
 
             raise UserError(f"cannot listen on {args.host}:{args.port}: {exc.strerror or exc} "
                             "(--port 0 picks a free port)") from None

@@ -12,7 +12,7 @@ import datetime as dt
 import os
 from pathlib import Path
 
-from visphy_core.api.errors import UserError
+from visphy_core.infra.errors import UserError
 
 
 def _parser() -> argparse.ArgumentParser:

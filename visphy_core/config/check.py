@@ -23,7 +23,7 @@ from typing import Any, Iterator
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from visphy_core.api.errors import ConfigError, UserError
+from visphy_core.infra.errors import ConfigError, UserError
 
 __all__ = ["ConfigError", "UserError", "check_overrides", "check_inputs", "check_values",
            "compose", "compose_all", "group_options"]
@@ -408,7 +408,7 @@ def check_values(cfg: DictConfig) -> None:
     check_names(cfg)
     check_tracking(cfg)
     check_protocol(cfg)
-    from visphy_core.execute.shard import parse_shard
+    from visphy_core.infra.shard import parse_shard
 
     parse_shard(OmegaConf.select(cfg, "dataset.shard", default=None))  # "i/n", 0 <= i < n
 

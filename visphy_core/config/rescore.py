@@ -23,7 +23,6 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from visphy_core.api.errors import ConfigError
 from visphy_core.config.check import (
     check_names,
     check_overrides,
@@ -32,6 +31,7 @@ from visphy_core.config.check import (
     check_tracking,
     group_options,
 )
+from visphy_core.infra.errors import ConfigError
 
 #: Groups whose option re-scoring may select.
 SCORING_GROUPS = ("metrics", "judge", "tracking")

@@ -15,43 +15,14 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from visphy_core.infra.events import STAGES, StageEvents
+
 # A pipe or a log file gets 120 columns (rich's 80 would truncate the means table); a terminal
 # keeps its own width.
 console = Console(stderr=False, highlight=False,
                   width=None if sys.stdout.isatty() else 120)
 #: the per-scene table's metric columns, by preference (every column is in the means table)
 SCENE_COLUMNS = ("psnr", "ssim", "st_lpips", "track_pos_err", "flow_epe_dis")
-#: A scene's stages, in the order they run: the model's reply, its render, metrics, judges.
-STAGES = ("generate", "render", "score", "judge")
-
-
-class StageEvents:
-    """What the pipeline reports while a scene goes through its stages. This base class
-    ignores everything (no progress wanted); `StageProgress` shows it. The scheduler's gates
-    (`visphy_core.execute.scheduler.StageGates`) hold a scene at a stage's entrance until the
-    stage's
-    resources are free, so the pipeline enters every stage through `stage`."""
-
-    def begin(self, stage: str, scene_id: str) -> None:
-        """``scene_id`` entered ``stage`` (again, for a repair: the time adds up)."""
-
-    def end(self, stage: str, scene_id: str) -> None:
-        """``scene_id`` left ``stage``; the first end counts the scene as done there."""
-
-    def scene_finished(self, scene_id: str) -> None:
-        """The scene is finished: stages it never reached count as skipped."""
-
-    def check(self) -> None:
-        """Between two steps of a stage: raises when the run is closing (the scheduler's
-        gates); here, nothing."""
-
-    @contextmanager
-    def stage(self, stage: str, scene_id: str) -> Iterator[None]:
-        """``begin`` … ``end`` around the block (no ``end`` when the block raises: the scene's
-        `scene_finished` closes what it left open)."""
-        self.begin(stage, scene_id)
-        yield
-        self.end(stage, scene_id)
 
 
 class StageProgress(StageEvents):

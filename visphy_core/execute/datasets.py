@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from visphy_core.api.scene import Scene
-from visphy_core.execute.shard import parse_shard, select_shard
+from visphy_core.infra.shard import parse_shard, select_shard
 
 
 def get_dataset(source: str):

@@ -1,6 +1,6 @@
 """Merging the shards of one large run into one run (``python -m visphy_core merge``).
 
-A run split with ``dataset.shard=0/n … n-1/n`` (`visphy_core.execute.shard`) leaves n run
+A run split with ``dataset.shard=0/n … n-1/n`` (`visphy_core.infra.shard`) leaves n run
 directories, each with the rows of its own scenes. `merge_runs` checks that they are shards of
 one config (their configs hash alike once ``dataset.shard`` is left out: model, engine, prompt,
 metrics, judges, dataset, seed — only where things were written may differ), that each
@@ -31,10 +31,10 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from visphy_core.api.errors import UserError
-from visphy_core.calls.secrets import public_yaml
-from visphy_core.execute.shard import interleave, parse_shard
 from visphy_core.infra import files
+from visphy_core.infra.errors import UserError
+from visphy_core.infra.secrets import public_yaml
+from visphy_core.infra.shard import interleave, parse_shard
 from visphy_core.results.row import SceneResult
 from visphy_core.results.run_dir import FINISHED, config_hash
 from visphy_core.scoring.headline import Headline
@@ -163,7 +163,7 @@ def check_shards(shards: list[Shard], partial: bool = False) -> list[Shard]:
 def study_groups(sweep_dir: Path) -> list[list[Path]]:
     """The run directories of a study's completed jobs that are shards, one list per run they
     are shards of (their config without ``dataset.shard``), in job order."""
-    from visphy_core.study.records import COMPLETED, read_jobs
+    from visphy_core.results.study_records import COMPLETED, read_jobs
 
     jobs = read_jobs(Path(sweep_dir))
     if not jobs:

@@ -23,7 +23,6 @@ from visphy_core.api.engine import (
     RenderResult,
     classify_frames,
 )
-from visphy_core.api.errors import UserError
 from visphy_core.api.extract import extract_analysis, extract_spec
 from visphy_core.api.metrics import Metric
 from visphy_core.api.model import (
@@ -34,7 +33,7 @@ from visphy_core.api.model import (
     OutputContract,
     build_model_request,
 )
-from visphy_core.api.scene import Scene, SceneDataError
+from visphy_core.api.scene import Scene
 from visphy_core.calls.generation import ModelCaller
 from visphy_core.calls.judging import JudgeCaller
 from visphy_core.calls.prompts.build import (
@@ -44,24 +43,23 @@ from visphy_core.calls.prompts.build import (
     repair_version,
 )
 from visphy_core.calls.references import ReferenceWriter
-from visphy_core.calls.secrets import redact, redact_obj
 from visphy_core.calls.usage import CostCapReached
-from visphy_core.execute.console import StageEvents
 from visphy_core.infra.cache import Cache, CorruptEntry, content_key, read_json
+from visphy_core.infra.errors import SceneDataError, UserError, one_line
+from visphy_core.infra.events import StageEvents
+from visphy_core.infra.secrets import redact, redact_obj
 from visphy_core.infra.video import decode_video, encode_video, frame_digest, load_clip_for
 from visphy_core.results.row import SceneResult
+from visphy_core.results.write import write_artifact
 from visphy_core.scoring.ground_truth import writable
 from visphy_core.scoring.headline import Headline
 from visphy_core.scoring.normalisation import twin_scene
 from visphy_core.scoring.paper_protocol import frames_needed
+from visphy_core.scoring.reference_clips import ReferenceClipUnavailable, frozen_clip
 from visphy_core.scoring.scene_scores import (
-    ReferenceClipUnavailable,
     ScoringServices,
-    frozen_clip,
-    one_line,
     score_columns_of,
     score_outputs,
-    write_artifact,
     write_scores,
 )
 from visphy_core.scoring.score import ScoringProtocol
@@ -91,7 +89,6 @@ class RenderOutcome:
 RENDER_FLAGS = tuple(f.value for f in RenderFlag)
 
 
-_one_line = one_line
 
 
 def _safe_render(engine: Engine, program: Program, contract: RenderContract) -> RenderResult:
@@ -101,7 +98,7 @@ def _safe_render(engine: Engine, program: Program, contract: RenderContract) -> 
         return engine.render(program, contract)
     except Exception as exc:  # noqa: BLE001 - engines must not abort the run
         return RenderResult(frames=None, failure=FailureClass.INFRA_ERROR,
-                            error=_one_line(f"{type(exc).__name__}: {exc}")[:2000])
+                            error=one_line(f"{type(exc).__name__}: {exc}")[:2000])
 
 
 def render_key(engine: Engine, program: Program, contract: RenderContract) -> str:
@@ -221,7 +218,7 @@ def mark_not_evaluable(result: SceneResult, failure: FailureClass, detail: str) 
     """Mark a scene that could not be evaluated (data_error / infra_error): no clip, no scores."""
     result.model_success = result.system_success = result.fallback = False
     result.failure_class = failure.value
-    result.failure_detail = redact(_one_line(detail))[:2000]
+    result.failure_detail = redact(one_line(detail))[:2000]
     if result.first_failure_class is None:
         result.first_failure_class = failure.value
     result.frame_digests = []
@@ -294,10 +291,10 @@ class EngineReferenceClips:
         try:
             program = self.engine.program_from_spec(spec_scene(scene, spec))
         except (SpecTrackError, ValueError, NotImplementedError) as exc:
-            raise ReferenceClipUnavailable(_one_line(str(exc))) from None
+            raise ReferenceClipUnavailable(one_line(str(exc))) from None
         outcome = self._render(scene, program, contract)
         if outcome.failure is not None:
-            raise ReferenceClipUnavailable(_one_line(
+            raise ReferenceClipUnavailable(one_line(
                 f"the reference program failed to replay S: {outcome.failure.value} "
                 f"{outcome.error or ''}"))
         _write(scene_dir / "spec_video.mp4", outcome.video_path.read_bytes())
@@ -309,7 +306,7 @@ class EngineReferenceClips:
                 self._twins[scene.scene_id] = self.engine.program_from_spec(twin_scene(scene))
             except (SpecTrackError, ValueError, NotImplementedError) as exc:
                 raise ReferenceClipUnavailable(
-                    f"normalisation: no twin of the ground truth: {_one_line(str(exc))}"
+                    f"normalisation: no twin of the ground truth: {one_line(str(exc))}"
                 ) from None
         return self._twins[scene.scene_id]
 
@@ -331,7 +328,7 @@ class EngineReferenceClips:
         if outcome.failure is not None:
             raise ReferenceClipUnavailable(
                 f"normalisation: the reference program failed to render the twin: "
-                f"{outcome.failure.value} {_one_line(outcome.error or '')}")
+                f"{outcome.failure.value} {one_line(outcome.error or '')}")
         if scene_dir is not None:
             _write(scene_dir / "twin_video.mp4", outcome.video_path.read_bytes())
         return outcome.frames
@@ -415,7 +412,7 @@ def _model_error(result: SceneResult, response: ModelResponse, attempt: int,
         raise ProviderRejectedKey(f"model={model.name}: the provider refused the key in "
                                   f"${model.needs_key} ({response.error}); check the key")
     result.failure_class = FailureClass.MODEL_ERROR.value
-    result.failure_detail = redact(_one_line(response.error or ""))[:2000]
+    result.failure_detail = redact(one_line(response.error or ""))[:2000]
     if attempt == 1:
         result.first_failure_class = result.failure_class
 
@@ -613,7 +610,7 @@ def _video_reply(response: ModelResponse, scene: Scene, protocol: ScoringProtoco
                              keep_max=need)
     except (ValueError, OSError) as exc:
         return None, None, FailureClass.BLANK_OUTPUT, \
-            f"unreadable video: {_one_line(str(exc))}"
+            f"unreadable video: {one_line(str(exc))}"
     if classify_frames(clip) is FailureClass.BLANK_OUTPUT:
         return None, None, FailureClass.BLANK_OUTPUT, \
             "every frame of the video is one flat colour"

@@ -17,7 +17,7 @@ import os
 import sys
 from pathlib import Path
 
-from visphy_core.api.errors import UserError
+from visphy_core.infra.errors import UserError
 from visphy_core.scoring.score import ScoringProtocol, select_metrics
 
 

@@ -31,28 +31,28 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from visphy_core.api.engine import FailureClass, Program, RenderContract
-from visphy_core.api.errors import UserError
 from visphy_core.api.extract import extract_analysis, extract_spec
-from visphy_core.api.scene import Scene, SceneDataError
+from visphy_core.api.scene import Scene
 from visphy_core.calls.generation import ModelCaller
 from visphy_core.calls.judging import JudgeCaller
 from visphy_core.calls.references import ReferenceWriter
-from visphy_core.calls.secrets import public_yaml
 from visphy_core.calls.usage import UsageLedger
 from visphy_core.config.rescore import rescore_config
 from visphy_core.execute.console import print_summary, print_where_to_look, stage_progress
 from visphy_core.execute.pipeline import mark_not_evaluable
 from visphy_core.infra import files
 from visphy_core.infra.cache import Cache
+from visphy_core.infra.errors import SceneDataError, UserError
 from visphy_core.infra.files import atomic_write
+from visphy_core.infra.secrets import public_yaml
 from visphy_core.infra.video import decode_video, load_clip_for
 from visphy_core.results.row import SceneResult
 from visphy_core.results.run_dir import FINISHED, INTERRUPTED, RUNNING, RunLock, config_hash
 from visphy_core.scoring.ground_truth import open_store, store_path
 from visphy_core.scoring.headline import Headline
 from visphy_core.scoring.paper_protocol import frames_needed
+from visphy_core.scoring.reference_clips import ReferenceClipUnavailable
 from visphy_core.scoring.scene_scores import (
-    ReferenceClipUnavailable,
     ScoringServices,
     score_columns_of,
     score_outputs,

@@ -30,7 +30,6 @@ from typing import Any, Iterator
 import numpy as np
 from omegaconf import DictConfig
 
-from visphy_core.api.errors import ConfigError
 from visphy_core.api.metrics import Metric
 from visphy_core.api.registry import get_plugin_manager, get_registry
 from visphy_core.api.scene import Scene
@@ -38,7 +37,6 @@ from visphy_core.calls.generation import ModelCaller, get_service
 from visphy_core.calls.judging import JudgeCaller
 from visphy_core.calls.prompts.build import PromptSettings
 from visphy_core.calls.references import ReferenceWriter
-from visphy_core.calls.secrets import install_log_redaction, public_config, public_yaml
 from visphy_core.calls.usage import CostCapReached, UsageLedger
 from visphy_core.execute.console import print_summary, print_where_to_look, stage_progress
 from visphy_core.execute.datasets import load_dataset
@@ -50,8 +48,10 @@ from visphy_core.execute.scheduler import (
     resolve_workers,
 )
 from visphy_core.infra.cache import Cache
+from visphy_core.infra.errors import ConfigError
 from visphy_core.infra.files import atomic_write
 from visphy_core.infra.heap import release_free_memory
+from visphy_core.infra.secrets import install_log_redaction, public_config, public_yaml
 from visphy_core.results.columns import SPEC_PREFIX
 from visphy_core.results.row import NOT_EVALUABLE, SceneResult
 from visphy_core.results.run_dir import (

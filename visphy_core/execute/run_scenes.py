@@ -14,9 +14,9 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from visphy_core.api.errors import UserError
 from visphy_core.api.scene import Scene
 from visphy_core.infra import files
+from visphy_core.infra.errors import UserError
 
 
 def is_run_dir(path: Path) -> bool:

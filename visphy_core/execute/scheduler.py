@@ -47,8 +47,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Callable, Iterator, Sequence, TypeVar
 
-from visphy_core.api.errors import ConfigError
-from visphy_core.execute.console import StageEvents
+from visphy_core.infra.errors import ConfigError
+from visphy_core.infra.events import StageEvents
 from visphy_core.infra.heap import BudgetTrim, limit_arenas
 
 log = logging.getLogger("visphy.scheduler")

@@ -16,9 +16,9 @@ import random
 from dataclasses import dataclass
 from pathlib import Path
 
-from visphy_core.api.errors import UserError
 from visphy_core.execute.run_scenes import is_run_dir, load_run_scenes
 from visphy_core.infra import files
+from visphy_core.infra.errors import UserError
 
 log = logging.getLogger("visphy.human")
 

@@ -23,10 +23,10 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from visphy_core.api.errors import UserError
 from visphy_core.human.items import RatingItem, rater_order
 from visphy_core.human.media import PlayableCopies, byte_range
 from visphy_core.human.store import RATINGS, RatingStore, check_rater
+from visphy_core.infra.errors import UserError
 
 PAGE = Path(__file__).with_name("page.html")
 MAX_BODY = 16 * 1024

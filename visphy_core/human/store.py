@@ -15,9 +15,9 @@ import re
 import threading
 from pathlib import Path
 
-from visphy_core.api.errors import UserError
 from visphy_core.human.items import RatingItem
 from visphy_core.infra import files
+from visphy_core.infra.errors import UserError
 
 RATINGS_FILE = "human_ratings.jsonl"
 RATINGS = range(1, 6)

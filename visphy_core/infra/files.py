@@ -30,8 +30,7 @@ import stat
 from pathlib import Path
 from typing import Any, BinaryIO, Iterator
 
-from visphy_core.api.errors import UserError
-from visphy_core.api.scene import SceneDataError
+from visphy_core.infra.errors import SceneDataError, UserError
 
 MiB = 1 << 20
 #: The largest file of each kind visphy reads from a foreign tree (bytes).

@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from visphy_core.api.errors import UserError
 from visphy_core.infra import files
+from visphy_core.infra.errors import UserError
 from visphy_core.results.columns import SPEC_PREFIX, column_direction
 from visphy_core.results.row import NOT_EVALUABLE, SceneResult
 

@@ -279,7 +279,7 @@ def sh_quote(arg: str) -> str:
 
 def chromium_env(home: Path | None = None) -> dict[str, str]:
     """Chromium's environment: an allow-list (no API keys or tokens), with a private HOME."""
-    from visphy_core.calls.secrets import is_secret_name, secret_values
+    from visphy_core.infra.secrets import is_secret_name, secret_values
 
     keep = ("PATH", "LANG", "LC_ALL", "TZ", "FONTCONFIG_PATH", "FONTCONFIG_FILE")
     secrets = secret_values()

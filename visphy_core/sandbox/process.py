@@ -44,7 +44,7 @@ What is isolated
 * **Environment.** bwrap and the program start from an allow-list: ``PATH`` (the bound
   interpreters' ``bin`` dirs and ``/usr/bin:/bin``), ``LANG``/``LC_ALL`` (``C.UTF-8``),
   ``TZ=UTC``, ``HOME=<workdir>``, ``TMPDIR=<workdir>/tmp``, ``PYTHONHASHSEED=0``, plus
-  ``env_extra`` minus every secret-looking name (`visphy_core.calls.secrets.is_secret_name`) unless
+  ``env_extra`` minus every secret-looking name (`visphy_core.infra.secrets.is_secret_name`) unless
   the caller names it in ``allow_secret_env`` (a deliberate, greppable opt-in).
 * **Resource limits** (``Limits``), set before ``exec`` and inherited through bwrap and setpriv:
   ``RLIMIT_CPU`` (SIGXCPU at ``cpu_s``, SIGKILL one second later), ``RLIMIT_AS`` (address
@@ -107,7 +107,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Iterable, Sequence
 
-from visphy_core.calls.secrets import is_secret_name
+from visphy_core.infra.secrets import is_secret_name
 from visphy_core.sandbox import syscall_filter
 from visphy_core.sandbox.policy import (
     ALLOW_UNISOLATED_ENV,

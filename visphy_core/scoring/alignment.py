@@ -27,53 +27,15 @@ chosen offset in frames of the input clips (generated frame = reference frame + 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import cv2
 import numpy as np
 
+from visphy_core.api.metrics import Alignment, unaligned
+from visphy_core.scoring import paper_protocol
+from visphy_core.scoring.pairing import EVERY_FRAME, PAPER, AlignParams
 
-@dataclass(frozen=True)
-class AlignParams:
-    sample_every: int = 1
-    downsample: int = 64
-    max_offset: int = 30          # in sampled frames
-    top_k: int = 5
-    max_samples: int = 16
-    window: int = 3
-    offset_penalty: float = 0.05
-    min_overlap: int = 3          # sampled frames that must overlap for an offset to count
-    dtw: bool = False
-    dtw_size: int = 48
-    dtw_step_penalty: float = 0.005
-    # "visphy": this module's search (DTW, when on, replaces it); "upstream": the paper
-    # protocol's rules (visphy_core.scoring.paper_protocol; DTW, when on, runs after the offset
-    # step)
-    rules: str = "visphy"
-
-
-#: The upstream evaluation's settings and rules (``evaluate_pair(sample_every=3)``: DTW after
-#: the offset step, as upstream's ``auto_align`` always runs it).
-PAPER = AlignParams(sample_every=3, dtw=True, rules="upstream")
-#: visphy's aligned variant: every frame.
-EVERY_FRAME = AlignParams(sample_every=1)
-
-
-@dataclass
-class Alignment:
-    ref_idx: np.ndarray            # reference frame indices, in time order
-    gen_idx: np.ndarray            # the generated frame paired with each
-    offset: int = 0                # generated = reference + offset (frames of the input clips)
-    align_err: float = 0.0         # the cost of the chosen pairing, penalty excluded
-    method: str = "unaligned"      # unaligned | offset | dtw
-    candidates: list[tuple[int, float]] = field(default_factory=list)  # (offset, cost) refined
-
-    @property
-    def n_pairs(self) -> int:
-        return int(len(self.ref_idx))
-
-    def pairs(self) -> list[tuple[int, int]]:
-        return list(zip(self.ref_idx.tolist(), self.gen_idx.tolist()))
+__all__ = ["Alignment", "AlignParams", "EVERY_FRAME", "PAPER", "align", "gray_features",
+           "standardised", "unaligned"]
 
 
 def gray_features(frames: np.ndarray, size: int) -> np.ndarray:
@@ -113,14 +75,6 @@ def standardised(feats: np.ndarray) -> np.ndarray:
     return np.where(sd > 1e-9, f / np.maximum(sd, 1e-9), 0.0).astype(np.float32)
 
 
-def unaligned(n_ref: int, n_gen: int) -> Alignment:
-    """Frame k with frame k (both clips already on the reference's time grid)."""
-    n = min(n_ref, n_gen)
-    idx = np.arange(n)
-    return Alignment(ref_idx=idx, gen_idx=idx.copy(), offset=0, align_err=0.0,
-                     method="unaligned")
-
-
 def _overlap(n_ref: int, n_gen: int, off: int) -> tuple[int, int]:
     """Sampled reference positions i with 0 ≤ i + off < n_gen: [lo, hi)."""
     return max(0, -off), min(n_ref, n_gen - off)
@@ -155,9 +109,7 @@ def align(reference: np.ndarray, generated: np.ndarray, p: AlignParams = EVERY_F
           ) -> Alignment:
     """The pairing of ``generated`` with ``reference`` under ``p`` (see the module docstring)."""
     if p.rules == "upstream":
-        from visphy_core.scoring.paper_protocol import align_paper
-
-        return align_paper(reference, generated, p)
+        return paper_protocol.align_paper(reference, generated, p)
     if p.rules != "visphy":
         raise ValueError(f"unknown alignment rules {p.rules!r} (visphy or upstream)")
     s = max(1, int(p.sample_every))

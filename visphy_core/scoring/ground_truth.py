@@ -47,7 +47,7 @@ from visphy_core.infra.cache import Cache, CorruptEntry, content_key, read_json
 if TYPE_CHECKING:
     from visphy_core.api.engine import RenderContract
     from visphy_core.api.scene import Scene
-    from visphy_core.scoring.scene_scores import ReferenceClips
+    from visphy_core.scoring.reference_clips import ReferenceClips
 
 log = logging.getLogger("visphy.ground_truth")
 
@@ -162,7 +162,7 @@ def scene_anchors(scene: "Scene", reference: np.ndarray, metrics: list[Metric],
     found: no decoding), so a run directory keeps what re-scoring needs. Raises
     `ReferenceClipUnavailable` when a ceiling is needed and the twin cannot be had.
     ``frozen``: the frozen clip when the caller already has it (a scene that fell back)."""
-    from visphy_core.scoring.scene_scores import frozen_frames
+    from visphy_core.scoring.reference_clips import frozen_frames
     from visphy_core.scoring.score import ScoringProtocol, clip_digest, score_scene
 
     out = Anchors()

@@ -58,7 +58,8 @@ import math
 import cv2
 import numpy as np
 
-from visphy_core.scoring.alignment import Alignment, AlignParams
+from visphy_core.api.metrics import Alignment
+from visphy_core.scoring.pairing import AlignParams
 
 #: Where the rules come from.
 UPSTREAM = "TIGER-AI-Lab/VisPhyWorld utils/evaluate_video_metrics.py::evaluate_pair"

@@ -13,11 +13,10 @@ is that seam.
 from __future__ import annotations
 
 import json
-import tempfile
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -27,64 +26,19 @@ from visphy_core.api.metrics import SCENE, Metric
 from visphy_core.api.scene import Scene
 from visphy_core.calls.judging import JudgeCaller
 from visphy_core.calls.references import ReferenceWriter
-from visphy_core.calls.secrets import redact
-from visphy_core.execute.console import StageEvents
 from visphy_core.infra.cache import Cache, content_key
-from visphy_core.infra.files import atomic_write
-from visphy_core.infra.video import decode_video, encode_video
+from visphy_core.infra.events import StageEvents
 from visphy_core.results.columns import SPEC_PREFIX, norm_column
+from visphy_core.results.write import write_artifact
 from visphy_core.scoring.ground_truth import scene_anchors
 from visphy_core.scoring.headline import Headline, scene_headline
 from visphy_core.scoring.normalisation import normalised, perturbation
+from visphy_core.scoring.reference_clips import ReferenceClips, ReferenceClipUnavailable
 from visphy_core.scoring.score import ScoringProtocol, clip_digest, score_columns, score_scene
 
 if TYPE_CHECKING:
     from visphy_core.api.engine import Program
     from visphy_core.results.row import SceneResult
-
-
-def one_line(text: str) -> str:
-    return " ".join(str(text).split())
-
-
-def write_artifact(path: Path, content: str | bytes) -> None:
-    """Atomic write, never through a link (`visphy_core.infra.files.atomic_write`); text passes
-    through `redact` first (no secret value reaches the run dir)."""
-    atomic_write(path, redact(content) if isinstance(content, str) else content)
-
-
-def frozen_clip(scene: Scene, contract: RenderContract, path: Path) -> np.ndarray:
-    """The first key frame held for the whole clip, through the run's video codec (written to
-    ``path``): the fallback clip and the normalisation floor."""
-    frames = np.repeat(scene.key_frame(1)[None], contract.n_frames, axis=0)
-    encode_video(frames, path, contract.fps)
-    return decode_video(path)[0]
-
-
-class ReferenceClipUnavailable(Exception):
-    """The reference program's clip could not be had; the message says why (one line)."""
-
-
-class ReferenceClips(Protocol):
-    """Clips of visphy's trusted reference program for one scene."""
-
-    def spec_replay(self, scene: Scene, spec: dict, contract: RenderContract,
-                    scene_dir: Path) -> np.ndarray:
-        """S simulated and replayed (``spec_video.mp4``); raises `ReferenceClipUnavailable`."""
-
-    def twin(self, scene: Scene, contract: RenderContract, scene_dir: Path | None
-             ) -> np.ndarray:
-        """The ground truth's twin (written to ``scene_dir/twin_video.mp4`` when a folder is
-        given); raises `ReferenceClipUnavailable`."""
-
-    def twin_identity(self, scene: Scene, contract: RenderContract) -> str | None:
-        """What the twin's frames are a function of (its render key), without rendering it;
-        None when only its content can say (`visphy_core.scoring.ground_truth`). Raises
-        `ReferenceClipUnavailable` when there is no twin to be had."""
-
-    def copy_twin(self, scene: Scene, contract: RenderContract, scene_dir: Path) -> bool:
-        """``scene_dir/twin_video.mp4`` from a stored render of the twin, without rendering
-        or decoding; False when none is stored."""
 
 
 @dataclass
@@ -259,16 +213,6 @@ def _normalise(scene: Scene, reference: np.ndarray, services: ScoringServices, s
          "anchors": anchors}, indent=1))
     return ({k: v for k, v in floor.items() if k not in why_f},
             {k: v for k, v in ceiling.items() if k not in why_c})
-
-
-def frozen_frames(scene: Scene, contract: RenderContract,
-                  frozen: np.ndarray | None = None) -> np.ndarray:
-    """``frozen`` (the run's fallback clip, when the scene fell back), else the frozen clip made
-    now through the run's codec (`frozen_clip`) in a scratch folder."""
-    if frozen is not None:
-        return frozen
-    with tempfile.TemporaryDirectory(prefix="visphy-frozen-") as tmp:
-        return frozen_clip(scene, contract, Path(tmp) / "frozen.mp4")
 
 
 def _headline(scene: Scene, reference: np.ndarray, generated: np.ndarray | None,

@@ -43,7 +43,7 @@ from typing import Any
 import jsonschema
 import numpy as np
 
-from visphy_core.api.errors import UserError
+from visphy_core.infra.errors import UserError
 from visphy_core.spec.spec2d import _NONNEG, _NUM, _POS, shape_area_centroid
 from visphy_core.spec.spec3d import FLOOR_ID, body_mass
 from visphy_core.spec.spec_track import MAX_SPEED

@@ -24,7 +24,7 @@ from hydra.experimental.callback import Callback
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from visphy_core.study import records
+from visphy_core.results import study_records as records
 
 
 def study_name(config: DictConfig) -> str:

@@ -23,7 +23,7 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-from visphy_core.study import records
+from visphy_core.results import study_records as records
 
 
 def _status(jobs: list[dict], ended_early: bool) -> str:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import re
 from typing import Sequence, TypeVar
 
-from visphy_core.api.errors import ConfigError
+from visphy_core.infra.errors import ConfigError
 
 T = TypeVar("T")
 
