@@ -21,9 +21,11 @@ from visphy_core.analysis.agreement import krippendorff_alpha
 from visphy_core.analysis.bootstrap import bootstrap_table, paired_bootstrap, resample_indices
 from visphy_core.analysis.export import to_latex, to_markdown
 from visphy_core.analysis.human import read_ratings, summarise_ratings
-from visphy_core.analysis.load import RunData, find_runs, label_runs, load_run, load_runs
+from visphy_core.analysis.load import find_runs, label_runs, load_run, load_runs
 from visphy_core.analysis.study import STUDIES, analyse
 from visphy_core.api.errors import UserError
+from visphy_core.results.load import RunData
+from visphy_core.results.row import SceneResult
 
 NAN = math.nan
 DIRECTIONS = {"psnr": "higher", "flow_epe_dis": "lower", "param_gravity_err": "lower",
@@ -62,7 +64,8 @@ def make_run(tmp: Path | None, name: str, rows: list[dict], *, model: str = "m",
             (run_dir / "human_ratings.jsonl").write_text(
                 "".join(json.dumps(x) + "\n" for x in ratings))
         return load_run(run_dir)
-    return RunData(run_dir=run_dir, config=config, summary=summary, manifest={}, results=df,
+    return RunData(run_dir=run_dir, config=config, summary=summary, manifest={},
+                   results=[SceneResult.from_row(r) for r in records],
                    ratings=read_ratings(None))
 
 
@@ -148,7 +151,7 @@ def test_paired_bootstrap_is_deterministic_vectorised_and_exact_on_a_shift():
 def test_bootstrap_table_uses_common_scenes_and_the_metric_direction():
     a = make_run(None, "a", scenes({"psnr": [30, 31, 32, 33, 34], "flow_epe_dis": [1, 1, 1, 1, 1]}))
     b = make_run(None, "b", scenes({"psnr": [20, 21, 22, 23, 99], "flow_epe_dis": [2, 3, 2, 3, 9]}))
-    b.results.loc[4, "model_success"] = False       # s4: not a model success of b
+    b.table.loc[4, "model_success"] = False       # s4: not a model success of b
     table = bootstrap_table([a, b], ["A", "B"], ["psnr", "flow_epe_dis"], resamples=1000)
     psnr = table[table["metric"] == "psnr ↑"].iloc[0]
     assert psnr["n common"] == 4 and psnr["A − B"] == pytest.approx(10.0)
@@ -249,7 +252,7 @@ def test_param_and_retry_tables():
                   model_success=[True, True, True], attempts=[1, 2, 2],
                   first_failure_class=[None, "runtime_error", "no_code"])
     run = make_run(None, "r", rows)
-    run.results.loc[2, ["model_success", "failure_class"]] = [False, "no_code"]
+    run.table.loc[2, ["model_success", "failure_class"]] = [False, "no_code"]
     p = params.param_table([run], ["R"], ["param_gravity_err", "param_speed_err", "psnr"])
     assert p.iloc[0]["gravity MAE ↓ [m/s²]"] == 1.0 and p.iloc[0]["gravity n"] == 2
     assert p.iloc[0]["initial speed n"] == 1 and p.iloc[1]["run"] == params.PAPER_LABEL
@@ -307,7 +310,7 @@ def test_find_and_load_runs(tmp_path):
         json.dumps({"scene_id": "s0", "score_psnr": 1.0, "model_success": True}) + "\n"
         + json.dumps({"scene_id": "s0", "score_psnr": 3.0, "model_success": True}) + "\n"
         + '{"scene_id": "s1", "sco')
-    df = load_run(run_dir).results
+    df = load_run(run_dir).table
     assert list(df["scene_id"]) == ["s0"] and df["score_psnr"].tolist() == [3.0]
     assert df["fallback"].tolist() == [False] and df["first_failure_class"].isna().all()
     assert analyse([load_run(run_dir)], tmp_path / "old").tables["leaderboard"].loc[

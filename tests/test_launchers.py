@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from conftest import FAST_METRICS, run_cli
-from visphy_core.execute.run import STAGE_FIELDS
+from visphy_core.results.summary import STAGE_FIELDS
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 

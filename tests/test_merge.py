@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from conftest import FAST_METRICS, run_cli
-from visphy_core.execute.run import STAGE_FIELDS
+from visphy_core.results.summary import STAGE_FIELDS
 
 BASE = ("dataset=tiny", "model=static", *FAST_METRICS, "run.progress=false", "run.cache=false")
 #: Fields that depend on when a row was made, not on what it is.

@@ -21,7 +21,6 @@ from rich.console import Console
 
 from conftest import REPO, run_cli
 from visphy_core.execute.console import StageProgress, stage_progress
-from visphy_core.execute.run import STAGE_FIELDS
 from visphy_core.execute.scheduler import (
     SceneCancelled,
     SceneScheduler,
@@ -30,6 +29,7 @@ from visphy_core.execute.scheduler import (
     usable_cores,
 )
 from visphy_core.infra.events import StageEvents
+from visphy_core.results.summary import STAGE_FIELDS
 
 # --------------------------------------------------------------------------- one vs two workers
 

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from visphy_core.analysis.columns import MODEL_SUCCESS, direction, header, scene_values
-from visphy_core.analysis.load import RunData
+from visphy_core.results.load import RunData
 
 RESAMPLES = 10_000
 SEED = 0

@@ -13,8 +13,8 @@ import numpy as np
 import pandas as pd
 
 from visphy_core.analysis.columns import MODEL_SUCCESS, header, view_rows
-from visphy_core.analysis.load import RunData
 from visphy_core.api.engine import FailureClass
+from visphy_core.results.load import RunData
 from visphy_core.results.row import NOT_EVALUABLE
 
 DIFFICULTY_ORDER = ("easy", "medium", "hard")
@@ -39,7 +39,7 @@ def difficulty_table(runs: list[RunData], labels: list[str], columns: list[str],
     """One row per run × group (difficulty level, then dimension)."""
     rows = []
     for run, label in zip(runs, labels):
-        df = run.results
+        df = run.table
         if df.empty:
             continue
         for group, value, mask in _groups(df):
@@ -65,7 +65,7 @@ def failure_table(runs: list[RunData], labels: list[str]) -> pd.DataFrame:
     seen: set[str] = set()
     counts = []
     for run in runs:
-        df = run.results
+        df = run.table
         failed = df[~df["model_success"].astype(bool)] if len(df) else df
         c = failed["failure_class"].dropna().value_counts().to_dict() if len(failed) else {}
         seen |= set(c)
@@ -74,7 +74,7 @@ def failure_table(runs: list[RunData], labels: list[str]) -> pd.DataFrame:
     model_classes += sorted(k for k in seen if k not in order)
     rows = []
     for run, label, c in zip(runs, labels, counts):
-        df = run.results
+        df = run.table
         n = len(df)
         ok = df["model_success"].astype(bool) if n else pd.Series(dtype=bool)
         row = {"run": label, "n_scenes": n,

@@ -21,7 +21,7 @@ from visphy_core.results.columns import SPEC_PREFIX
 from visphy_core.results.row import NOT_EVALUABLE
 
 if TYPE_CHECKING:
-    from visphy_core.analysis.load import RunData
+    from visphy_core.results.load import RunData
 
 SCORE = "score_"
 MODEL_SUCCESS, WITH_FALLBACKS = "model_success", "with_fallbacks"
@@ -40,7 +40,7 @@ def score_columns(runs: list["RunData"]) -> list[str]:
     for run in runs:
         for name in run.summary.get("metrics", {}):
             out[name] = None
-        for col in run.results.columns:
+        for col in run.table.columns:
             if col.startswith(SCORE):
                 out[col[len(SCORE):]] = None
     return list(out)
@@ -64,7 +64,7 @@ def header(runs: list["RunData"], column: str) -> str:
 
 
 def has_values(runs: list["RunData"], column: str) -> bool:
-    return any(SCORE + column in r.results.columns and r.results[SCORE + column].notna().any()
+    return any(SCORE + column in r.table.columns and r.table[SCORE + column].notna().any()
                for r in runs)
 
 
@@ -97,8 +97,8 @@ def pick_columns(runs: list["RunData"], metrics: list[str] | None) -> list[str]:
 
 
 def view_rows(run: "RunData", column: str, view: str) -> pd.Series:
-    """Which rows count for ``column`` under ``view`` (boolean mask over ``run.results``)."""
-    df = run.results
+    """Which rows count for ``column`` under ``view`` (boolean mask over ``run.table``)."""
+    df = run.table
     if view not in VIEWS:
         raise UserError(f"unknown view {view!r} (one of {', '.join(VIEWS)})")
     if df.empty:
@@ -112,7 +112,7 @@ def view_rows(run: "RunData", column: str, view: str) -> pd.Series:
 
 def scene_values(run: "RunData", column: str, view: str = MODEL_SUCCESS) -> pd.Series:
     """The column's per-scene values under ``view``, indexed by scene_id, missing ones dropped."""
-    df = run.results
+    df = run.table
     if df.empty or SCORE + column not in df.columns:
         return pd.Series(dtype="float64", name=column)
     mask = view_rows(run, column, view)

@@ -24,7 +24,7 @@ import pandas as pd
 from scipy import stats
 
 from visphy_core.analysis.columns import MODEL_SUCCESS, scene_values
-from visphy_core.analysis.load import RunData
+from visphy_core.results.load import RunData
 
 MIN_N = 3
 #: The paper's mean off-diagonal scene-level Spearman ρ across engines (MISSION §8).
@@ -115,7 +115,7 @@ def judge_agreement(runs: list[RunData], judge_columns: list[str],
 
     frames = []
     for run in runs:
-        results = run.results
+        results = run.table
         if results.empty:
             continue
         df = pd.DataFrame(index=pd.Index(results["scene_id"].to_numpy(), name="scene_id"))

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from visphy_core.analysis.columns import MODEL_SUCCESS, direction, header, scene_values
-from visphy_core.analysis.load import RunData
+from visphy_core.results.load import RunData
 
 FORMATS = ("png", "svg")
 

@@ -16,7 +16,7 @@ import pandas as pd
 
 from visphy_core.analysis.columns import MODEL_SUCCESS, WITH_FALLBACKS, header, scene_values
 from visphy_core.analysis.human import summarise_ratings
-from visphy_core.analysis.load import RunData
+from visphy_core.results.load import RunData
 from visphy_core.results.row import NOT_EVALUABLE
 
 
@@ -26,7 +26,7 @@ def _rate(num: int, den: int) -> float:
 
 def run_columns(run: RunData, label: str) -> dict:
     """The leaderboard's fixed columns for one run."""
-    df = run.results
+    df = run.table
     n = len(df)
     evaluable = int((~df["failure_class"].isin(NOT_EVALUABLE)).sum()) if n else 0
     model_ok = int(df["model_success"].sum()) if n else 0

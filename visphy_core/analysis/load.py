@@ -1,7 +1,7 @@
 """Finished run directories as data: find them, load them, and name them for a comparison.
 
-A run directory (written by `visphy_core.execute.run`) holds ``summary.json``, ``results.parquet``
-and/or
+A run directory (written by `visphy_core.execute.run`, laid out as `visphy_core.results.layout`
+says, read by `visphy_core.results.load`) holds ``summary.json``, ``results.parquet`` and/or
 ``results.jsonl`` (one row per scene), ``config.yaml`` and ``manifest.json``; the human-rating
 page may add ``human_ratings.jsonl``. `find_runs` accepts run directories and any folder above
 them (``visphy-out/runs``, a Hydra multirun sweep), and follows a study's job records
@@ -12,23 +12,14 @@ folder. Labels say ``model/engine`` and, when two runs compared share that, what
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
-import pandas as pd
-
 from visphy_core.analysis.human import read_ratings
-from visphy_core.infra import files
 from visphy_core.infra.errors import UserError
-
-SUMMARY = "summary.json"
-#: The scene-row fields the analysis reads, with the value a row without the field means.
-ROW_DEFAULTS = {"scene_id": None, "dim": None, "difficulty": None, "model_success": False,
-                "system_success": False, "fallback": False, "attempts": 0,
-                "failure_class": None, "first_failure_class": None}
-RESULTS = ("results.parquet", "results.jsonl")
+from visphy_core.results import load as results_load
+from visphy_core.results.layout import RATINGS, SUMMARY, is_finished_run, is_run_dir
+from visphy_core.results.load import RunData
 
 #: Config keys that never tell two configurations apart (where files go, how the run is tracked
 #: and sandboxed, which metrics and judges score it, transport settings).
@@ -37,56 +28,6 @@ IGNORED_PREFIXES = ("paths.", "tracking.", "sandbox.", "metrics.", "judge.", "hy
 IGNORED_SUFFIXES = ("base_url", "api_key_env", "timeout_s", "max_retries", "concurrency",
                     "price.input_usd_per_mtok", "price.output_usd_per_mtok",
                     "price.cached_input_usd_per_mtok")
-
-
-@dataclass
-class RunData:
-    """One finished (or interrupted) run: its resolved config, summary, manifest and scene rows.
-
-    ``ratings`` holds the run's human ratings (`visphy_core.analysis.human.read_ratings`: one row
-    per rater and item, re-ratings resolved), empty when nobody rated it.
-    """
-
-    run_dir: Path
-    config: dict
-    summary: dict
-    manifest: dict
-    results: pd.DataFrame
-    ratings: pd.DataFrame = field(default_factory=lambda: read_ratings(None))
-    _label: str | None = field(default=None, repr=False)
-
-    @property
-    def model(self) -> str:
-        return str(_get(self.config, "model.name") or self.summary.get("model") or "?")
-
-    @property
-    def engine(self) -> str:
-        return str(_get(self.config, "engine.name") or self.summary.get("engine") or "?")
-
-    @property
-    def base_label(self) -> str:
-        """``model/engine``."""
-        return f"{self.model}/{self.engine}"
-
-    @property
-    def label(self) -> str:
-        """The name this run has in a comparison (set by `load_runs` / `label_runs`), else
-        ``model/engine``."""
-        return self._label or self.base_label
-
-
-def _get(config: dict, dotted: str) -> Any:
-    node: Any = config
-    for part in dotted.split("."):
-        if not isinstance(node, dict) or part not in node:
-            return None
-        node = node[part]
-    return node
-
-
-def is_run_dir(path: Path) -> bool:
-    """A run directory: ``summary.json`` beside ``results.parquet`` or ``results.jsonl``."""
-    return (path / SUMMARY).is_file() and any((path / r).is_file() for r in RESULTS)
 
 
 def find_runs(*paths: str | Path) -> list[Path]:
@@ -104,14 +45,17 @@ def find_runs(*paths: str | Path) -> list[Path]:
             raise UserError(f"{path}: no such file or directory")
         if path.is_file():
             path = path.parent
-        if is_run_dir(path):
+        if is_finished_run(path):
             found[path.resolve()] = None
             continue
-        under = sorted(p.parent for p in path.rglob(SUMMARY) if is_run_dir(p.parent))
+        under = sorted(p.parent for p in path.rglob(SUMMARY) if is_finished_run(p.parent))
         under += _study_runs(path)
+        if not under and is_run_dir(path):
+            raise UserError(f"{path}: the run did not finish (no {SUMMARY}): rerun its command "
+                            "to finish it (it resumes where it stopped)")
         if not under:
-            raise UserError(f"{path}: no run directory here (a run directory holds {SUMMARY} and "
-                            f"{' or '.join(RESULTS)}); point at a run or a folder of runs")
+            raise UserError(f"{path}: no finished run directory here (a finished run holds "
+                            f"{SUMMARY}); point at a run or a folder of runs")
         for p in under:
             found[p.resolve()] = None
     return list(found)
@@ -125,80 +69,17 @@ def _study_runs(folder: Path) -> list[Path]:
     out = []
     for job in read_jobs(folder):
         run_dir = job.get("run_dir")
-        if run_dir and is_run_dir(Path(run_dir)):
+        if run_dir and is_finished_run(Path(run_dir)):
             out.append(Path(run_dir))
     return out
 
 
-def _read_json(path: Path, required: bool) -> dict:
-    if not path.is_file():
-        if required:
-            raise UserError(f"{path}: missing (not a finished run directory)")
-        return {}
-    try:
-        data = json.loads(path.read_text())
-    except ValueError as exc:
-        raise UserError(f"{path}: not valid JSON ({exc})") from None
-    if not isinstance(data, dict):
-        raise UserError(f"{path}: expected a JSON object")
-    return data
-
-
-def _read_config(run_dir: Path) -> dict:
-    path = run_dir / "config.yaml"
-    if not path.is_file():
-        return {}
-    from omegaconf import OmegaConf
-
-    try:
-        cfg = OmegaConf.to_container(OmegaConf.load(path), resolve=False)
-    except Exception as exc:  # noqa: BLE001 - any parse failure is the file's fault
-        raise UserError(f"{path}: not a readable config ({exc})") from None
-    return cfg if isinstance(cfg, dict) else {}
-
-
-def _read_results(run_dir: Path) -> pd.DataFrame:
-    """The scene rows: Parquet (written when the run closes) else the JSON lines written as it
-    goes (an interrupted run); a truncated last line is dropped; one row per scene (the last)."""
-    parquet, jsonl = (run_dir / r for r in RESULTS)
-    df = None
-    if parquet.is_file():
-        try:
-            df = pd.read_parquet(parquet)
-        except Exception:  # noqa: BLE001 - fall back to the JSON lines
-            df = None
-    if df is None and jsonl.is_file():
-        rows = []
-        for line in jsonl.read_text().splitlines():
-            try:
-                rows.append(json.loads(line))
-            except ValueError:
-                continue
-        df = pd.DataFrame(rows)
-    if df is None:
-        raise UserError(f"{run_dir}: no readable {' or '.join(RESULTS)}")
-    if len(df) and "scene_id" not in df.columns:
-        raise UserError(f"{run_dir}: results have no scene_id column")
-    if len(df):
-        df = df.drop_duplicates("scene_id", keep="last").reset_index(drop=True)
-    for column, default in ROW_DEFAULTS.items():   # rows of older versions lack some fields
-        if column not in df.columns:
-            df[column] = default
-    return df
-
-
 def load_run(path: str | Path) -> RunData:
-    """One run directory (`UserError` when ``path`` is not one)."""
-    run_dir = Path(path).expanduser()
-    if not is_run_dir(run_dir):
-        raise UserError(f"{run_dir}: not a run directory (a run directory holds {SUMMARY} and "
-                        f"{' or '.join(RESULTS)})")
-    files.refuse_tree(run_dir, "run directory")
-    return RunData(run_dir=run_dir.resolve(), config=_read_config(run_dir),
-                   summary=_read_json(run_dir / SUMMARY, required=True),
-                   manifest=_read_json(run_dir / "manifest.json", required=False),
-                   results=_read_results(run_dir),
-                   ratings=read_ratings(run_dir / "human_ratings.jsonl"))
+    """One finished run directory with its human ratings (`UserError` when ``path`` is not
+    one)."""
+    run = results_load.load_run(Path(path).expanduser().resolve(), finished=True)
+    run.ratings = read_ratings(run.run_dir / RATINGS)
+    return run
 
 
 def load_runs(paths: Iterable[str | Path]) -> list[RunData]:

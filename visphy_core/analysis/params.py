@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from visphy_core.analysis.columns import MODEL_SUCCESS, scene_values
-from visphy_core.analysis.load import RunData
+from visphy_core.results.load import RunData
 
 #: column -> (short name, unit)
 PARAMETERS = {

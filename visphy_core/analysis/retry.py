@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from visphy_core.analysis.load import RunData
+from visphy_core.results.load import RunData
 from visphy_core.results.row import NOT_EVALUABLE
 
 #: The paper's success rates (first attempt, with one retry), per engine.
@@ -25,7 +25,7 @@ def retry_table(runs: list[RunData], labels: list[str], reference: bool = True) 
     attempt and after one retry, and the scenes the repair call rescued; then the paper's."""
     rows = []
     for run, label in zip(runs, labels):
-        df = run.results
+        df = run.table
         retry = (run.config.get("run") or {}).get("retry")
         if df.empty:
             ev = df

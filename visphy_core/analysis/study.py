@@ -40,8 +40,9 @@ from visphy_core.analysis.columns import (
 )
 from visphy_core.analysis.export import to_markdown, write_table
 from visphy_core.analysis.human import summarise_ratings
-from visphy_core.analysis.load import RunData, label_runs
+from visphy_core.analysis.load import label_runs
 from visphy_core.infra.errors import UserError
+from visphy_core.results.load import RunData
 
 #: What each study produces (besides the runs table and the leaderboard, always there).
 STUDIES: dict[str, tuple[str, ...]] = {
@@ -108,7 +109,7 @@ def _applicable(runs: list[RunData], columns: list[str]) -> tuple[str, ...]:
 
 
 def _retry_matters(run: RunData) -> bool:
-    df = run.results
+    df = run.table
     retry_off = (run.config.get("run") or {}).get("retry") is False
     return retry_off or (len(df) > 0 and df["first_failure_class"].notna().any())
 

@@ -32,7 +32,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str]) -> int:
     from visphy_core.report import write_run_report, write_study_report
-    from visphy_core.report.run_data import load_run
+    from visphy_core.results.load import load_run
 
     args = _parser().parse_args(argv)
     for run_dir in args.run_dirs:

@@ -35,7 +35,9 @@ from visphy_core.infra import files
 from visphy_core.infra.errors import UserError
 from visphy_core.infra.secrets import public_yaml
 from visphy_core.infra.shard import interleave, parse_shard
+from visphy_core.results.layout import RESULTS_JSONL
 from visphy_core.results.row import SceneResult
+from visphy_core.results.rows import read_jsonl, write_results
 from visphy_core.results.run_dir import FINISHED, config_hash
 from visphy_core.scoring.headline import Headline
 
@@ -93,11 +95,10 @@ def read_shard(run_dir: Path) -> Shard:
         raise UserError(f"merge: {run_dir} is {status or 'unfinished'}: rerun its command to "
                         "finish it (it resumes where it stopped), then merge")
     config = OmegaConf.load(run_dir / "config.yaml")
-    rows: dict[str, dict] = {}
-    for line in (run_dir / "results.jsonl").read_text().splitlines():
-        if line.strip():
-            row = json.loads(line)
-            rows[str(row["scene_id"])] = row
+    results, skipped = read_jsonl(run_dir / RESULTS_JSONL)
+    if skipped:
+        raise UserError(f"merge: {run_dir / RESULTS_JSONL}: {skipped} line(s) are not rows")
+    rows = {r.scene_id: r.row() for r in results}
     index = parse_shard(OmegaConf.select(config, "dataset.shard", default=None))
     return Shard(run_dir, config, manifest, summary, rows, index)
 
@@ -194,14 +195,6 @@ def _link_or_copy(src: str, dst: str) -> None:
         shutil.copy2(src, dst)
 
 
-def _write_rows(out: Path, results: list[SceneResult]) -> None:
-    import pandas as pd
-
-    with open(out / "results.jsonl", "w") as fh:
-        fh.writelines(json.dumps(r.row(), default=str) + "\n" for r in results)
-    pd.DataFrame([r.row() for r in results]).to_parquet(out / "results.parquet", index=False)
-
-
 def _sum_counts(dicts: list[dict]) -> dict:
     """Key-wise sums of nested dicts of counts (the shards' cache statistics)."""
     out: dict = {}
@@ -242,8 +235,9 @@ def _write_merged(out: Path, cfg: DictConfig, shards: list[Shard],
                   results: list[SceneResult], partial: bool) -> Merged:
     from visphy_core.api.registry import get_plugin_manager, get_registry
     from visphy_core.calls.usage import UsageLedger
-    from visphy_core.execute.run import RunContext, summarise, write_json
+    from visphy_core.execute.run import RunContext, summarise
     from visphy_core.infra.cache import Cache
+    from visphy_core.results.write import write_json
     from visphy_core.scoring.score import ScoringProtocol, select_metrics
 
     for shard in shards:
@@ -258,7 +252,7 @@ def _write_merged(out: Path, cfg: DictConfig, shards: list[Shard],
                 text = calls.read_text()
                 fh.write(text if not text or text.endswith("\n") else text + "\n")
     files.atomic_write(out / "config.yaml", public_yaml(cfg))  # no credentials in URLs
-    _write_rows(out, results)
+    write_results(out, results)
     chash = config_hash(cfg)
     merged_from = _merged_from(shards)
     judges = list(shards[0].manifest.get("judges") or [])

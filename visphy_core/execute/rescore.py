@@ -46,7 +46,9 @@ from visphy_core.infra.errors import SceneDataError, UserError
 from visphy_core.infra.files import atomic_write
 from visphy_core.infra.secrets import public_yaml
 from visphy_core.infra.video import decode_video, load_clip_for
+from visphy_core.results.layout import RESULTS_JSONL
 from visphy_core.results.row import SceneResult
+from visphy_core.results.rows import read_jsonl, write_results
 from visphy_core.results.run_dir import FINISHED, INTERRUPTED, RUNNING, RunLock, config_hash
 from visphy_core.scoring.ground_truth import open_store, store_path
 from visphy_core.scoring.headline import Headline
@@ -130,19 +132,6 @@ def check_run_dir(path: Path) -> Path:
                         "<VISPHY_HOME>/runs/")
     files.refuse_tree(path, "run directory")
     return path.resolve()
-
-
-def read_results(path: Path) -> list[SceneResult]:
-    """The rows of ``results.jsonl``, first row per scene; a half-written last line (a killed
-    run) is skipped. The file is not modified."""
-    rows: dict[str, SceneResult] = {}
-    for line in path.read_text(errors="replace").splitlines():
-        try:
-            result = SceneResult.from_row(json.loads(line))
-        except (ValueError, TypeError, KeyError):
-            continue
-        rows.setdefault(result.scene_id, result)
-    return list(rows.values())
 
 
 def _data_dir(cfg: DictConfig) -> Path:
@@ -352,7 +341,7 @@ def _rescore_into(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, ch
     ledger = UsageLedger(out / "calls.jsonl")
     scenes = load_dataset(cfg.dataset, _data_dir(cfg), progress=bool(cfg.run.progress))
     by_id = {s.scene_id: s for s in scenes}
-    before = [r for r in read_results(src / "results.jsonl") if r.scene_id in by_id]
+    before = [r for r in read_jsonl(src / RESULTS_JSONL)[0] if r.scene_id in by_id]
     order = {s.scene_id: i for i, s in enumerate(scenes)}
     before.sort(key=lambda r: order[r.scene_id])
     metrics = select_metrics(registry, cfg.metrics)
@@ -390,10 +379,10 @@ def _write_run(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, chang
                overrides: list[str], scenes: list[Scene], results: list[SceneResult],
                services: ScoringServices, ledger: UsageLedger, backup: Path | None,
                judge_keys: list[str], made: dict[str, int]) -> Rescored:
-    import pandas as pd
 
     from visphy_core.api.registry import get_plugin_manager
-    from visphy_core.execute.run import RunContext, summarise, write_json, write_report
+    from visphy_core.execute.run import RunContext, summarise, write_report
+    from visphy_core.results.write import write_json
 
     manifest = json.loads((src / "manifest.json").read_text())
     old_summary = {}
@@ -406,10 +395,7 @@ def _write_run(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, chang
     rescored_from = {"run_dir": str(src), "mlflow_run_id": previous_mlflow,
                      "at": dt.datetime.now().isoformat(timespec="seconds")}
     atomic_write(out / "config.yaml", public_yaml(cfg))  # no credentials in URLs
-    with open(out / ".results.jsonl.tmp", "w") as fh:
-        fh.writelines(json.dumps(r.row(), default=str) + "\n" for r in results)
-    (out / ".results.jsonl.tmp").replace(out / "results.jsonl")
-    pd.DataFrame([r.row() for r in results]).to_parquet(out / "results.parquet", index=False)
+    write_results(out, results)
     summary = summarise(results, services.metrics, services.cache, judge_keys, ledger,
                         services.protocol, services.headline)
     summary.update({

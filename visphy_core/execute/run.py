@@ -51,9 +51,9 @@ from visphy_core.infra.cache import Cache
 from visphy_core.infra.errors import ConfigError
 from visphy_core.infra.files import atomic_write
 from visphy_core.infra.heap import release_free_memory
-from visphy_core.infra.secrets import install_log_redaction, public_config, public_yaml
-from visphy_core.results.columns import SPEC_PREFIX
-from visphy_core.results.row import NOT_EVALUABLE, SceneResult
+from visphy_core.infra.secrets import install_log_redaction, public_yaml
+from visphy_core.results.row import SceneResult
+from visphy_core.results.rows import write_results
 from visphy_core.results.run_dir import (
     COST_CAP,
     FAILED,
@@ -66,6 +66,14 @@ from visphy_core.results.run_dir import (
     new_run_dir,
     read_rows,
 )
+from visphy_core.results.summary import (
+    counts,
+    metric_means,
+    prompt_versions,
+    spec_counts,
+    stage_seconds,
+)
+from visphy_core.results.write import write_json
 from visphy_core.scoring.ground_truth import open_store, store_path
 from visphy_core.scoring.headline import Headline, summary_entry
 from visphy_core.scoring.score import ScoringProtocol, score_columns, select_metrics
@@ -204,33 +212,12 @@ def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache,
     ``infra_error`` or ``data_error`` say nothing about the model); ``failures`` splits the
     model's failures from infrastructure/data failures.
     """
-    n = len(results)
     ok = [r for r in results if r.model_success]
     scored = [r for r in results if r.system_success]
-    evaluable = [r for r in results if r.evaluable]
-    failures: dict[str, dict[str, int]] = {"model": {}, "infra_or_data": {}}
-    for r in results:
-        if not r.model_success and r.failure_class:
-            side = "infra_or_data" if r.failure_class in NOT_EVALUABLE else "model"
-            failures[side][r.failure_class] = failures[side].get(r.failure_class, 0) + 1
-    per_metric = {}
     columns = [(headline.name, "higher")] if headline is not None else []
     columns += score_columns(metrics, protocol)
     columns += [(f"judge_{key}", "higher") for key in judges or []]
-    for name, direction in columns:
-        def mean(rows):
-            vals = [r.scores.get(name) for r in rows if r.scores.get(name) is not None]
-            return (float(np.mean(vals)) if vals else None), len(vals)
-
-        ok_mean, ok_n = mean(ok)
-        # the spec track scores S whether or not the program ran: over every evaluable scene
-        all_mean, all_n = mean(evaluable if name.startswith(SPEC_PREFIX) else scored)
-        reasons = {r.unavailable[name] for r in results if name in r.unavailable}
-        per_metric[name] = {
-            "direction": direction, "mean_model_success": ok_mean, "n_model_success": ok_n,
-            "mean_with_fallbacks": all_mean, "n_with_fallbacks": all_n,
-            "unavailable": sorted(reasons)[0] if reasons else None,
-        }
+    per_metric = metric_means(results, columns)
     head = None
     if headline is not None:
         def values(rows):
@@ -240,16 +227,7 @@ def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache,
         head = summary_entry(headline, values(ok), values(scored))
     return {
         "headline": head,
-        "n_scenes": n,
-        "n_evaluable": len(evaluable),
-        "model_success": len(ok), "model_success_rate": len(ok) / n if n else None,
-        "model_success_rate_evaluable": len(ok) / len(evaluable) if evaluable else None,
-        "system_success": len(scored), "system_success_rate": len(scored) / n if n else None,
-        "fallbacks": sum(r.fallback for r in results),
-        "repaired": sum(r.model_success and r.attempts > 1 for r in results),
-        "failures": failures,
-        "infra_retries": sum(r.infra_retries for r in results),
-        "flags": {f: sum(f in r.flags for r in results) for r in results for f in r.flags},
+        **counts(results),
         "isolation": sorted({r.isolation for r in results if r.isolation}),
         "metrics": per_metric,
         # what each metric is and loads (weights, the BERTScore model…), as declared
@@ -258,34 +236,13 @@ def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache,
         "model_calls": sum(r.model_calls for r in results),
         "renders_done": sum(1 for r in results if r.render_wall_s is not None
                             and not r.render_cached),
-        "spec": {"valid": sum(r.spec_valid is True for r in results),
-                 "invalid": sum(r.spec_valid is False for r in results),
-                 "absent": sum(r.spec_valid is None for r in results)},
-        "prompt_versions": sorted({r.prompt_version for r in results if r.prompt_version}),
+        "spec": spec_counts(results),
+        "prompt_versions": prompt_versions(results),
         "spec_track": _count_states(r.spec_track for r in results),
         "judges": _judge_columns(results, judges or []),
         "usage": ledger.totals() if ledger is not None else {},
         "stage_seconds": stage_seconds(results),
     }
-
-
-#: Per-stage wall seconds of a row, summed in the summary (``stage_seconds``).
-STAGE_FIELDS = ("model_latency_s", "render_wall_s", "reference_render_wall_s",
-                "scoring_wall_s", "judge_wall_s")
-
-
-def stage_seconds(results: list[SceneResult]) -> dict[str, dict[str, float | int]]:
-    """Each stage's wall seconds summed over the scenes where it ran this time (a cached
-    render's recorded time is not counted), with the count and the mean per such scene. With
-    several workers the stages of different scenes overlap: the sums exceed the run's wall."""
-    out: dict[str, dict[str, float | int]] = {}
-    for name in STAGE_FIELDS:
-        values = [float(getattr(r, name)) for r in results if getattr(r, name) is not None
-                  and not (name == "render_wall_s" and r.render_cached)
-                  and not (name == "model_latency_s" and r.model_calls == 0)]
-        out[name] = {"total": round(sum(values), 3), "n": len(values),
-                     "mean": round(sum(values) / len(values), 4) if values else None}
-    return out
 
 
 def _count_states(states) -> dict[str, int]:
@@ -294,12 +251,6 @@ def _count_states(states) -> dict[str, int]:
         if state is not None:
             out[state] = out.get(state, 0) + 1
     return out
-
-
-def write_json(path: Path, data: Any) -> None:
-    """A run file (manifest, summary) as stored: atomic, never through a link, with no secret
-    value and no credentials in URLs (the manifest records the command line)."""
-    atomic_write(path, json.dumps(public_config(data), indent=1, default=str), fsync=True)
 
 
 @contextmanager
@@ -598,7 +549,6 @@ def _let_scenes_stop(scheduler: SceneScheduler) -> None:
 
 
 def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledger) -> dict:
-    import pandas as pd
 
     metrics, engine = services.metrics, services.engine
     judge_keys = [k for k, _ in services.judges.judges] if services.judges else []
@@ -671,8 +621,7 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
             _let_scenes_stop(scheduler)
         order = {s.scene_id: i for i, s in enumerate(scenes)}
         ctx.results.sort(key=lambda r: order.get(r.scene_id, len(order)))
-        pd.DataFrame([r.row() for r in ctx.results]).to_parquet(run_dir / "results.parquet",
-                                                               index=False)
+        write_results(run_dir, ctx.results, jsonl=False)  # the lines were written as it went
         summary = summarise(ctx.results, metrics, cache, judge_keys, ledger,
                             services.protocol, services.headline)
         summary.update({"status": status, "run_dir": str(run_dir), "model": cfg.model.name,

@@ -17,25 +17,21 @@ from omegaconf import DictConfig, OmegaConf
 from visphy_core.api.scene import Scene
 from visphy_core.infra import files
 from visphy_core.infra.errors import UserError
-
-
-def is_run_dir(path: Path) -> bool:
-    """A run directory: a resolved ``config.yaml`` and a ``scenes/`` folder."""
-    return (path / "config.yaml").is_file() and (path / "scenes").is_dir()
+from visphy_core.results.layout import CONFIG, is_run_dir
 
 
 def read_run_config(run_dir: Path) -> DictConfig:
     """The run's resolved config (`UserError` when ``run_dir`` is not a run directory)."""
     run_dir = Path(run_dir)
-    if not is_run_dir(run_dir):
-        raise UserError(f"{run_dir} is not a run directory (no config.yaml and scenes/ in it)")
+    if not is_run_dir(run_dir) or not (run_dir / CONFIG).is_file():
+        raise UserError(f"{run_dir} is not a run directory (no {CONFIG} in it)")
     files.refuse_tree(run_dir, "run directory")
     try:
-        cfg = OmegaConf.load(run_dir / "config.yaml")
+        cfg = OmegaConf.load(run_dir / CONFIG)
     except Exception as exc:  # noqa: BLE001 - any parse error is a damaged run directory
-        raise UserError(f"{run_dir / 'config.yaml'}: unreadable ({exc})") from None
+        raise UserError(f"{run_dir / CONFIG}: unreadable ({exc})") from None
     if not isinstance(cfg, DictConfig) or "dataset" not in cfg:
-        raise UserError(f"{run_dir / 'config.yaml'} names no dataset")
+        raise UserError(f"{run_dir / CONFIG} names no dataset")
     return cfg
 
 

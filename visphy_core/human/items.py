@@ -16,9 +16,10 @@ import random
 from dataclasses import dataclass
 from pathlib import Path
 
-from visphy_core.execute.run_scenes import is_run_dir, load_run_scenes
+from visphy_core.execute.run_scenes import load_run_scenes
 from visphy_core.infra import files
 from visphy_core.infra.errors import UserError
+from visphy_core.results.layout import CONFIG, is_run_dir
 
 log = logging.getLogger("visphy.human")
 
@@ -55,7 +56,7 @@ def find_run_dirs(paths: list[str | Path]) -> list[Path]:
         if is_run_dir(path):
             found.append(path.resolve())
             continue
-        found += sorted(p.parent.resolve() for p in path.rglob("config.yaml")
+        found += sorted(p.parent.resolve() for p in path.rglob(CONFIG)
                         if is_run_dir(p.parent) and not any(is_run_dir(a) for a in
                                                              p.parent.parents))
     unique = list(dict.fromkeys(found))

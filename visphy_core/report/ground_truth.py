@@ -19,7 +19,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from visphy_core.report.run_data import RunData
+from visphy_core.results.load import RunData
 
 #: How deep under a search root a dataset folder (the parent of ``videos/``) may be.
 MAX_DEPTH = 3

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from visphy_core.report.columns import HEADINGS, PRIMARY, direction_of, grouped, label
 from visphy_core.report.markup import arrow, attr, details, esc, fmt, rate, table
-from visphy_core.report.run_data import RunData
 from visphy_core.report.scene_section import SceneView, anchor, outcome_of
+from visphy_core.results.load import RunData
 
 #: Primary score columns shown in the scene list.
 LIST_COLUMNS = 3

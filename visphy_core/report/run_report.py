@@ -8,9 +8,9 @@ from visphy_core.infra.files import atomic_write
 from visphy_core.report.ground_truth import locate_ground_truth
 from visphy_core.report.markup import esc, page
 from visphy_core.report.media import MediaStore
-from visphy_core.report.run_data import RunData, load_run
 from visphy_core.report.run_page import counts, header, leaderboard, scene_list
 from visphy_core.report.scene_section import SceneView, scene_section
+from visphy_core.results.load import RunData, load_run
 
 #: Up to this many scenes every clip is loaded with the page; longer reports load a clip when
 #: it is played or scrubbed (hundreds of clips loading at once stall the page).

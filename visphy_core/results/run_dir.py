@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import datetime as dt
 import json
-import os
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
 from visphy_core.infra.cache import content_key
+from visphy_core.infra.files import atomic_write
 from visphy_core.results.row import SceneResult
 
 #: Manifest statuses; every one but "finished" can be resumed by rerunning the same command
@@ -140,10 +140,5 @@ def read_rows(path: Path, scene_ids: list[str]) -> list[SceneResult]:
     if not raw.endswith(b"\n") and raw:
         dirty = True
     if dirty:
-        tmp = path.with_name(f".{path.name}.tmp")
-        with open(tmp, "w") as fh:
-            fh.writelines(line + "\n" for line, _ in kept.values())
-            fh.flush()
-            os.fsync(fh.fileno())
-        tmp.replace(path)
+        atomic_write(path, "".join(line + "\n" for line, _ in kept.values()), fsync=True)
     return [result for _, result in kept.values()]

@@ -1,0 +1,54 @@
+"""The run directory's layout: what each file is called and what makes a folder a run.
+
+A run directory (``<runs_dir>/<date>_<model>_<engine>_<hash>``, `visphy_core.results.run_dir`)
+holds:
+
+* ``config.yaml``: the run's resolved config, credentials removed;
+* ``manifest.json``: the command, the config hash, the scenes selected, the status
+  (``running``, ``interrupted``, ``failed``, ``cost_cap``, ``finished``), the metrics;
+* ``results.jsonl``: one row per scene (`visphy_core.results.row.SceneResult`), appended and
+  fsynced as each scene finishes — what a resumed run and a report of a killed run read;
+* ``results.parquet``: the same rows, written when the run closes;
+* ``summary.json``: counts and means (`visphy_core.results.summary`), written when it closes;
+* ``calls.jsonl``: every model and judge call with its usage and cost;
+* ``scenes/<scene_id>/``: the scene's replies, program, clips and per-scene scores;
+* ``human_ratings.jsonl``: ratings added later by the rating page (`visphy_core.human`);
+* ``.lock``: held by the process working in the folder.
+
+Every file is written through `visphy_core.infra.files` (atomic, never through a link).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+CONFIG = "config.yaml"
+MANIFEST = "manifest.json"
+SUMMARY = "summary.json"
+RESULTS_JSONL = "results.jsonl"
+RESULTS_PARQUET = "results.parquet"
+CALLS = "calls.jsonl"
+SCENES = "scenes"
+RATINGS = "human_ratings.jsonl"
+LOCK = ".lock"
+
+#: Files only a run writes: a folder holding any of them is a run directory, finished or not
+#: (a killed run may have no summary). ``config.yaml`` alone is not one (Hydra writes one in
+#: every job's ``.hydra/``): it counts beside a ``scenes/`` folder.
+RUN_MARKERS = (MANIFEST, RESULTS_JSONL, SUMMARY)
+
+
+def is_run_dir(path: str | Path) -> bool:
+    """``path`` is a run directory: a folder with any of `RUN_MARKERS`, or with ``config.yaml``
+    and ``scenes/``."""
+    path = Path(path)
+    if not path.is_dir():
+        return False
+    if any((path / marker).is_file() for marker in RUN_MARKERS):
+        return True
+    return (path / CONFIG).is_file() and (path / SCENES).is_dir()
+
+
+def is_finished_run(path: str | Path) -> bool:
+    """A run directory that closed: it has its ``summary.json``."""
+    return is_run_dir(path) and (Path(path) / SUMMARY).is_file()
