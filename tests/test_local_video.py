@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from visphy_core.api.errors import UserError
+from visphy_core.api.media import png_bytes
 from visphy_core.api.model import ImageInput, ModelRequest, OutputContract
 from visphy_core.api.registry import get_registry
 from visphy_core.config.check import compose
 from visphy_plugins.models import local_video
-from visphy_plugins.models.baselines import png_bytes
 
 REAL_FIND_SPEC = importlib.util.find_spec
 

@@ -12,10 +12,10 @@ import pytest
 from scipy.ndimage import gaussian_filter
 from scipy.stats import spearmanr
 
+from visphy_core.api import weights
 from visphy_core.api.metrics import LOWER, SEQUENCE, MetricInput
 from visphy_core.api.scene import ClipInfo, Scene
 from visphy_core.infra.cache import Cache
-from visphy_core.scoring import weights
 from visphy_core.scoring.alignment import Alignment, unaligned
 from visphy_core.scoring.score import ScoringProtocol, score_scene
 from visphy_plugins.metrics import motion

@@ -33,7 +33,7 @@ torch = pytest.importorskip("torch")
 piq = pytest.importorskip("piq")
 pytest.importorskip("torchvision")
 
-from visphy_core import weights  # noqa: E402
+from visphy_core.api import weights  # noqa: E402
 from visphy_core.api.metrics import HIGHER, LOWER, PAIRS  # noqa: E402
 from visphy_core.api.scene import ClipInfo, Scene  # noqa: E402
 from visphy_core.infra.cache import Cache  # noqa: E402

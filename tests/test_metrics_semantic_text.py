@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from visphy_core.api import weights
 from visphy_core.api.metrics import HIGHER, PAIRS, SCENE, MetricInput
 from visphy_core.api.scene import Scene
 from visphy_core.infra.cache import Cache
 from visphy_core.infra.video import ClipInfo
-from visphy_core.scoring import weights
 from visphy_core.scoring.score import score_scene
 
 torch = pytest.importorskip("torch")

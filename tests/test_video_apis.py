@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 
 from visphy_core.api.errors import ConfigError
+from visphy_core.api.media import png_bytes
 from visphy_core.api.model import ImageInput, ModelRequest, OutputContract
 from visphy_core.api.registry import get_registry
 from visphy_core.calls.keys import MissingKey
 from visphy_core.config.check import compose
 from visphy_core.infra.video import decode_video, encode_video, resize_with_padding
-from visphy_plugins.models.baselines import decode_png, png_bytes
+from visphy_plugins.models.baselines import decode_png
 from visphy_plugins.models.video_apis import PROMPT, PROMPT_VERSION, SoraModel, VeoModel
 from visphy_plugins.testing.fake_server import status
 from visphy_plugins.testing.fake_sora import FakeSoraServer, form

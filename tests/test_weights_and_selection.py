@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from omegaconf import OmegaConf
 
+from visphy_core.api import weights
 from visphy_core.api.registry import get_registry
-from visphy_core.scoring import weights
 from visphy_core.scoring.score import select_metrics, subsample_pairs
 
 

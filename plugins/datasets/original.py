@@ -35,9 +35,9 @@ from omegaconf import OmegaConf
 from visphy_core.api.dataset import Dataset
 from visphy_core.api.errors import ConfigError
 from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.media import ClipInfo
 from visphy_core.api.scene import Scene, read_json, scene_dim
-from visphy_core.infra import files
-from visphy_core.infra.video import ClipInfo
+from visphy_core.api.storage import files
 
 #: Keys under which a metadata line or a difficulty-table item names its scene, in priority order.
 ID_KEYS = ("scene_id", "id", "video_id", "video")

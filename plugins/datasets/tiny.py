@@ -19,8 +19,8 @@ import numpy as np
 
 from visphy_core.api.dataset import Dataset
 from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.media import encode_video
 from visphy_core.api.scene import Scene
-from visphy_core.infra.video import encode_video
 
 SIZE, N_FRAMES, FPS = 64, 17, 5
 

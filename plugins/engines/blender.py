@@ -60,6 +60,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from visphy_core.api.calls import redact
 from visphy_core.api.config_schema import EngineConfig
 from visphy_core.api.engine import (
     Engine,
@@ -73,11 +74,10 @@ from visphy_core.api.engine import (
 )
 from visphy_core.api.extract import extract_code, extract_spec, fenced_blocks
 from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.media import DeadlineExceeded, FrameRejected
 from visphy_core.api.scene import Scene
 from visphy_core.api.settings import cfg_get
-from visphy_core.infra.png import DeadlineExceeded, FrameRejected
-from visphy_core.infra.secrets import redact
-from visphy_core.spec.replay import replay_payload
+from visphy_core.api.spec import replay_payload
 
 HERE = Path(__file__).resolve().parent
 RUNNER = HERE / "blender_runner.py"
@@ -278,7 +278,7 @@ class BlenderEngine(Engine):
             return RenderResult(frames=None, failure=FailureClass.INFRA_ERROR,
                                 error=f"engine.render_engine={render_engine!r}; valid: "
                                       f"{', '.join(RENDER_ENGINES)}")
-        from visphy_core.sandbox.process import Limits, python_ro_paths, run_sandboxed
+        from visphy_core.api.sandbox import Limits, python_ro_paths, run_sandboxed
 
         workdir = Path(tempfile.mkdtemp(prefix="visphy-blender-"))
         try:
@@ -326,7 +326,7 @@ class BlenderEngine(Engine):
         logs = [line for line in _lines(proc.stdout) + _lines(proc.stderr)
                 if not _noise(line)][-200:]
         result = RenderResult(frames=None, logs=logs)
-        from visphy_core.sandbox.process import describe_limit, limit_from_text, read_untrusted
+        from visphy_core.api.sandbox import describe_limit, limit_from_text, read_untrusted
 
         raw = read_untrusted(workdir / "result.json", 4 << 20)
         try:
@@ -449,7 +449,7 @@ def _read_frames(paths: list[Path], contract: RenderContract,
     """The PNG frames, each exactly the clip's size (the runner renders nothing else): read by
     the shared untrusted-frame reader (header before decoding, no links, size caps, at most
     ``n_frames``, ``deadline``); raises `FrameRejected` or `DeadlineExceeded`."""
-    from visphy_core.infra.video import read_untrusted_frames
+    from visphy_core.api.media import read_untrusted_frames
 
     return read_untrusted_frames(paths, contract.width, contract.height, contract.n_frames,
                                  deadline)

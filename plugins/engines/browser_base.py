@@ -53,8 +53,8 @@ from visphy_core.api.engine import (
     classify_frames,
 )
 from visphy_core.api.extract import extract_code, extract_spec
-from visphy_core.sandbox.browser import BrowserPool, PageCapture
-from visphy_core.spec.replay import fill, replay_payload
+from visphy_core.api.sandbox import BrowserPool, PageCapture
+from visphy_core.api.spec import fill, replay_payload
 
 TEMPLATES = Path(__file__).with_name("templates")
 
@@ -278,7 +278,7 @@ _SERVED = (("/vendor/npm/three-esm/", "three", "three-esm"),
 @cache
 def _locked_versions() -> dict[str, str]:
     """Lock entry name (``three``, ``three-esm``...) -> the exact version vendored."""
-    from visphy_core.infra.js_assets import ASSETS_SRC
+    from visphy_core.api.sandbox import ASSETS_SRC
 
     lock = json.loads((ASSETS_SRC / "package-lock.json").read_text())
     return {name.removeprefix("node_modules/"): str(info.get("version", "?"))
@@ -400,7 +400,7 @@ class BrowserEngine(Engine):
     def cache_identity(self) -> str:
         """The engine's version plus the virtual clock's digest: a change to the clock (what a
         page sees of time, timers, messages) re-renders instead of replaying old clips."""
-        from visphy_core.sandbox.browser import VIRTUAL_TIME_JS
+        from visphy_core.api.sandbox import VIRTUAL_TIME_JS
 
         clock = hashlib.sha256(VIRTUAL_TIME_JS.encode()).hexdigest()[:12]
         return f"{super().cache_identity()}+clock.{clock}"
@@ -415,7 +415,7 @@ class BrowserEngine(Engine):
 
     @cached_property
     def vendor(self):
-        from visphy_core.infra.js_assets import VendorFiles
+        from visphy_core.api.sandbox import VendorFiles
 
         return VendorFiles()
 
@@ -528,7 +528,7 @@ class BrowserEngine(Engine):
             lines.append("[visphy] two three.js instances were loaded in this page (three.js "
                          f"warned: {THREE_TWICE}); the page references "
                          + (", ".join(builds.values()) or "no vendored build"))
-        from visphy_core.infra.secrets import redact
+        from visphy_core.api.calls import redact
 
         result.logs += [redact(line) for line in lines]  # last: the cached log keeps its tail
 
@@ -550,7 +550,7 @@ def fill_template(name: str, payload: dict) -> str:
 
 
 def _resize(frames: list[np.ndarray], contract: RenderContract) -> np.ndarray:
-    from visphy_core.infra.video import resize_with_padding
+    from visphy_core.api.media import resize_with_padding
 
     return np.stack([resize_with_padding(f, contract.width, contract.height) for f in frames])
 
@@ -594,7 +594,7 @@ def classify_capture(cap: PageCapture, contract: RenderContract,
     """Turn what the page did into frames or a failure class, with the evidence in the logs,
     and the flags of what was done to it (`RenderFlag`; ``expects_recording_call``: flag a page
     that never called ``setupRecording``)."""
-    from visphy_core.infra.secrets import redact, redact_obj
+    from visphy_core.api.calls import redact, redact_obj
 
     logs = list(cap.errors) + list(cap.console)
     logs += [f"blocked request: {url}" for url in cap.blocked_requests]

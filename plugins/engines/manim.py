@@ -72,6 +72,7 @@ from pathlib import Path
 
 import numpy as np
 
+from visphy_core.api.calls import redact
 from visphy_core.api.config_schema import EngineConfig
 from visphy_core.api.engine import (
     Engine,
@@ -85,11 +86,8 @@ from visphy_core.api.engine import (
 )
 from visphy_core.api.extract import extract_code, extract_spec
 from visphy_core.api.hookspecs import hookimpl
-from visphy_core.api.scene import Scene
-from visphy_core.api.settings import cfg_get
-from visphy_core.infra.png import DeadlineExceeded, FrameRejected
-from visphy_core.infra.secrets import redact
-from visphy_core.sandbox.process import (
+from visphy_core.api.media import DeadlineExceeded, FrameRejected
+from visphy_core.api.sandbox import (
     Limits,
     ProcessResult,
     describe_limit,
@@ -97,7 +95,9 @@ from visphy_core.sandbox.process import (
     read_untrusted,
     run_sandboxed,
 )
-from visphy_core.spec.replay import replay_payload
+from visphy_core.api.scene import Scene
+from visphy_core.api.settings import cfg_get
+from visphy_core.api.spec import replay_payload
 
 log = logging.getLogger(__name__)
 
@@ -396,7 +396,7 @@ def _read_raw(work: Path, contract: RenderContract, max_frames: int,
               deadline: float | None) -> np.ndarray:
     """``frames.rgb`` through the shared untrusted-frame reader (no link, a regular file, at
     most ``max_frames`` clip-sized frames by its size, ``deadline``)."""
-    from visphy_core.infra.video import read_untrusted_raw_frames
+    from visphy_core.api.media import read_untrusted_raw_frames
 
     return read_untrusted_raw_frames(work / "frames.rgb", contract.width, contract.height,
                                      max_frames, deadline)

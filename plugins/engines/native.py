@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 
-from visphy_core.spec.replay import replay_payload
+from visphy_core.api.spec import replay_payload
 
 #: Segments of a disc where the engine draws circles as polygons (three.js, Blender): the
 #: chord of a 64-gon stays within r·(1 − cos(π/64)) < 0.07 px of a 56 px circle.

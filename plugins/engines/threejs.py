@@ -8,7 +8,7 @@ from pathlib import Path
 from visphy_core.api.engine import Program
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.scene import Scene
-from visphy_core.spec.replay import fill, replay_payload
+from visphy_core.api.spec import fill, replay_payload
 from visphy_plugins.engines.browser_base import BrowserEngine
 from visphy_plugins.engines.native import native_payload
 
@@ -47,7 +47,7 @@ class ThreeJsEngine(BrowserEngine):
             raise ValueError(f"{scene.scene_id}: the reference program needs the scene's spec and "
                              "trajectory (generated benchmarks have both)")
         if scene.dim == "3d":
-            from visphy_core.spec.replay import replay_html_3d
+            from visphy_core.api.spec import replay_html_3d
 
             html = replay_html_3d(spec, traj["frame_poses"], scene.clip.fps, scene.clip.n_frames)
             return Program(language=self.language, source=html, spec=spec)

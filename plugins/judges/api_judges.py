@@ -20,11 +20,11 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any, Optional
 
+from visphy_core.api.calls import judge_prompt
 from visphy_core.api.config_schema import JudgeConfig
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.judge import Judge, JudgeInput, Verdict, parse_verdict, uniform_indices
-from visphy_core.calls.prompts.build import judge_prompt, png_bytes
-from visphy_core.infra.video import decode_video
+from visphy_core.api.media import decode_video, png_bytes
 from visphy_plugins.providers.base import ApiCaller, Part
 from visphy_plugins.providers.config import ApiSettings
 

@@ -38,12 +38,12 @@ from typing import Any, Optional
 
 import numpy as np
 
+from visphy_core.api.calls import CallErrorKind
 from visphy_core.api.config_schema import JudgeConfig
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.judge import Judge, JudgeInput, Verdict
+from visphy_core.api.media import decode_video
 from visphy_core.api.settings import cfg_get
-from visphy_core.calls.retry import CallErrorKind
-from visphy_core.infra.video import decode_video
 
 DIMENSIONS = ("visual_quality", "text_alignment", "physical_consistency")
 PROMPT_VERSION = "videoscore2_query@1"

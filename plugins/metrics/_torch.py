@@ -29,7 +29,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
-from visphy_core.scoring import weights
+from visphy_core.api import weights
 
 
 @lru_cache(maxsize=None)

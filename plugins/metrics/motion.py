@@ -28,7 +28,7 @@ better):
   ``flow_angle_dis``, ``flow_mag_diff_dis``, ``flow_epe_moving_dis``, ``flow_angle_moving_dis``,
   ``flow_mag_diff_moving_dis``;
 * RAFT large (torchvision ``raft_large``; weights ``raft_large_C_T_SKHT_V2-ff5fadd5.pth``, the
-  paper's ``Raft_Large_Weights.DEFAULT``, found by `visphy_core.scoring.weights.find`, never
+  paper's ``Raft_Large_Weights.DEFAULT``, found by `visphy_core.api.weights.find`, never
   downloaded,
   and checked against the SHA-256 prefix in its name before loading: a wrong file makes the six
   metrics unavailable, ``checksum mismatch …``; torchvision's other RAFT checkpoints, such as
@@ -56,9 +56,9 @@ from typing import Any
 
 import numpy as np
 
+from visphy_core.api import weights
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.metrics import LOWER, SEQUENCE, Metric, MetricInput
-from visphy_core.scoring import weights
 
 #: A pixel is moving where either flow's magnitude exceeds this (original pixels per interval).
 MOVING_THRESHOLD_PX = 0.5

@@ -25,12 +25,12 @@ on every call). Values equal direct piq calls to 1e-6.
 
 Learned (models load once per process, cached by weight file and device, and run under
 ``torch.inference_mode`` on ``metrics.device``). Weights are never downloaded: the files below
-are looked up with `visphy_core.scoring.weights.find` (``metrics.weights_dir``, ``$VISPHY_WEIGHTS``,
+are looked up with `visphy_core.api.weights.find` (``metrics.weights_dir``, ``$VISPHY_WEIGHTS``,
 ``$TORCH_HOME/hub/checkpoints``); a missing file makes the metric unavailable with the reason.
 Every file is checked against its published SHA-256 before it is loaded
-(`visphy_core.scoring.weights.check`: torchvision's checkpoints against the hash prefix in their
+(`visphy_core.api.weights.check`: torchvision's checkpoints against the hash prefix in their
 names,
-the packaged LPIPS/ST-LPIPS files against the table in `visphy_core.scoring.weights`): a file with
+the packaged LPIPS/ST-LPIPS files against the table in `visphy_core.api.weights`): a file with
 the right name and the wrong content makes the metric unavailable (``checksum mismatch (<file>:
 expected …, got …)``), never a number. Every metric's identity carries the digest of the files
 it loaded.
@@ -54,7 +54,7 @@ it loaded.
   torchvision's VGG16 backbone ``vgg16-397923af.pth`` and piq's DISTS α/β ``dists_weights.pt``
   (the files piq would download from torchvision and from its v0.4.1 release), both from the
   weight search. piq publishes no SHA-256 for ``dists_weights.pt`` (it downloads the file
-  unchecked): record the one you trust in ``SHA256SUMS`` (`visphy_core.scoring.weights`), else the
+  unchecked): record the one you trust in ``SHA256SUMS`` (`visphy_core.api.weights`), else the
   file is not used. α and β are divided by their joint sum as in DISTS' definition (a no-op for
   piq's file). piq resizes frames whose shorter side exceeds 256 to 256 itself.
 
@@ -148,9 +148,9 @@ from typing import Any, Callable
 import cv2
 import numpy as np
 
+from visphy_core.api import weights as _weights
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.metrics import HIGHER, LOWER, PAIRS, Metric
-from visphy_core.scoring import weights as _weights
 from visphy_plugins.metrics import _torch
 
 #: Pairs per forward pass.
@@ -774,7 +774,7 @@ class VSI(_PiqMetric):
 @dataclass(frozen=True)
 class _Files:
     """The weight files a learned metric loads (None where one is missing) and their keys in
-    `visphy_core.scoring.weights.expected` (None: the file's name)."""
+    `visphy_core.api.weights.expected` (None: the file's name)."""
 
     paths: tuple[Path | None, ...]
     keys: tuple[str | None, ...] = ()

@@ -33,7 +33,7 @@ input up to rounding (at most 1 grey level for square frames, 2 otherwise; under
 average). DINO sees the whole frame resized to 224² (bicubic, antialiased; no crop, so objects
 at the border count), ImageNet mean/std.
 
-Weights are never downloaded; they are found by `visphy_core.scoring.weights`
+Weights are never downloaded; they are found by `visphy_core.api.weights`
 (``metrics.weights_dir``,
 then ``$VISPHY_WEIGHTS``, then ``$TORCH_HOME/hub/checkpoints``, then the Hugging Face hub cache):
 
@@ -60,10 +60,10 @@ DINO:
   ``vit_small_patch16_224.dino`` and ``dino_deitsmall16_pretrain.pth``.
 
 Loaded through timm with ``pretrained_cfg_overlay=dict(file=<path>)``. Every file is checked
-against its published SHA-256 first (`visphy_core.scoring.weights.check`): a wrong file makes the
+against its published SHA-256 first (`visphy_core.api.weights.check`): a wrong file makes the
 metric
 unavailable (``checksum mismatch …``), a file with no published SHA-256 too (record the one its
-publisher lists in ``SHA256SUMS``, see `visphy_core.scoring.weights`). The model used is recorded in
+publisher lists in ``SHA256SUMS``, see `visphy_core.api.weights`). The model used is recorded in
 ``weights``, in ``describe()["model"]`` and in the identity (with the weights' digest).
 
 Cost: models load once per process (keyed by weight file, size, mtime and device); every frame is
@@ -89,9 +89,9 @@ from typing import Any
 
 import numpy as np
 
+from visphy_core.api import weights as _weights
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.metrics import HIGHER, PAIRS, SCENE, Metric, MetricInput
-from visphy_core.scoring import weights as _weights
 
 # --------------------------------------------------------------------------- settings
 CLIP_HF_REPO = "laion/CLIP-ViT-B-32-laion2B-s34B-b79K"
@@ -129,7 +129,7 @@ class Found:
     arch: str        # open_clip model name or timm model name
     source: str      # pretrained tag / provenance
     label: str       # human-readable model name (``weights``, ``describe()["model"]``)
-    key: str = ""    # the artifact's key in `visphy_core.scoring.weights.PUBLISHED` (its checksum)
+    key: str = ""    # the artifact's key in `visphy_core.api.weights.PUBLISHED` (its checksum)
 
     def problem(self) -> str | None:
         """None when the file is the published one; else why it must not be used."""

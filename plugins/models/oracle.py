@@ -21,6 +21,7 @@ import time
 from dataclasses import dataclass
 from enum import Enum
 
+from visphy_core.api.calls import describe_spec
 from visphy_core.api.config_schema import ModelConfig
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.model import (
@@ -31,7 +32,6 @@ from visphy_core.api.model import (
     config_identity,
 )
 from visphy_core.api.settings import cfg_get
-from visphy_core.calls.references import describe_spec
 
 
 class OracleStyle(str, Enum):

@@ -38,7 +38,7 @@ from visphy_core.api.errors import UserError
 from visphy_core.api.extract import fenced_blocks
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.model import Model, ModelRequest, ModelResponse
-from visphy_core.infra import files
+from visphy_core.api.storage import files
 
 TEXT_SUFFIXES = (".txt", ".md", ".html", ".py")
 FENCE_FOR = {".html": "html", ".py": "python"}

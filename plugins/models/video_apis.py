@@ -46,28 +46,29 @@ from typing import Any, Awaitable, Callable, Optional, TypeVar
 
 import numpy as np
 
-from visphy_core.api.config_schema import ModelConfig
-from visphy_core.api.errors import ConfigError
-from visphy_core.api.hookspecs import hookimpl
-from visphy_core.api.model import Model, ModelRequest, ModelResponse, OutputContract
-from visphy_core.calls.keys import require_key
-from visphy_core.calls.retry import (
+from visphy_core.api.calls import (
     CallError,
     CallErrorKind,
     RetryPolicy,
     call_with_retries,
     kind_for_status,
     limiter_for,
+    require_key,
     retry_after_seconds,
 )
-from visphy_core.infra.video import (
+from visphy_core.api.config_schema import ModelConfig
+from visphy_core.api.errors import ConfigError
+from visphy_core.api.hookspecs import hookimpl
+from visphy_core.api.media import (
     ClipInfo,
     VideoBudget,
     decode_video_timed,
+    png_bytes,
     resample_by_time,
     resize_with_padding,
 )
-from visphy_plugins.models.baselines import decode_png, key_frame_index, png_bytes, write_clip
+from visphy_core.api.model import Model, ModelRequest, ModelResponse, OutputContract
+from visphy_plugins.models.baselines import decode_png, key_frame_index, write_clip
 from visphy_plugins.providers.config import ConcurrencyConfig, RetriesConfig
 
 T = TypeVar("T")

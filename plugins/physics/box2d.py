@@ -22,7 +22,7 @@ import numpy as np
 
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.physics import Physics
-from visphy_core.spec.spec2d import WALL_IDS, contact_table, local_polygons
+from visphy_core.api.spec import WALL_IDS, contact_table, local_polygons
 
 #: Tangential speed (m/s) above which a touching contact counts as sliding for `pair_stats`.
 SLIDE_SPEED_M_S = 0.05

@@ -27,7 +27,7 @@ import numpy as np
 
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.physics import Physics
-from visphy_core.spec.spec3d import body_mass
+from visphy_core.api.spec import body_mass
 
 SIM_SCRIPT = Path(__file__).with_name("sim3d.mjs")
 POSE_LAYOUT = ("x_m", "y_m", "z_m", "qx", "qy", "qz", "qw")
@@ -86,7 +86,7 @@ def cannon_es_path() -> Path:
     if env:
         path = Path(env)
     else:
-        from visphy_core.infra.js_assets import require_assets
+        from visphy_core.api.sandbox import require_assets
 
         path = require_assets() / "cannon-es" / "dist" / "cannon-es.js"
     if not path.is_file():

@@ -16,16 +16,16 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from visphy_core.api.model import Model, ModelRequest, ModelResponse
-from visphy_core.calls.keys import require_key
-from visphy_core.calls.retry import (
+from visphy_core.api.calls import (
     CallError,
     CallErrorKind,
+    Price,
     RetryPolicy,
     call_with_retries,
     limiter_for,
+    require_key,
 )
-from visphy_core.calls.usage import Price
+from visphy_core.api.model import Model, ModelRequest, ModelResponse
 
 
 @dataclass(frozen=True)

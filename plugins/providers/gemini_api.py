@@ -29,7 +29,7 @@ import pydantic
 from google import genai
 from google.genai import errors, types
 
-from visphy_core.calls.retry import CallError, CallErrorKind, kind_for_status, retry_after_seconds
+from visphy_core.api.calls import CallError, CallErrorKind, kind_for_status, retry_after_seconds
 from visphy_plugins.providers.base import Completion, Part, ProviderClient
 
 

@@ -27,7 +27,7 @@ from typing import Any
 
 import openai
 
-from visphy_core.calls.retry import CallError, CallErrorKind, kind_for_status, retry_after_seconds
+from visphy_core.api.calls import CallError, CallErrorKind, kind_for_status, retry_after_seconds
 from visphy_plugins.providers.base import Completion, Part, ProviderClient
 
 _FINISH = {"stop": "stop", "length": "length", "content_filter": "content_filter",

@@ -38,7 +38,7 @@ def sample_video(fps: float = 24.0, n_frames: int = 8, width: int = 256, height:
 
     import numpy as np
 
-    from visphy_core.infra.video import encode_video
+    from visphy_core.api.media import encode_video
 
     frames = [np.full((height, width, 3), min(255, 20 + 30 * i), np.uint8)
               for i in range(n_frames)]

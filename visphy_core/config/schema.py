@@ -144,7 +144,7 @@ class MetricsConfig:
     align: VisphyAlignConfig = field(default_factory=VisphyAlignConfig)
     paper: PaperAlignConfig = field(default_factory=PaperAlignConfig)
     # Model weights (LPIPS/DISTS backbones, CLIP, DINO, RAFT, RoBERTa): searched here first, then
-    # $VISPHY_WEIGHTS and $TORCH_HOME/hub/checkpoints (visphy_core.scoring.weights). Never
+    # $VISPHY_WEIGHTS and $TORCH_HOME/hub/checkpoints (visphy_core.api.weights). Never
     # downloaded.
     weights_dir: Optional[str] = None
     # The spec track: the model's S simulated by visphy and replayed by the engine's reference

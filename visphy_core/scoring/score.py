@@ -39,12 +39,13 @@ from typing import Any
 
 import numpy as np
 
+from visphy_core.api import weights
 from visphy_core.api.metrics import HIGHER, LOWER, PAIRS, SCENE, Metric, MetricInput
 from visphy_core.api.scene import Scene
 from visphy_core.infra.cache import Cache, content_key
 from visphy_core.infra.video import resample_by_time, resize_with_padding
 from visphy_core.results.columns import SPEC_PREFIX, norm_column
-from visphy_core.scoring import paper_protocol, weights
+from visphy_core.scoring import paper_protocol
 from visphy_core.scoring.alignment import (
     EVERY_FRAME,
     PAPER,

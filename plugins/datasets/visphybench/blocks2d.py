@@ -28,7 +28,7 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from visphy_core.api.scene import SPEC_SCHEMA
-from visphy_core.spec.spec2d import PHYRE_PROFILE, category_of, local_polygons, transform_points
+from visphy_core.api.spec import PHYRE_PROFILE, category_of, local_polygons, transform_points
 from visphy_plugins.datasets.visphybench.filters import window_mask
 from visphy_plugins.datasets.visphybench.raster2d import PALETTE
 

@@ -15,7 +15,7 @@ from typing import Callable
 import numpy as np
 
 from visphy_core.api.scene import SPEC_SCHEMA
-from visphy_core.spec.spec3d import (
+from visphy_core.api.spec import (
     FLOOR_ID,
     IDENTITY_QUAT,
     PROFILE_3D,
@@ -102,7 +102,7 @@ def wedge_shape(length: float, height: float, width: float) -> dict:
 def centred_compound(parts: list[tuple[dict, list[float]]]) -> tuple[dict, np.ndarray]:
     """A compound of (primitive, offset) parts shifted so its volume centroid is the origin;
     returns the shape and the shift (old origin -> centroid)."""
-    from visphy_core.spec.spec3d import primitive_volume
+    from visphy_core.api.spec import primitive_volume
 
     vols = np.array([primitive_volume(s) for s, _ in parts])
     offs = np.array([o for _, o in parts], dtype=np.float64)
@@ -224,7 +224,7 @@ def froude_scale(bodies: list[dict], s: float) -> None:
 def yaw_layout(bodies: list[dict], angle: float) -> None:
     """Turn a layout about the vertical axis through the origin by ``angle`` (rad; in place):
     positions, orientations and both velocities (the story is unchanged)."""
-    from visphy_core.spec.spec3d import quat_to_matrix
+    from visphy_core.api.spec import quat_to_matrix
 
     q = rot_y(angle)
     rot = quat_to_matrix(q)

@@ -20,9 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from visphy_core.infra.files import atomic_write
-from visphy_core.infra.png import png_bytes
-from visphy_core.infra.video import PUBLISHED_CRF
+from visphy_core.api.media import PUBLISHED_CRF, png_bytes
+from visphy_core.api.storage import atomic_write
 from visphy_plugins.datasets.visphybench.catalogue import (
     GENERATOR_VERSION,
     Catalogue,
@@ -147,7 +146,7 @@ def clip_of(spec: dict) -> tuple[float, int, int, int]:
 def write_scene(entry: Entry, root: Path, pool=None, lossless: bool = False) -> dict:
     """Simulate (checking the catalogue digest), render and write one scene; returns its meta.
     The clip is encoded like the published ones (crf 23) or, ``lossless``, exactly."""
-    from visphy_core.infra.video import encode_video
+    from visphy_core.api.media import encode_video
 
     spec = json.loads(json.dumps(entry.spec))
     sid = spec["scene_id"]
@@ -226,7 +225,7 @@ def _render(entries: list[Entry], root: Path, progress: bool, workers: int,
             for e in _track(two_d, len(two_d), "rendering 2D scenes", progress):
                 write_scene(e, root, lossless=lossless)
     if three_d:
-        from visphy_core.sandbox.browser import BrowserPool
+        from visphy_core.api.sandbox import BrowserPool
 
         with BrowserPool(untrusted=False) as pool:  # visphy's own reference pages
             for e in _track(three_d, len(three_d), "rendering 3D scenes", progress):
@@ -261,7 +260,7 @@ def _write_indexes(root: Path, catalogue: Catalogue, metas: list[dict],
 def _write_previews(root: Path, metas: list[dict]) -> None:
     from PIL import Image
 
-    from visphy_core.infra.video import decode_video
+    from visphy_core.api.media import decode_video
     from visphy_plugins.datasets.visphybench.preview import write_contact_sheet, write_preview
 
     firsts = [(m["scene_id"], np.asarray(Image.open(

@@ -114,11 +114,11 @@ def _simulate(dim: str, spec: dict):
 
 def _validate(dim: str, spec: dict) -> None:
     if dim == "2d":
-        from visphy_core.spec.spec2d import validate_spec
+        from visphy_core.api.spec import validate_spec
 
         validate_spec(spec)
     else:
-        from visphy_core.spec.spec3d import validate_spec_3d
+        from visphy_core.api.spec import validate_spec_3d
 
         validate_spec_3d(spec)
 

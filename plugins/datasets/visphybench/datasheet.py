@@ -13,7 +13,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
-from visphy_core.infra.files import atomic_write
+from visphy_core.api.storage import atomic_write
 
 #: VisPhyBench as published: scene and template counts.
 PAPER_SCENES, PAPER_TEMPLATES = 209, 108

@@ -18,12 +18,7 @@ import math
 
 import numpy as np
 
-from visphy_core.spec.spec2d import (
-    category_of,
-    local_polygons,
-    shape_area_centroid,
-    transform_points,
-)
+from visphy_core.api.spec import category_of, local_polygons, shape_area_centroid, transform_points
 
 __all__ = ["category_of", "detection_from_spec"]
 

@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from visphy_core.spec.spec3d import (
+from visphy_core.api.spec import (
     box_corners,
     category_of_3d,
     quat_to_matrix,

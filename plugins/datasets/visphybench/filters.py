@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from visphy_core.spec.spec2d import local_polygons, transform_points
+from visphy_core.api.spec import local_polygons, transform_points
 from visphy_plugins.physics.box2d import Rollout, total_steps
 
 REASONS = ("overlap", "offscreen", "static", "tunnelling", "speed_cap")

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from visphy_core.spec.spec2d import contact_table
+from visphy_core.api.spec import contact_table
 
 
 def _moving_at_start(body: dict) -> bool:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from visphy_core.api.media import ClipInfo
 from visphy_core.api.scene import Scene
-from visphy_core.infra import files
-from visphy_core.infra.video import ClipInfo
+from visphy_core.api.storage import files
 
 
 def _require(path: Path) -> Path:

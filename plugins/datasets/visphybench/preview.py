@@ -12,9 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from visphy_core.infra.files import atomic_write
-from visphy_core.infra.png import png_bytes
-from visphy_core.infra.video import encode_video, resize_with_padding
+from visphy_core.api.media import encode_video, png_bytes, resize_with_padding
+from visphy_core.api.storage import atomic_write
 
 GAP = 2
 LABEL_H = 14

@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from visphy_core.spec.spec2d import local_polygons, transform_points
+from visphy_core.api.spec import local_polygons, transform_points
 
 #: PHYRE's flat palette (MISSION §5).
 PALETTE: dict[str, tuple[int, int, int]] = {

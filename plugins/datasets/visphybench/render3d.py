@@ -17,12 +17,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from visphy_core.spec.replay import replay_html_3d
+from visphy_core.api.spec import replay_html_3d
 
 
 def render_clip_3d(spec: dict, frame_poses, pool, timeout_s: float = 180.0) -> np.ndarray:
     """Render the reference clip (N×H×W×3 uint8, N = len(frame_poses)) with a BrowserPool."""
-    from visphy_core.infra.js_assets import VendorFiles
+    from visphy_core.api.sandbox import VendorFiles
 
     poses = np.asarray(frame_poses, dtype=np.float64)
     fps = float(spec["world"]["video_fps"])

@@ -9,7 +9,7 @@ import copy
 
 import numpy as np
 
-from visphy_core.spec.spec3d import FLOOR_ID, RED_RGB, bounding_radius
+from visphy_core.api.spec import FLOOR_ID, RED_RGB, bounding_radius
 
 OVERLAP_M = 1e-3
 MIN_MOTION_M = 0.05

@@ -29,7 +29,7 @@ from typing import Callable
 
 import numpy as np
 
-from visphy_core.spec.spec2d import CATEGORIES, category_of, shape_area_centroid
+from visphy_core.api.spec import CATEGORIES, category_of, shape_area_centroid
 from visphy_plugins.datasets.visphybench import blocks2d as bk
 from visphy_plugins.datasets.visphybench.blocks2d import (
     ALL,

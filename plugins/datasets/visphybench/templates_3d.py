@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from visphy_core.spec.spec3d import IDENTITY_QUAT, validate_spec_3d
+from visphy_core.api.spec import IDENTITY_QUAT, validate_spec_3d
 from visphy_plugins.datasets.visphybench.blocks3d import (
     GAP,
     QUAT_Y_PI,

@@ -24,11 +24,11 @@ from typing import Callable, Iterable
 import numpy as np
 from scipy.stats import spearmanr
 
+from visphy_core.api.media import ClipInfo
 from visphy_core.api.metrics import LOWER, SCENE, Metric
 from visphy_core.api.scene import Scene
-from visphy_core.infra.cache import Cache
-from visphy_core.infra.video import ClipInfo
-from visphy_core.scoring.score import ScoringProtocol, score_scene
+from visphy_core.api.scoring import ScoringProtocol, score_scene
+from visphy_core.api.storage import Cache
 
 STEPS = 5
 #: one step: +0.08 restitution or friction, or ×1.08 initial speed or gravity; small enough to

@@ -72,9 +72,8 @@ from typing import Any, Callable, Iterable, Protocol
 import numpy as np
 
 from visphy_core.api.metrics import HIGHER, SCENE, Metric
-from visphy_core.infra.cache import Cache
-from visphy_core.scoring.headline import Headline, scene_headline
-from visphy_core.scoring.score import ScoringProtocol, score_scene
+from visphy_core.api.scoring import Headline, ScoringProtocol, scene_headline, score_scene
+from visphy_core.api.storage import Cache
 from visphy_plugins.datasets.visphybench.validity import _materials, scene_of
 
 RIGHT, WRONG, STATIC, FLOW = "right", "wrong", "static", "flow"
@@ -659,7 +658,7 @@ def make_clips(truth: Truth, kinds: Iterable[str] = (RIGHT, WRONG, STATIC, FLOW)
 
 def twin_clip(truth: Truth) -> np.ndarray:
     """The ground truth's twin (`visphy_core.scoring.normalisation.twin_spec`) drawn like the truth."""
-    from visphy_core.scoring.normalisation import twin_spec
+    from visphy_core.api.scoring import twin_spec
 
     return truth.rollout(twin_spec(truth.spec))
 
@@ -784,7 +783,7 @@ def run_order_study(specs: list[dict], metrics: list[Metric], headline: Headline
                 renderer: Renderer = Renderer2D()
             else:
                 if pool is None:
-                    from visphy_core.sandbox.browser import BrowserPool
+                    from visphy_core.api.sandbox import BrowserPool
 
                     own_pool = pool = BrowserPool(untrusted=False).__enter__()
                 renderer = Renderer3D(pool)

@@ -1,0 +1,24 @@
+"""Running untrusted programs, for engine plugins: the sandboxed browser pool with its virtual
+clock (`visphy_core.sandbox.browser`), sandboxed processes with hard limits
+(`visphy_core.sandbox.process`) and the vendored JavaScript libraries pages may load
+(`visphy_core.infra.js_assets`)."""
+
+from __future__ import annotations
+
+from visphy_core.infra.js_assets import ASSETS_SRC, VendorFiles, require_assets
+from visphy_core.sandbox.browser import BrowserPool, PageCapture, VIRTUAL_TIME_JS
+from visphy_core.sandbox.process import (
+    Limits,
+    ProcessResult,
+    describe_limit,
+    limit_from_text,
+    python_ro_paths,
+    read_untrusted,
+    run_sandboxed,
+)
+
+__all__ = [
+    "ASSETS_SRC", "BrowserPool", "describe_limit", "limit_from_text", "Limits", "PageCapture",
+    "ProcessResult", "python_ro_paths", "read_untrusted", "require_assets", "run_sandboxed",
+    "VendorFiles", "VIRTUAL_TIME_JS",
+]
