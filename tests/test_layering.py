@@ -212,11 +212,16 @@ def test_cycle_finder(graph, expected):
 
 
 def test_a_long_module_says_why_it_is_one_module():
-    """A module over 500 lines carries a ``# size: <reason>`` line near its top."""
+    """A module over 500 lines carries a ``# size: <reason>`` line at its top (before its
+    first import)."""
     silent = []
     for root in (CORE, REPO / "plugins"):
         for path in sorted(root.rglob("*.py")):
-            lines = path.read_text().splitlines()
-            if len(lines) > 500 and not any(line.startswith("# size: ") for line in lines[:80]):
+            text = path.read_text()
+            lines = text.splitlines()
+            first_import = next((node.lineno - 1 for node in ast.parse(text).body
+                                 if isinstance(node, (ast.Import, ast.ImportFrom))), len(lines))
+            if len(lines) > 500 and not any(line.startswith("# size: ")
+                                            for line in lines[:first_import]):
                 silent.append(f"{path.relative_to(REPO)} ({len(lines)} lines)")
     assert silent == []

@@ -27,6 +27,7 @@ What the engine did to a page is recorded, not hidden (`RenderResult.flags` and 
 A page blocked from a library (a URL that is not vendored) names the blocked request(s) in its
 failure detail.
 """
+# size: the browser engines' one render path, reviewed as one for containment
 
 from __future__ import annotations
 

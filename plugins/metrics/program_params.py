@@ -47,6 +47,7 @@ done by `match_name` against the ground truth's ids, colours and shape words); e
 a program does not state (cannon's 0.3 friction, matter's 0.1…) are never assumed. Anything not
 understood is simply absent, never an exception.
 """
+# size: one static analyser: each language's parameter patterns share tables and change together
 
 from __future__ import annotations
 

@@ -75,6 +75,7 @@ with the three pairings that is about 30 distinct frames for a 17-frame clip and
 clip, ≈ 0.2 CPU-seconds per frame and model for CLIP ViT-B/32 and DINO ViT-S/16 (both ≈ 4.5
 GFLOPs); DINO ViT-B/16 is ≈ 17.6 GFLOPs, about four times that.
 """
+# size: CLIP and DINO share frame sampling, weight loading and the embedding cache
 
 from __future__ import annotations
 

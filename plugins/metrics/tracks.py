@@ -168,6 +168,7 @@ the velocity).
 Segmentation runs once per clip and scene (``inp.extra["tracks"]``, shared by the metrics and
 the three pairings).
 """
+# size: one tracker: segmentation, association and the track errors share one data model
 
 from __future__ import annotations
 

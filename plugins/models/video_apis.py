@@ -30,6 +30,7 @@ Wire formats (checked against the installed SDKs, google-genai 3.6.1 and openai 
   (``GET /v1/videos/{id}/content``). Key: ``Authorization: Bearer``. (The SDK marks these
   methods deprecated: OpenAI announced the Sora API's shutdown for 2026-09-24.)
 """
+# size: two providers' video jobs share one submit, poll and download path
 
 from __future__ import annotations
 

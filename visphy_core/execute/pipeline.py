@@ -1,6 +1,7 @@
 """One scene through the pipeline: prompt → model → extract → validate → render → repair →
 fallback → score. Every outcome, failures included, becomes one `SceneResult` row.
 """
+# size: one scene's path from prompt to row, step by step
 
 from __future__ import annotations
 

@@ -11,6 +11,7 @@ processed, and the cache answers every model call already made. SIGINT/SIGTERM c
 "interrupted"``) are written, tracking is marked KILLED, and the process exits with 128 + the
 signal number (130 / 143).
 """
+# size: one run's lifecycle (open, resume, schedule, close), in the order it happens
 
 from __future__ import annotations
 

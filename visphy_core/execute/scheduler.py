@@ -36,6 +36,7 @@ a scene's outputs are computed from its own inputs only, the metrics' per-frame 
 exactly what a fresh computation gives, and torch's intra-op threads are pinned for the run
 (`pin_torch_threads`), since torch's reductions round differently with another thread count.
 """
+# size: the scene scheduler and its stage gates share one lock discipline
 
 from __future__ import annotations
 

@@ -14,6 +14,7 @@ decoded frame, and stops at a wall-clock deadline (`DeadlineExceeded`). Refusals
 `FrameRejected` (a ValueError) whose message names the file and the reason. Ground-truth clips
 (visphy's own files) keep the plain `decode_video` / `decode_video_timed`.
 """
+# size: every clip read and write, trusted and untrusted, in one place
 
 from __future__ import annotations
 

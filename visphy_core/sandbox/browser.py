@@ -36,6 +36,7 @@ next one, a fresh context whose blank page has already loaded the libraries the 
 (``warm``), and closes the finished context in the background. Every `PageCapture` records how
 long each phase took (``timings``).
 """
+# size: one browser pool: its thread, page lifecycle and capture protocol reviewed as one
 
 from __future__ import annotations
 

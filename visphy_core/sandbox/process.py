@@ -86,6 +86,7 @@ stderr), ``"file_size"`` (SIGXFSZ, or ``EFBIG``/"File too large" on stderr; Pyth
 SIGXFSZ), ``"disk"`` (the work dir quota) or ``"processes"`` (``fork``/``clone`` refused:
 "Resource temporarily unavailable" / ``BlockingIOError`` on stderr).
 """
+# size: one isolation primitive: namespaces, seccomp, limits and read-back reviewed as one
 
 from __future__ import annotations
 

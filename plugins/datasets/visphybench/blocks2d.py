@@ -19,6 +19,7 @@ Besides single bodies the module holds the random *groups* PhyWorld-style templa
 each `g_*` draws sizes, pose and colours from an rng) and `Layout`, the occupancy grid that
 rejection-samples groups so they sit `MARGIN` px apart and entirely on screen.
 """
+# size: the 2D building blocks every template family composes
 
 from __future__ import annotations
 

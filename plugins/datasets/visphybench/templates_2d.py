@@ -20,6 +20,7 @@ Sizes follow the published clips: the red ball is 17-56 px in radius (median abo
 floor, sized to fill 3.4-5 % of the frame, clear of the red ball's free flight and of the room it
 needs to roll off the story's supports), so a scene holds about 7.7 objects in the paper's mix.
 """
+# size: the 2D template catalogue, one entry per template family
 
 from __future__ import annotations
 

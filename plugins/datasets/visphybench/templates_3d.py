@@ -17,6 +17,7 @@ arrangement, the generator the continuous parameters (sizes, positions, speeds, 
 Candidates are screened by `screening3d.validity_problems_3d` and described by
 `screening3d.difficulty_features_3d`; the bodies, shapes and camera come from `blocks3d`.
 """
+# size: the 3D template catalogue, one entry per template
 
 from __future__ import annotations
 

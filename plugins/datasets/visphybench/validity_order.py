@@ -57,6 +57,7 @@ and both (iii) and (iv) are defined. A **family** row pools its metrics: its cas
 metric) pairs and its shares are the shares of those cases (no mean value: its metrics have
 different units).
 """
+# size: one study: its clip variants, scoring loop and table are read together
 
 from __future__ import annotations
 
