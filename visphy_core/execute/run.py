@@ -54,7 +54,7 @@ from visphy_core.infra.files import atomic_write
 from visphy_core.infra.heap import release_free_memory
 from visphy_core.infra.secrets import install_log_redaction, public_yaml
 from visphy_core.results.row import SceneResult
-from visphy_core.results.rows import write_results
+from visphy_core.results.rows import jsonl_line, write_results
 from visphy_core.results.run_dir import (
     COST_CAP,
     FAILED,
@@ -509,7 +509,7 @@ def _write_row(rows, result: SceneResult, ctx: RunContext) -> None:
     The row on disk and the row in memory go together: a signal between them would leave a
     summary that misses a row results.jsonl holds."""
     with _deferred_signals() as held:
-        rows.write(json.dumps(result.row(), default=str) + "\n")
+        rows.write(jsonl_line(result))
         rows.flush()
         os.fsync(rows.fileno())
         ctx.results.append(result)
