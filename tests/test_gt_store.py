@@ -47,7 +47,7 @@ def _run(home: Path, tmp: Path, name: str, scene_id: str, store: Path) -> tuple[
 @pytest.mark.browser
 def test_anchors_built_ahead_are_the_run_time_anchors_and_a_run_reuses_them(
         tmp_path, mini_root, mini_scenes):
-    from visphy_core.cli.ground_truth import prepare
+    from visphy_core.execute.ground_truth import prepare
 
     home = tmp_path / "home"
     shutil.copytree(mini_root, home / "data" / mini_root.name)
