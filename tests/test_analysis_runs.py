@@ -261,7 +261,8 @@ def test_the_analyse_command_says_what_is_wrong_in_one_line(study, capsys):
 
     assert main(["analyse", str(study["root"] / "replies")]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("error: ") and "no run directory here" in err and err.count("\n") == 1
+    assert err.startswith("error: ") and "no finished run directory here" in err
+    assert err.count("\n") == 1
     assert main(["analyse", str(study["home"] / "runs"), "--metrics", "psnr,nope", "-o",
                  str(study["root"] / "x")]) == 2
     assert "unknown metric column(s) nope" in capsys.readouterr().err

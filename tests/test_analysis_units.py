@@ -297,13 +297,14 @@ def test_find_and_load_runs(tmp_path):
     write_job(tmp_path / "study" / "jobs" / "1", num=1, status="failed", run_dir=None)
     assert find_runs(tmp_path / "study") == [elsewhere]
     (tmp_path / "empty").mkdir()
-    with pytest.raises(UserError, match="no run directory here"):
+    with pytest.raises(UserError, match="no finished run directory here"):
         find_runs(tmp_path / "empty")
     with pytest.raises(UserError, match="no such file"):
         find_runs(tmp_path / "missing")
-    with pytest.raises(UserError, match="not a run directory"):
+    with pytest.raises(UserError, match="not a visphy run directory"):
         load_run(tmp_path / "empty")
-    # an interrupted run: no Parquet yet, the JSON lines with a torn last line
+    # the JSON lines when the Parquet is gone, a torn last line skipped, the first row of a
+    # scene kept (as a resumed run keeps it), an older row's missing fields defaulted
     run_dir = found[0]
     (run_dir / "results.parquet").unlink()
     (run_dir / "results.jsonl").write_text(
@@ -311,10 +312,10 @@ def test_find_and_load_runs(tmp_path):
         + json.dumps({"scene_id": "s0", "score_psnr": 3.0, "model_success": True}) + "\n"
         + '{"scene_id": "s1", "sco')
     df = load_run(run_dir).table
-    assert list(df["scene_id"]) == ["s0"] and df["score_psnr"].tolist() == [3.0]
+    assert list(df["scene_id"]) == ["s0"] and df["score_psnr"].tolist() == [1.0]
     assert df["fallback"].tolist() == [False] and df["first_failure_class"].isna().all()
     assert analyse([load_run(run_dir)], tmp_path / "old").tables["leaderboard"].loc[
-        0, "psnr ↑"] == 3.0
+        0, "psnr ↑"] == 1.0
 
 
 # ----------------------------------------------------------------------------- export, figures

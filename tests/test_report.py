@@ -349,5 +349,5 @@ def test_report_command_writes_run_and_study_reports_and_refuses_a_non_run(
     proc = report(str(tmp_path))
     assert proc.returncode == 2
     assert proc.stderr.strip() == (f"error: {tmp_path} is not a visphy run directory (none of "
-                                   "manifest.json, config.yaml, results.jsonl, summary.json); "
-                                   "pass a folder under <VISPHY_HOME>/runs/")
+                                   "manifest.json, results.jsonl, summary.json, nor config.yaml "
+                                   "beside scenes/); pass a folder under <VISPHY_HOME>/runs/")

@@ -1,6 +1,7 @@
 """Scoring clips outside a run, for benchmark tools in plugins (the validity studies): one
 scene's metrics under a scoring protocol (`visphy_core.scoring.score`), the headline
-(`visphy_core.scoring.headline`) and the ground truth's twin (`visphy_core.scoring.normalisation`)."""
+(`visphy_core.scoring.headline`) and the ground truth's twin
+(`visphy_core.scoring.normalisation`)."""
 
 from __future__ import annotations
 

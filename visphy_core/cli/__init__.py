@@ -1,1 +1,2 @@
-"""The `visphy` command line: one module per subcommand group."""
+"""The `visphy` command line: one module per subcommand group.
+(See docs/architecture.md.)"""

@@ -1,5 +1,6 @@
 """``python -m visphy_core score RUN_DIR [overrides] [--in-place]``: re-score a finished run
-with other metrics or judges, without calling the model or rendering (`visphy_core.execute.rescore`)."""
+with other metrics or judges, without calling the model or rendering
+(`visphy_core.execute.rescore`)."""
 
 from __future__ import annotations
 

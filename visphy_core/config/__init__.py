@@ -1,1 +1,2 @@
-"""Checking configuration: run config validation and the config of a re-score."""
+"""Checking configuration: run config validation and the config of a re-score.
+(See docs/architecture.md.)"""

@@ -1,1 +1,3 @@
-"""Executing runs: the run, the per-scene pipeline, the scheduler, the console, dataset selection and shards, re-scoring, merging, rendering one program."""
+"""Executing runs: the run, the per-scene pipeline, the scheduler, the console, dataset selection
+and shards, re-scoring, merging, rendering one program.
+(See docs/architecture.md.)"""

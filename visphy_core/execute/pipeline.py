@@ -244,7 +244,8 @@ class SceneServices:
     protocol: ScoringProtocol = field(default_factory=ScoringProtocol)
     progress: StageEvents = field(default_factory=StageEvents)
     headline: Headline | None = None
-    ground_truth: Cache | None = None   # the ground-truth store (`visphy_core.scoring.ground_truth`)
+    # the ground-truth store (`visphy_core.scoring.ground_truth`)
+    ground_truth: Cache | None = None
 
     def scoring(self, renders: dict[str, RenderOutcome] | None = None) -> ScoringServices:
         """The scoring half (`visphy_core.scoring.scene_scores`): reference-program clips rendered

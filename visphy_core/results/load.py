@@ -25,6 +25,7 @@ from visphy_core.results.layout import (
     RESULTS_JSONL,
     RESULTS_PARQUET,
     RUN_MARKERS,
+    SCENES,
     SUMMARY,
     is_run_dir,
 )
@@ -139,7 +140,8 @@ def load_run(run_dir: str | Path, *, finished: bool = False) -> RunData:
     if not is_run_dir(run_dir):
         what = "does not exist" if not run_dir.exists() else (
             "is not a directory" if not run_dir.is_dir() else
-            f"is not a visphy run directory (none of {', '.join(RUN_MARKERS)})")
+            f"is not a visphy run directory (none of {', '.join(RUN_MARKERS)}, nor {CONFIG} "
+            f"beside {SCENES}/)")
         raise UserError(f"{run_dir} {what}; pass a folder under <VISPHY_HOME>/runs/")
     files.refuse_tree(run_dir, "run directory")
     manifest = _read_json(run_dir / MANIFEST)

@@ -77,8 +77,10 @@ class SceneResult:
 
     @classmethod
     def from_row(cls, row: dict) -> "SceneResult":
-        """Inverse of `row` (a resumed run reads its finished scenes back from results.jsonl)."""
-        d = dict(row)
+        """Inverse of `row` (a resumed run reads its finished scenes back from results.jsonl).
+        A row written by an older version may lack fields: they take their defaults (``dim``
+        and ``difficulty``: None)."""
+        d = {"dim": None, "difficulty": None, **row}
         scores = {k[len(SCORE):]: d.pop(k) for k in list(d) if k.startswith(SCORE)}
         known = {f for f in cls.__dataclass_fields__}
         d = {k: v for k, v in d.items() if k in known}

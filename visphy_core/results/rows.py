@@ -52,10 +52,10 @@ def read_jsonl(path: Path) -> tuple[list[SceneResult], int]:
 def read_parquet(path: Path) -> list[SceneResult]:
     import pandas as pd
 
-    rows = []
+    rows = []  # a missing value is None, as in the lines (Parquet gives NaN for a float column)
     for record in pd.read_parquet(path).to_dict(orient="records"):
-        rows.append({k: (None if isinstance(v, float) and math.isnan(v)
-                         and not k.startswith("score_") else v) for k, v in record.items()})
+        rows.append({k: (None if isinstance(v, float) and math.isnan(v) else v)
+                     for k, v in record.items()})
     seen: dict[str, SceneResult] = {}  # the same first-per-scene rule as the lines
     for row in rows:
         if isinstance(row.get("scene_id"), str) and row["scene_id"] not in seen:
