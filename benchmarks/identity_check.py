@@ -45,13 +45,17 @@ VOLATILE_KEYS = {
     "run_dir", "cache", "visphy_version", "git", "git_commit", "command", "argv", "pid",
     "host", "hostname", "elapsed_s", "duration_s", "seconds", "python", "platform", "usage",
     "render_cached", "response_cached", "renders_done", "model_calls", "mlflow", "tracking",
-    "infra_retries",
+    "infra_retries", "latency_s", "started", "ended", "stamp",
 }
+#: Files whose lines are written in the order calls finish (two workers): compared sorted.
+UNORDERED = {"calls.jsonl"}
 #: Per-scene files that hold wall-clock times (compared as JSON without `VOLATILE_KEYS`).
 TIMED_FILES = {"timings.json", "render_meta.json", "normalisation.json"}
 
 
 def worktree(rev: str, where: Path) -> Path:
+    subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(where)],
+                   capture_output=True)
     subprocess.run(["git", "-C", str(REPO), "worktree", "add", "-f", "--detach", str(where), rev],
                    check=True, capture_output=True)
     for name, target in (("visphy_plugins", "plugins"), ("visphy_conf", "conf")):
@@ -66,6 +70,7 @@ def entry_point_shim(tree: Path, where: Path) -> Path:
     shadows the installed one, so ``tree`` loads its plugins from its own module names."""
     project = tomllib.loads((tree / "pyproject.toml").read_text())["project"]
     dist = where / "visphy-0.0.0.dist-info"
+    shutil.rmtree(dist, ignore_errors=True)
     dist.mkdir(parents=True)
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: visphy\nVersion: 0.0.0\n")
     lines = []
@@ -126,6 +131,8 @@ def compare(a: Path, b: Path, homes: tuple[str, ...]) -> list[str]:
         pa, pb = a / rel, b / rel
         if rel.suffix in (".json", ".jsonl"):
             ja, jb = scrub(_json(pa), homes), scrub(_json(pb), homes)
+            if rel.name in UNORDERED:
+                ja, jb = (sorted(x, key=lambda r: json.dumps(r, sort_keys=True)) for x in (ja, jb))
             if ja != jb:
                 diffs.append(f"{rel}: differs (volatile keys excluded)")
         elif rel.suffix == ".parquet":
@@ -164,9 +171,11 @@ def main() -> int:
             trees.append(tree)
             shim = entry_point_shim(tree, base / f"shim-{label}")
             home = base / f"home-{label}"
+            shutil.rmtree(home, ignore_errors=True)
             print(f"{label}: {rev} → {home}", flush=True)
             run_dirs.append(run_job(tree, shim, home, data))
-        diffs = compare(*run_dirs, homes=(str(base / "home-before"), str(base / "home-after")))
+        diffs = compare(*run_dirs, homes=(str(base / "home-before"), str(base / "home-after"),
+                                          str(base / "tree-before"), str(base / "tree-after")))
     finally:
         for tree in trees:
             subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(tree)],
