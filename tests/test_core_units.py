@@ -197,3 +197,25 @@ def test_a_sequence_metric_is_computed_once_for_pairings_with_the_same_pairs(tmp
                             Cache(tmp_path / "b"), protocol=protocol)
     assert len(metric.calls) == 2 and metric.calls[0] != metric.calls[1]
     assert scores["counting"] == 1.0 and scores["counting.aligned"] == 2.0
+
+
+def test_work_order_spreads_scenes_too_large_to_score_side_by_side(monkeypatch):
+    """3D clips (75 frames of 512²) at the end of a split are spread among the 2D ones, each
+    group in its own order; a list of one size, or no scoring limit, keeps its order."""
+    from types import SimpleNamespace
+
+    from visphy_core.execute.scheduler import SCORE_PIXELS_ENV, work_order
+
+    def scene(name: str, frames: int):
+        return SimpleNamespace(name=name, clip=SimpleNamespace(n_frames=frames, width=512,
+                                                               height=512))
+
+    small = [scene(f"2d{i}", 17) for i in range(10)]
+    large = [scene(f"3d{i}", 75) for i in range(3)]
+    order = [s.name for s in work_order(small + large)]
+    assert order == ["2d0", "2d1", "3d0", "2d2", "2d3", "2d4", "3d1", "2d5", "2d6", "2d7",
+                     "2d8", "3d2", "2d9"]
+    assert sorted(order) == sorted(s.name for s in small + large)
+    assert work_order(small) == small and work_order(large) == large
+    monkeypatch.setenv(SCORE_PIXELS_ENV, "0")   # no scoring limit: nothing to spread
+    assert work_order(small + large) == small + large

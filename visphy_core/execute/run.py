@@ -47,6 +47,7 @@ from visphy_core.execute.scheduler import (
     StageGates,
     pin_torch_threads,
     resolve_workers,
+    work_order,
 )
 from visphy_core.infra.cache import Cache
 from visphy_core.infra.errors import ConfigError
@@ -563,7 +564,7 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
     write_json(run_dir / "manifest.json", manifest)
     ctx.results.extend(restored)
     done = {r.scene_id for r in restored}
-    pending = [s for s in scenes if s.scene_id not in done]
+    pending = work_order([s for s in scenes if s.scene_id not in done])
     prefetch = _Prefetch(pending, services, int(cfg.run.get("prefetch", 0)))
     status, raised, cost_stop = FINISHED, None, None
     rows_path = run_dir / "results.jsonl"

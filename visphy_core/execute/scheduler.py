@@ -26,8 +26,10 @@ needs is free:
 * **the call lane**, with ``run.prefetch=0`` only: one model call at a time, first calls in
   scene order, so a cost cap stops exactly where a sequential run stops.
 
-`SceneScheduler.results` hands scenes back in scene order; a scene that finished early waits
-for the ones before it (at most ``window`` scenes are dispatched past the oldest unfinished one).
+`SceneScheduler.results` hands scenes back in the order it was given them (a run gives them in
+`work_order`: scenes too large to score side by side spread among the others); a scene that
+finished early waits for the ones before it (at most ``window`` scenes are dispatched past the
+oldest unfinished one).
 
 Threads, not processes: rendering happens in Chromium's processes, and scoring spends its time
 in torch, OpenCV, NumPy and the video codecs, which release the GIL; one process loads each
@@ -163,6 +165,32 @@ def clip_pixels(item: object) -> int:
         return max(0, int(clip.n_frames) * int(clip.width) * int(clip.height))
     except (AttributeError, TypeError, ValueError):
         return 0
+
+
+def work_order(items: Sequence[T]) -> list[T]:
+    """The order a run takes its scenes in: the large ones — clips too large for two to score
+    side by side (`SCORE_PIXELS`), e.g. the 3D scenes of VisPhyBench — spread evenly among the
+    others, each group in its own order. Taken as listed, the 3D scenes (all at the end of the
+    split) would score one at a time while the other worker waited; spread out, each scores
+    beside 2D scenes and renders while they score. A list whose scenes are all large or all
+    small keeps its order. Rows are still reported in scene order (`summary.json`,
+    ``results.parquet``); ``results.jsonl`` is written in this order."""
+    limit = score_pixels()
+    if limit <= 0:
+        return list(items)
+    large = [x for x in items if 2 * clip_pixels(x) > limit]
+    small = [x for x in items if 2 * clip_pixels(x) <= limit]
+    if not large or not small:
+        return list(items)
+    out: list[T] = []
+    placed = 0
+    for i, item in enumerate(small):
+        # the large scenes due before this small one: the k-th after (k + 1/2)·n/m small ones
+        while placed < len(large) and (placed + 0.5) * len(small) / len(large) <= i:
+            out.append(large[placed])
+            placed += 1
+        out.append(item)
+    return out + large[placed:]
 
 
 def pin_torch_threads() -> str:
