@@ -36,7 +36,8 @@ from visphy_plugins.metrics import pixel
 torch = pytest.importorskip("torch")
 piq = pytest.importorskip("piq")
 
-from visphy_plugins.metrics import perceptual as P  # noqa: E402
+from visphy_plugins.metrics import fsim_vsi as FV  # noqa: E402
+from visphy_plugins.metrics import lpips_dists as LD  # noqa: E402
 
 
 # ----------------------------------------------------------------------------- frames
@@ -169,7 +170,7 @@ def test_ssim_fast_path_equals_ssim_frame_bit_for_bit(clips, case, monkeypatch):
 # ----------------------------------------------------------------------------- FSIM
 @pytest.mark.parametrize("case", ["2d", "3d", "odd 2d"])
 def test_fsim_features_one_frame_at_a_time_equal_the_batch(clips, case):
-    metric = P.FSIM()
+    metric = FV.FSIM()
     frames = clips[case][0][:4]
     with torch.inference_mode():
         ours = metric.frame_features(frames)
@@ -183,19 +184,19 @@ def test_fsim_features_one_frame_at_a_time_equal_the_batch(clips, case):
 def test_fsim_phase_congruency_fast_is_piqs_bit_for_bit(size):
     from piq.fsim import _phase_congruency
 
-    d = P._defaults(piq.fsim)
+    d = FV._defaults(piq.fsim)
     frames = np.concatenate([frames_2d(2, size), frames_3d(2, size)])
     x = (torch.from_numpy(frames).permute(0, 3, 1, 2).float() * 1.0)[:, :1]
     with torch.inference_mode():
-        bank = P._fsim_filters(x, d)
+        bank = FV._fsim_filters(x, d)
         theirs = _phase_congruency(x, bank[0], d["scales"], d["orientations"], d["k"])
-        ours = torch.cat([P._phase_congruency_fast(x[i:i + 1], bank, d["scales"],
-                                                   d["orientations"], d["k"])
+        ours = torch.cat([FV._phase_congruency_fast(x[i:i + 1], bank, d["scales"],
+                                                    d["orientations"], d["k"])
                           for i in range(len(x))])
         assert torch.equal(ours, theirs)
         # a batch too
-        assert torch.equal(P._phase_congruency_fast(x, bank, d["scales"], d["orientations"],
-                                                    d["k"]), theirs)
+        assert torch.equal(FV._phase_congruency_fast(x, bank, d["scales"], d["orientations"],
+                                                     d["k"]), theirs)
 
 
 def test_lower_median_is_torchs():
@@ -203,9 +204,9 @@ def test_lower_median_is_torchs():
     for n in (1, 2, 7, 64, 65536):
         x = torch.from_numpy(rng.random((1, 4, 1, 1, n), dtype=np.float32) ** 2)
         x[0, 1, 0, 0, : n // 2] = 0.25  # ties
-        assert torch.equal(P._lower_median(x), torch.median(x, dim=-1, keepdim=True).values)
+        assert torch.equal(FV._lower_median(x), torch.median(x, dim=-1, keepdim=True).values)
     x[0, 2, 0, 0, 0] = float("nan")  # torch's own rule where a value is not finite
-    ours, theirs = P._lower_median(x), torch.median(x, dim=-1, keepdim=True).values
+    ours, theirs = FV._lower_median(x), torch.median(x, dim=-1, keepdim=True).values
     assert torch.equal(ours.nan_to_num(-1.0), theirs.nan_to_num(-1.0))
 
 
@@ -214,19 +215,19 @@ def test_fsim_input_is_torchs_bit_for_bit(clips):
     t = torch
     for frame in (clips["2d"][0][0], clips["3d"][1][2], clips["odd 2d"][0][1],
                   np.random.default_rng(0).integers(0, 256, (517, 515, 3), np.uint8)):
-        x = P._torch.to_tensor(frame[None]) / float(1.0) * 255
+        x = _T.to_tensor(frame[None]) / float(1.0) * 255
         x = t.nn.functional.avg_pool2d(x, max(1, round(min(x.shape[-2:]) / 256)))
-        ours = P._fsim_input(frame)
+        ours = FV._fsim_input(frame)
         assert ours.shape == x.shape and ours.stride() == x.stride()
         assert torch.equal(ours, x)
-    assert P._fsim_input(frame.astype(np.float32)) is None
-    assert P._fsim_input(np.zeros((900, 900, 3), np.uint8)) is None  # pooled by 4
+    assert FV._fsim_input(frame.astype(np.float32)) is None
+    assert FV._fsim_input(np.zeros((900, 900, 3), np.uint8)) is None  # pooled by 4
 
 
 @pytest.mark.parametrize("case", ["2d", "3d"])
 def test_fsim_equals_piq(clips, case):
     ref, gen = clips[case]
-    ours = P.FSIM().pair_values(ref[:3], gen[:3])
+    ours = FV.FSIM().pair_values(ref[:3], gen[:3])
     x = torch.from_numpy(ref[:3]).permute(0, 3, 1, 2).float() / 255
     y = torch.from_numpy(gen[:3]).permute(0, 3, 1, 2).float() / 255
     with torch.inference_mode():
@@ -243,7 +244,7 @@ VSI_ATOL = 0.0
 @pytest.mark.parametrize("case", ["2d", "3d", "odd 2d"])
 def test_vsi_features_equal_the_reference(clips, case):
     """Every map bit for bit: saliency, L's gradient, M and N."""
-    metric = P.VSI()
+    metric = FV.VSI()
     frames = clips[case][0][:3]
     with torch.inference_mode():
         ours = metric.frame_features(frames)
@@ -260,7 +261,7 @@ def test_vsi_equals_piq_and_the_reference(clips, case):
         ref, gen = (rng.integers(0, 256, (2, size, size, 3), np.uint8) for size in (192, 192))
     else:
         ref, gen = clips[case]
-    metric = P.VSI()
+    metric = FV.VSI()
     ours = metric.pair_values(ref, gen)
     x = torch.from_numpy(np.ascontiguousarray(ref)).permute(0, 3, 1, 2).float() / 255
     y = torch.from_numpy(np.ascontiguousarray(gen)).permute(0, 3, 1, 2).float() / 255
@@ -278,13 +279,13 @@ def test_vsi_equals_piq_and_the_reference(clips, case):
 def test_vsi_sdsp_is_piqs_bit_for_bit(clips):
     from piq.vsi import sdsp
 
-    d = P._defaults(piq.vsi)
+    d = FV._defaults(piq.vsi)
     for frames in (clips["2d"][0][:2], clips["odd 2d"][1][:2]):
-        x = P._torch.to_tensor(frames) * 255. / float(1.0)
+        x = _T.to_tensor(frames) * 255. / float(1.0)
         with torch.inference_mode():
             theirs = sdsp(x, data_range=255, omega_0=d["omega_0"], sigma_f=d["sigma_f"],
                           sigma_d=d["sigma_d"], sigma_c=d["sigma_c"])
-            ours = P._sdsp(x / float(255) * 255, d)
+            ours = FV._sdsp(x / float(255) * 255, d)
         assert torch.equal(ours, theirs)
 
 
@@ -298,18 +299,18 @@ def _stlpips_reference(metric, ref: np.ndarray, gen: np.ndarray) -> np.ndarray:
     assert model.net.slice1[0].weight.is_contiguous()
     out = []
     with torch.inference_mode():
-        for s in range(0, len(ref), P.CHUNK):
-            fx = P._lpips_features(model, metric._tensor(ref[s:s + P.CHUNK]),
-                                   utils.normalize_tensor)
-            fy = P._lpips_features(model, metric._tensor(gen[s:s + P.CHUNK]),
-                                   utils.normalize_tensor)
-            out += [float(P._lpips_combine(model, a, b)) for a, b in zip(fx, fy)]
+        for s in range(0, len(ref), LD.CHUNK):
+            fx = LD._lpips_features(model, metric._tensor(ref[s:s + LD.CHUNK]),
+                                    utils.normalize_tensor)
+            fy = LD._lpips_features(model, metric._tensor(gen[s:s + LD.CHUNK]),
+                                    utils.normalize_tensor)
+            out += [float(LD._lpips_combine(model, a, b)) for a, b in zip(fx, fy)]
     return np.array(out)
 
 
 @pytest.mark.parametrize("case", ["2d", "3d", "odd 2d"])
 def test_st_lpips_fast_path_equals_the_reference(clips, case):
-    metric = P.STLPIPS()
+    metric = LD.STLPIPS()
     assert metric.unavailable_reason() is None
     assert metric.model().net.slice1[0].weight.is_contiguous(
         memory_format=torch.channels_last)
@@ -330,13 +331,13 @@ STLPIPS_BF16_ATOL = 1e-3
 
 
 def test_st_lpips_bf16_is_opt_in_within_its_tolerance(clips, monkeypatch):
-    metric = P.STLPIPS()
-    monkeypatch.delenv(P.STLPIPS_BF16_ENV, raising=False)
+    metric = LD.STLPIPS()
+    monkeypatch.delenv(LD.STLPIPS_BF16_ENV, raising=False)
     assert metric.precision() == "fp32"
     fp32_identity = metric.identity()
     ref, gen = clips["2d"]
     fp32 = metric.pair_values(ref, gen)
-    monkeypatch.setenv(P.STLPIPS_BF16_ENV, "1")
+    monkeypatch.setenv(LD.STLPIPS_BF16_ENV, "1")
     assert metric.precision() == "bf16"
     assert metric.identity() != fp32_identity and "/bf16" in metric.identity()
     hits = _T.frame_cache_stats["hits"]
@@ -345,10 +346,10 @@ def test_st_lpips_bf16_is_opt_in_within_its_tolerance(clips, monkeypatch):
     assert close(bf16, fp32, STLPIPS_BF16_ATOL)
     assert not np.array_equal(bf16, fp32)  # it did run in bfloat16
     assert close(metric.pair_values(ref, gen), bf16, 0.0)  # repeatable
-    monkeypatch.setenv(P.STLPIPS_BF16_ENV, "0")
+    monkeypatch.setenv(LD.STLPIPS_BF16_ENV, "0")
     assert metric.identity() == fp32_identity
-    monkeypatch.setenv(P.STLPIPS_BF16_ENV, "maybe")
-    with pytest.raises(ValueError, match=P.STLPIPS_BF16_ENV):
+    monkeypatch.setenv(LD.STLPIPS_BF16_ENV, "maybe")
+    with pytest.raises(ValueError, match=LD.STLPIPS_BF16_ENV):
         metric.precision()
 
 
@@ -356,7 +357,7 @@ def test_st_lpips_bf16_is_opt_in_within_its_tolerance(clips, monkeypatch):
 def test_fsim_vsi_run_on_one_thread_whatever_the_process_count(clips, name):
     """Per frame and per pair the piq metrics run on one torch thread (too small to share):
     the values are the same at any process thread count, and the count is restored."""
-    metric = {"fsim": P.FSIM, "vsi": P.VSI}[name]()
+    metric = {"fsim": FV.FSIM, "vsi": FV.VSI}[name]()
     ref, gen = clips["3d"]
     _T.torch()  # (its first call sets the process's count)
     before = torch.get_num_threads()

@@ -1,4 +1,5 @@
-"""Perceptual metrics (`visphy_plugins.metrics.perceptual`) and the pixel metrics' calibration.
+"""Perceptual metrics (`visphy_plugins.metrics.ms_ssim`, `.fsim_vsi`, `.lpips_dists`) and the
+pixel metrics' calibration.
 
 * PSNR/SSIM (`visphy_plugins.metrics.pixel`) equal scikit-image's;
 * ``ms_ssim``/``fsim``/``vsi`` equal direct piq calls on the full-size frames (FSIM/VSI to 1e-6,
@@ -39,7 +40,9 @@ from visphy_core.api.scene import ClipInfo, Scene  # noqa: E402
 from visphy_core.infra.cache import Cache  # noqa: E402
 from visphy_core.scoring.score import score_scene  # noqa: E402
 from visphy_plugins.metrics import _torch as _T  # noqa: E402
-from visphy_plugins.metrics import perceptual as P  # noqa: E402
+from visphy_plugins.metrics import fsim_vsi as FV  # noqa: E402
+from visphy_plugins.metrics import lpips_dists as LD  # noqa: E402
+from visphy_plugins.metrics import ms_ssim as MS  # noqa: E402
 from visphy_plugins.metrics.pixel import PSNR, SSIM, psnr_frame, ssim_frame  # noqa: E402
 
 
@@ -197,7 +200,7 @@ PIQ_CALLS = {
     "fsim": lambda x, y: piq.fsim(x, y, data_range=1.0, reduction="none"),
     "vsi": lambda x, y: piq.vsi(x, y, data_range=1.0, reduction="none"),
 }
-PIQ_METRICS = {"ms_ssim": P.MSSSIM, "fsim": P.FSIM, "vsi": P.VSI}
+PIQ_METRICS = {"ms_ssim": MS.MSSSIM, "fsim": FV.FSIM, "vsi": FV.VSI}
 #: MS-SSIM is computed with OpenCV (float32 filters, float64 means): within a few 1e-6 of piq's
 #: float32 value; FSIM and VSI call piq's own functions per frame and per pair
 PIQ_ATOL = {"ms_ssim": 1e-4, "fsim": 1e-6, "vsi": 1e-6}
@@ -248,7 +251,7 @@ def test_ms_ssim_equals_piq_on_rendered_and_random_frames(mini_scenes):
         a = np.random.default_rng(size[0]).integers(0, 256, (2, *size, 3), dtype=np.uint8)
         b = np.stack([noisy(a[:1], 30.0)[0], blurred(a[1:], 2.0)[0]])
         cases[f"random {size}"] = (a, b)
-    metric = P.MSSSIM()
+    metric = MS.MSSSIM()
     assert metric.unavailable_reason() is None
     worst = 0.0
     for name, (a, b) in cases.items():
@@ -272,22 +275,22 @@ def test_fsim_phase_congruency_is_piqs_bit_for_bit():
     even/odd responses) is piq's ``_phase_congruency``, bit for bit, at even and odd sizes."""
     from piq.fsim import _phase_congruency
 
-    d = P._defaults(piq.fsim)
+    d = FV._defaults(piq.fsim)
     for size in (64, 131):
         frames = np.concatenate([structured(2, size), random_frames(2, size, 3)])
         x = (to01(frames) * 255)[:, :1]
         with torch.inference_mode():
-            bank = P._fsim_filters(x, d)
-            assert bank is P._fsim_filters(x, d)
+            bank = FV._fsim_filters(x, d)
+            assert bank is FV._fsim_filters(x, d)
             theirs = _phase_congruency(x, bank[0], d["scales"], d["orientations"], d["k"])
-            ours = P._phase_congruency(x, bank, d["scales"], d["orientations"], d["k"])
+            ours = FV._phase_congruency(x, bank, d["scales"], d["orientations"], d["k"])
         assert torch.equal(ours, theirs), size
 
 
 def test_ms_ssim_needs_161_pixels():
     frames = structured(2, 128)
-    assert np.isnan(P.MSSSIM().pair_values(frames, frames)).all()
-    assert P.MS_SSIM_MIN_SIZE == (11 - 1) * 2 ** (len(P.MS_SSIM_WEIGHTS) - 1) + 1
+    assert np.isnan(MS.MSSSIM().pair_values(frames, frames)).all()
+    assert MS.MS_SSIM_MIN_SIZE == (11 - 1) * 2 ** (len(MS.MS_SSIM_WEIGHTS) - 1) + 1
 
 
 # ----------------------------------------------------------------------------- per-frame paths
@@ -329,8 +332,8 @@ def test_per_frame_paths_equal_the_per_pair_computation(name, weight_dir, monkey
     too large to keep) changes nothing."""
     if name == "lpips":
         save_alexnet(weight_dir / "alexnet-owt-7be5be79.pth", seed=0)
-    metric = SSIM() if name == "ssim" else {"fsim": P.FSIM, "vsi": P.VSI, "st_lpips": P.STLPIPS,
-                                             "lpips": P.LPIPS}[name]()
+    metric = SSIM() if name == "ssim" else {"fsim": FV.FSIM, "vsi": FV.VSI, "st_lpips": LD.STLPIPS,
+                                             "lpips": LD.LPIPS}[name]()
     assert metric.unavailable_reason() is None
     size = 96 if name in ("ssim", "st_lpips", "lpips") else 64
     atol = 0.0 if name == "ssim" else 1e-6
@@ -416,7 +419,7 @@ def test_per_frame_cache_dedupes_keeps_sides_apart_and_stays_in_its_budget(monke
 def stlpips_package():
     from stlpips_pytorch import utils
 
-    stlpips = P._import_stlpips()
+    stlpips = LD._import_stlpips()
     model = stlpips.LPIPS(net="alex", variant="shift_tolerant", verbose=False)  # its own loader
     return model.eval(), utils
 
@@ -436,7 +439,7 @@ def st_cases() -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
 
 def test_st_lpips_is_available_with_every_parameter_loaded():
-    metric = P.STLPIPS()
+    metric = LD.STLPIPS()
     assert metric.unavailable_reason() is None
     assert (metric.kind, metric.direction, metric.family) == (PAIRS, LOWER, "perceptual")
     path = metric.files().paths[0]
@@ -445,16 +448,16 @@ def test_st_lpips_is_available_with_every_parameter_loaded():
     model = metric.model()
     own = model.state_dict()
     for name, value in own.items():
-        src = P._lins_alias(name)
+        src = LD._lins_alias(name)
         assert torch.equal(value.cpu(), state[src]), name  # backbone, blur filters, linear layers
-    assert {P._lins_alias(n) for n in own} == set(state)
+    assert {LD._lins_alias(n) for n in own} == set(state)
     assert any(n.startswith("net.slice1.0.") for n in own)
     assert "weights=" in metric.identity() and "size=256" in metric.identity()
 
 
 def test_st_lpips_reproduces_the_package_api():
     model, utils = stlpips_package()
-    metric = P.STLPIPS()
+    metric = LD.STLPIPS()
     for name, (ref, gen) in st_cases().items():
         ours = metric.pair_values(ref, gen)
         with torch.no_grad():
@@ -469,7 +472,7 @@ def test_st_lpips_works_at_256_on_larger_frames():
     model, _ = stlpips_package()
     ref = structured(1, 512)
     gen = np.roll(ref, 6, axis=1)
-    ours = P.STLPIPS().pair_values(ref, gen)
+    ours = LD.STLPIPS().pair_values(ref, gen)
     half = lambda f: to01(f).view(1, 3, 256, 2, 256, 2).mean((3, 5)) * 2 - 1  # noqa: E731
     with torch.no_grad():
         theirs = model(half(ref), half(gen)).flatten().double().numpy()
@@ -477,7 +480,7 @@ def test_st_lpips_works_at_256_on_larger_frames():
 
 
 def test_st_lpips_identical_zero_shift_small_different_large():
-    metric = P.STLPIPS()
+    metric = LD.STLPIPS()
     ref = structured(2, 96)
     assert np.allclose(metric.pair_values(ref, ref), 0.0, atol=1e-7)
     shifted = np.roll(ref, 1, axis=2)
@@ -490,15 +493,15 @@ def test_st_lpips_identical_zero_shift_small_different_large():
 def test_st_lpips_checkpoint_in_the_weight_dir_replaces_the_packaged_one(weight_dir):
     import shutil
 
-    metric = P.STLPIPS()
+    metric = LD.STLPIPS()
     packaged = metric.identity()
     assert metric.unavailable_reason() is None  # the packaged net matches its recorded SHA-256
     # an identical copy in the weight dir is used in its place (same content, same identity)
-    shutil.copyfile(P.stlpips_packaged_file("alex"), weight_dir / "alex_shift_tolerant.pth")
+    shutil.copyfile(LD.stlpips_packaged_file("alex"), weight_dir / "alex_shift_tolerant.pth")
     assert metric.files().paths[0] == weight_dir / "alex_shift_tolerant.pth"
     assert metric.unavailable_reason() is None and metric.identity() == packaged
     # another net under that name is refused ...
-    stlpips = P._import_stlpips()
+    stlpips = LD._import_stlpips()
     torch.manual_seed(3)
     net = stlpips.LPIPS(net="alex", variant="shift_tolerant", pretrained=False, verbose=False)
     sd = {k: v for k, v in net.state_dict().items() if not k.startswith("lins.")}
@@ -510,7 +513,7 @@ def test_st_lpips_checkpoint_in_the_weight_dir_replaces_the_packaged_one(weight_
     with pytest.raises(RuntimeError, match="checksum mismatch"):
         metric.model()
     # ... unless it is the published file (here: the test says so), then it is what loads
-    publish(weight_dir / "alex_shift_tolerant.pth", P.STLPIPS_KEY)
+    publish(weight_dir / "alex_shift_tolerant.pth", LD.STLPIPS_KEY)
     assert metric.identity() != packaged
     ref = structured(2, 64)
     v = metric.pair_values(ref, noisy(ref, 20.0))
@@ -519,8 +522,8 @@ def test_st_lpips_checkpoint_in_the_weight_dir_replaces_the_packaged_one(weight_
 
 
 def test_st_lpips_without_its_net_is_unavailable(weight_dir, monkeypatch):
-    monkeypatch.setattr(P, "stlpips_packaged_file", lambda net="alex": None)
-    reason = P.STLPIPS().unavailable_reason()
+    monkeypatch.setattr(LD, "stlpips_packaged_file", lambda net="alex": None)
+    reason = LD.STLPIPS().unavailable_reason()
     assert "alex_shift_tolerant.pth" in reason and "metrics.weights_dir" in reason
 
 
@@ -531,7 +534,7 @@ def test_lpips_loads_alexnet_from_the_weight_dir(weight_dir, monkeypatch):
     import lpips
     from torchvision.models.alexnet import AlexNet
 
-    metric = P.LPIPS()
+    metric = LD.LPIPS()
     sd = save_alexnet(weight_dir / "alexnet-owt-7be5be79.pth", seed=0)
     assert metric.unavailable_reason() is None
     ref = structured(3, 64)
@@ -564,7 +567,7 @@ def test_dists_loads_vgg16_and_alpha_beta_from_the_weight_dir(weight_dir, monkey
     import piq.perceptual as pp
     from torchvision.models.vgg import cfgs, make_layers
 
-    metric = P.DISTS()
+    metric = LD.DISTS()
     assert metric.direction == LOWER and metric.score_range == (0.0, 1.0)
     vgg = save_vgg16_features(weight_dir / "vgg16-397923af.pth", seed=0)
     ab = save_dists_ab(weight_dir / "dists_weights.pt", seed=0)
@@ -601,38 +604,38 @@ def test_a_wrong_file_under_a_published_name_is_never_used(weight_dir, tmp_path,
 
     save_alexnet(weight_dir / "alexnet-owt-7be5be79.pth", seed=0, published=False)
     got = weights.sha256(weight_dir / "alexnet-owt-7be5be79.pth")
-    reason = P.LPIPS().unavailable_reason()
+    reason = LD.LPIPS().unavailable_reason()
     assert reason == (f"checksum mismatch ({weight_dir / 'alexnet-owt-7be5be79.pth'}: "
                       f"expected 7be5be79, got {got[:8]})")
     ref = structured(3, 32)
-    scores, unavailable = score_scene(scene_for(3, 32), ref, noisy(ref, 5.0), [P.LPIPS()], None,
+    scores, unavailable = score_scene(scene_for(3, 32), ref, noisy(ref, 5.0), [LD.LPIPS()], None,
                                       None, Cache(tmp_path / "cache"))
     for col in ("lpips", "lpips.aligned", "paper.lpips"):
         assert scores[col] is None and unavailable[col] == reason
     with pytest.raises(RuntimeError, match="checksum mismatch"):
-        P.LPIPS().pair_values(ref, ref)
+        LD.LPIPS().pair_values(ref, ref)
     # the packaged linear layers are checked too
     publish(weight_dir / "alexnet-owt-7be5be79.pth")
-    assert P.LPIPS().unavailable_reason() is None
+    assert LD.LPIPS().unavailable_reason() is None
     lins = tmp_path / "alex.pth"
-    shutil.copyfile(P.lpips_linear_file("alex"), lins)
+    shutil.copyfile(LD.lpips_linear_file("alex"), lins)
     with open(lins, "ab") as f:
         f.write(b"\0")
-    monkeypatch.setattr(P, "lpips_linear_file", lambda net="alex": lins)
-    assert P.LPIPS().unavailable_reason().startswith(
+    monkeypatch.setattr(LD, "lpips_linear_file", lambda net="alex": lins)
+    assert LD.LPIPS().unavailable_reason().startswith(
         f"checksum mismatch ({lins}: expected df73285e35b2, got ")
     # DISTS' alpha/beta: no published SHA-256 but the user's SHA256SUMS line
     save_vgg16_features(weight_dir / "vgg16-397923af.pth", seed=0)
     save_dists_ab(weight_dir / "dists_weights.pt", seed=0, published=False)
-    reason = P.DISTS().unavailable_reason()
+    reason = LD.DISTS().unavailable_reason()
     assert reason.startswith("no published SHA-256 for dists_weights.pt")
     sha = weights.sha256(weight_dir / "dists_weights.pt")
     (weight_dir / "SHA256SUMS").write_text(f"{sha}  dists_weights.pt\n")
-    assert P.DISTS().unavailable_reason() is None
+    assert LD.DISTS().unavailable_reason() is None
 
 
-@pytest.mark.parametrize("cls,files", [(P.LPIPS, ["alexnet-owt-7be5be79.pth"]),
-                                       (P.DISTS, ["vgg16-397923af.pth", "dists_weights.pt"])])
+@pytest.mark.parametrize("cls,files", [(LD.LPIPS, ["alexnet-owt-7be5be79.pth"]),
+                                       (LD.DISTS, ["vgg16-397923af.pth", "dists_weights.pt"])])
 def test_missing_weights_make_the_metric_unavailable_never_a_number(weight_dir, tmp_path,
                                                                     cls, files):
     metric = cls()
@@ -650,7 +653,7 @@ def test_missing_weights_make_the_metric_unavailable_never_a_number(weight_dir, 
 
 def test_dists_missing_only_alpha_beta_names_that_file(weight_dir):
     save_vgg16_features(weight_dir / "vgg16-397923af.pth", seed=0)
-    reason = P.DISTS().unavailable_reason()
+    reason = LD.DISTS().unavailable_reason()
     assert "put dists_weights.pt in metrics.weights_dir" in reason
 
 
@@ -664,7 +667,7 @@ def test_metrics_move_the_right_way_with_noise_and_blur(weight_dir):
     save_alexnet(weight_dir / "alexnet-owt-7be5be79.pth", seed=0)
     save_vgg16_features(weight_dir / "vgg16-397923af.pth", seed=0)
     save_dists_ab(weight_dir / "dists_weights.pt", seed=0)
-    for metric in (P.MSSSIM(), P.FSIM(), P.VSI(), P.STLPIPS(), P.LPIPS(), P.DISTS()):
+    for metric in (MS.MSSSIM(), FV.FSIM(), FV.VSI(), LD.STLPIPS(), LD.LPIPS(), LD.DISTS()):
         ref = structured(1, 176 if metric.name == "ms_ssim" else 96)
         for kind, gens in {"noise": [noisy(ref, s) for s in (4.0, 12.0, 30.0, 60.0)],
                            "blur": [blurred(ref, s) for s in (0.7, 1.5, 3.0, 6.0)]}.items():
@@ -675,7 +678,8 @@ def test_metrics_move_the_right_way_with_noise_and_blur(weight_dir):
 
 def test_registered_with_direction_and_range():
     registered = []
-    P.visphy_register_metrics(registered.append)
+    for module in (MS, FV, LD):
+        module.visphy_register_metrics(registered.append)
     expected = {"ms_ssim": (HIGHER, (0.0, 1.0)), "fsim": (HIGHER, (0.0, 1.0)),
                 "vsi": (HIGHER, (0.0, 1.0)), "lpips": (LOWER, (0.0, float("inf"))),
                 "st_lpips": (LOWER, (0.0, float("inf"))), "dists": (LOWER, (0.0, 1.0))}
