@@ -1,6 +1,12 @@
-"""Command line: ``python -m visphy_core [subcommand | hydra overrides]``.
+"""Command line: ``visphy [COMMAND] [ARGS]`` (also ``python -m visphy_core …``).
 
-Subcommands:
+``visphy --help`` lists the commands with one line each (`COMMANDS`); ``visphy run --help`` lists
+the run's config groups and their options. A first word that is not a command and not an
+override is answered with the closest command; a ``--flag value`` where an override belongs
+with the override to write (``--engine manim`` → ``engine=manim``).
+
+Commands:
+  run            evaluate a model on a dataset (the default: overrides alone are a run)
   plugins        list installed plugins and what each registers (also: --plugins)
   metrics        list installed metrics: direction, family, kind, weights, availability here
   setup          install the vendored JavaScript libraries (npm ci into the asset cache)
@@ -33,6 +39,7 @@ import argparse
 import os
 import sys
 from types import TracebackType
+from typing import Callable
 
 from visphy_core.config.check import check_inputs, check_overrides
 from visphy_core.infra.errors import UserError
@@ -293,11 +300,122 @@ def cmd_ground_truth(argv: list[str]) -> int:
     return ground_truth(argv)
 
 
-SUBCOMMANDS = {"plugins": cmd_plugins, "setup": cmd_setup, "build-dataset": cmd_build_dataset,
-               "normalise": cmd_normalise, "render": cmd_render, "metrics": cmd_metrics,
-               "intervene": cmd_intervene, "rate": cmd_rate, "score": cmd_score,
-               "analyse": cmd_analyse, "report": cmd_report, "merge": cmd_merge,
-               "ground-truth": cmd_ground_truth}
+#: Every command: its handler and its line in ``visphy --help``.
+COMMANDS: dict[str, tuple[Callable[[list[str]], int], str]] = {
+    "run": (lambda argv: cmd_run(argv),
+            "evaluate a model on a dataset: run [group=option key=value ...] (the default)"),
+    "score": (cmd_score, "re-score a finished run with other metrics or judges, no model call"),
+    "report": (cmd_report, "the HTML report of a run, or of several runs as a study"),
+    "analyse": (cmd_analyse, "tables and figures from finished runs (leaderboard, CIs, ...)"),
+    "merge": (cmd_merge, "one run from the shards of a sharded run (dataset.shard=i/n)"),
+    "render": (cmd_render, "extract, render and score one model reply for one scene"),
+    "intervene": (cmd_intervene, "change physical parameters, re-simulate, render side by side"),
+    "rate": (cmd_rate, "the model-blind human rating page on localhost"),
+    "build-dataset": (cmd_build_dataset, "generate VisPhyBench (or another built dataset)"),
+    "ground-truth": (cmd_ground_truth, "a dataset's normalisation anchors, ahead of any run"),
+    "normalise": (cmd_normalise, "resample a foreign video to a reference clip's contract"),
+    "metrics": (cmd_metrics, "the installed metrics: direction, family, availability here"),
+    "plugins": (cmd_plugins, "the installed plugins and what each registers"),
+    "setup": (cmd_setup, "install the vendored JavaScript libraries (npm ci)"),
+}
+SUBCOMMANDS = {name: handler for name, (handler, _) in COMMANDS.items() if name != "run"}
+
+
+def usage() -> str:
+    """``visphy --help``: every command with its line, then how a run is written."""
+    width = max(len(name) for name in COMMANDS)
+    lines = ["usage: visphy [COMMAND] [ARGS]", "",
+             "visphy evaluates whether a model understands physics by having it write a "
+             "simulator.", "", "commands:"]
+    lines += [f"  {name:<{width}}  {summary}" for name, (_, summary) in COMMANDS.items()]
+    lines += ["", "A run is the default command: `visphy model=oracle engine=threejs "
+              "dataset=mini` is `visphy run ...`.",
+              "`visphy run --help` lists the config groups and their options; "
+              "`visphy COMMAND --help` a command's own options.",
+              "`--traceback` (or VISPHY_TRACEBACK=1) shows full tracebacks."]
+    return "\n".join(lines)
+
+
+def config_options() -> dict[str, list[str]]:
+    """Each config group of the installed config tree (``visphy_conf``) and its options."""
+    from importlib import resources
+
+    root = resources.files("visphy_conf")
+    groups: dict[str, list[str]] = {}
+
+    def walk(node, prefix: str) -> None:
+        for entry in sorted(node.iterdir(), key=lambda e: e.name):
+            if not entry.is_dir() or entry.name.startswith(("_", ".")):
+                continue
+            names = sorted(e.name[:-5] for e in entry.iterdir() if e.name.endswith(".yaml"))
+            if names:
+                groups[prefix + entry.name] = names
+            walk(entry, f"{prefix}{entry.name}/")
+
+    walk(root, "")
+    return groups
+
+
+def run_usage() -> str:
+    """``visphy run --help``: the config groups a run is composed from, and what to try."""
+    lines = ["usage: visphy run [group=option ...] [key=value ...]", "",
+             "config groups (pick one option each; the default is marked *):"]
+    defaults = _default_options()
+    for group, names in config_options().items():
+        if group.startswith("hydra/") and group != "hydra/launcher":
+            continue
+        shown = ", ".join(f"{n}*" if defaults.get(group) == n else n for n in names)
+        lines.append(f"  {group}: {shown}")
+    lines += ["", "examples:",
+              "  visphy model=gpt5 engine=threejs dataset=visphybench_test",
+              "  visphy model=oracle engine=p5 dataset=mini metrics=fast",
+              "  visphy --multirun model=gpt5,claude engine=threejs,p5   (a study)",
+              "", "`visphy run --cfg job` prints the whole composed config; "
+              "`visphy run --info` Hydra's view of it."]
+    return "\n".join(lines)
+
+
+def _default_options() -> dict[str, str]:
+    """The root config's defaults list: group → default option."""
+    from importlib import resources
+
+    from omegaconf import OmegaConf
+
+    text = resources.files("visphy_conf").joinpath("config.yaml").read_text()
+    out = {}
+    for item in OmegaConf.create(text).get("defaults", []):
+        if isinstance(item, str) or not hasattr(item, "items"):
+            continue
+        for key, value in item.items():
+            key = str(key).removeprefix("override ")
+            if value is not None:
+                out[key] = str(value)
+    return out
+
+
+def _unknown_command(word: str) -> UserError:
+    import difflib
+
+    close = difflib.get_close_matches(word, list(COMMANDS), n=1, cutoff=0.6)
+    hint = f"; did you mean '{close[0]}'?" if close else ""
+    return UserError(f"unknown command '{word}'{hint} (`visphy --help` lists the commands; a "
+                     "run takes overrides such as engine=threejs)")
+
+
+def _flag_as_override(argv: list[str]) -> UserError | None:
+    """A ``--key value`` or ``--key=value`` where an override ``key=value`` belongs."""
+    known = set(HYDRA_FLAGS) | set(VALUE_FLAGS) | {"--multirun", "-m", "--traceback",
+                                                    "--plugins", "--version"}
+    for i, arg in enumerate(argv):
+        if not arg.startswith("--") or arg.split("=")[0] in known or arg == "--":
+            continue
+        key, _, value = arg[2:].partition("=")
+        if not value and i + 1 < len(argv) and not argv[i + 1].startswith("-"):
+            value = argv[i + 1]
+        example = f"{key.replace('-', '_')}={value or '...'}"
+        return UserError(f"'{arg}' is not an option of a run: write overrides as key=value, "
+                         f"e.g. {example} (`visphy run --help` lists the config groups)")
+    return None
 
 
 def run_hydra(argv: list[str]) -> int:
@@ -353,13 +471,31 @@ def main(argv: list[str] | None = None) -> int:
         if _traceback_wanted():
             raise
         return report(exc)
-    if argv and argv[0] in SUBCOMMANDS:
+    if not argv or argv[0] in ("--help", "-h", "help"):
+        if argv:
+            print(usage())
+            return 0
+    if argv and argv[0] == "run" and any(a in ("--help", "-h") for a in argv[1:]):
+        print(run_usage())
+        return 0
+    if argv and argv[0] in COMMANDS:
         try:
-            return SUBCOMMANDS[argv[0]](argv[1:])
+            return COMMANDS[argv[0]][0](argv[1:])
         except Exception as exc:  # noqa: BLE001
             if _traceback_wanted() or not is_user_error(exc):
                 raise
             return report(exc)
     if "--plugins" in argv:
         return cmd_plugins([])
+    if argv and not argv[0].startswith("-") and "=" not in argv[0] \
+            and not argv[0].startswith(("+", "~")):
+        return report(_unknown_command(argv[0]))
+    return cmd_run(argv)
+
+
+def cmd_run(argv: list[str]) -> int:
+    """A run (``visphy run ...`` or overrides alone), after the flag check."""
+    problem = _flag_as_override(argv)
+    if problem is not None:
+        return report(problem)
     return run_hydra(argv)

@@ -1,0 +1,52 @@
+"""``visphy --help`` lists every command, ``visphy run --help`` the config groups, and a
+mistyped command or a ``--flag`` where an override belongs says what to write instead."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+
+import pytest
+
+from visphy_core.cli.main import COMMANDS, config_options, main
+
+
+def test_help_lists_every_command_with_one_line(capsys):
+    assert main(["--help"]) == 0
+    out = capsys.readouterr().out
+    listed = [line.split()[0] for line in out.splitlines() if line.startswith("  ")]
+    assert listed == list(COMMANDS)
+    for name, (_, summary) in COMMANDS.items():
+        assert f"{name}" in out and summary in out
+    assert "schema_" not in out
+
+
+def test_run_help_lists_the_config_groups_without_internal_schemas(capsys):
+    assert main(["run", "--help"]) == 0
+    out = capsys.readouterr().out
+    groups = config_options()
+    for group in ("dataset", "model", "engine", "metrics", "judge", "tracking"):
+        assert f"  {group}: " in out and groups[group]
+    assert "threejs*" in out and "mini*" in out and "oracle*" in out   # the defaults
+    assert "schema_" not in out and "visphybench_test" in out
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["reprot", "runs/x"], "unknown command 'reprot'; did you mean 'report'?"),
+    (["analyze", "runs"], "did you mean 'analyse'?"),
+    (["frobnicate"], "unknown command 'frobnicate' (`visphy --help`"),
+    (["--engine", "manim"], "'--engine' is not an option of a run: write overrides as "
+                            "key=value, e.g. engine=manim"),
+    (["run", "model=oracle", "--dataset=mini"], "e.g. dataset=mini"),
+])
+def test_a_mistake_is_one_line_with_what_to_write(capsys, argv, expected):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and expected in err and err.count("\n") == 1
+
+
+def test_the_installed_visphy_command_is_the_same_cli():
+    exe = shutil.which("visphy") or str(__import__("pathlib").Path(
+        __import__("sys").executable).with_name("visphy"))
+    proc = subprocess.run([exe, "--help"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and "usage: visphy [COMMAND] [ARGS]" in proc.stdout
