@@ -59,6 +59,12 @@ BAD_INPUTS = [
     ("tracking.uri=http://", ["tracking.uri=http:// names no host"]),
     ("dataset=original dataset.root=/nonexistent",
      ["dataset.root=/nonexistent is not a directory"]),
+    ("dataset.root=/nonexistent",   # the generated benchmark has no root: not silently ignored
+     ["dataset.root=/nonexistent is not used by the generated VisPhyBench", "paths.data_dir"]),
+    ("model=replay", ["model.source must be set (model=replay leaves it open): add "
+                      "model.source=<value>"]),
+    ("prompt.forecast_only=true prompt.frames=[1,10]",
+     ["prompt.forecast_only=true shows only the first of prompt.frames=[1, 10] (frame 1)"]),
     ("tracking=mlfow", ["tracking=mlfow is not an option of 'tracking'; valid: mlflow, none"]),
     ("engine=threejz", ["engine=threejz is not an option of 'engine'; valid: ", "threejs"]),
     ("engine.timout_s=3", ["unknown key 'engine.timout_s'; valid keys of 'engine': name, "

@@ -244,6 +244,9 @@ def check_overrides(overrides: list[str], inputs: bool = False) -> list[DictConf
         configs = compose_all(_split_hydra(overrides))
     finally:
         GlobalHydra.instance().clear()
+    if any(o.lstrip("+").startswith("prompt.frames=") for o in overrides):
+        for cfg in configs:
+            check_frames_with_forecast(cfg)
     if inputs:
         for cfg in configs:
             check_inputs(cfg)
@@ -403,7 +406,9 @@ def check_tracking(cfg: DictConfig) -> None:
 
 
 def check_values(cfg: DictConfig) -> None:
-    """Ranges, unknown keys, plugin names and the tracking URI of a composed config."""
+    """Values left open, ranges, unknown keys, plugin names and the tracking URI of a composed
+    config."""
+    check_required(cfg)
     check_ranges(cfg)
     check_names(cfg)
     check_tracking(cfg)
@@ -414,6 +419,30 @@ def check_values(cfg: DictConfig) -> None:
 
 
 PROTOCOLS = ("visphy", "paper")
+
+
+def check_frames_with_forecast(cfg: DictConfig) -> None:
+    """``prompt.frames`` given on the command line with ``prompt.forecast_only=true``: only
+    the first frame would be shown, silently; say so instead."""
+    frames = list(OmegaConf.select(cfg, "prompt.frames", default=None) or [])
+    if OmegaConf.select(cfg, "prompt.forecast_only", default=False) and len(frames) > 1:
+        raise ConfigError(f"prompt.forecast_only=true shows only the first of "
+                          f"prompt.frames={_show(frames)} (frame {frames[0]}): drop "
+                          "prompt.frames, or set prompt.forecast_only=false to show them all")
+
+
+def check_required(cfg: DictConfig) -> None:
+    """Every value a config leaves open (``???``: e.g. ``model=replay``'s ``model.source``) is
+    set; else one line naming the key and how to set it."""
+    missing = sorted(k for k in OmegaConf.missing_keys(cfg) if not str(k).startswith("hydra."))
+    if not missing:
+        return
+    first = missing[0]
+    group = first.split(".")[0]
+    option = OmegaConf.select(cfg, f"{group}.name", default=None) if group != first else None
+    where = f" ({group}={option} leaves it open)" if option else ""
+    raise ConfigError(f"{', '.join(missing)} must be set{where}: add {first}=<value> to the "
+                      "command")
 
 
 def check_protocol(cfg: DictConfig) -> None:

@@ -78,6 +78,12 @@ class VisPhyBench(Dataset):
         checked against it (else the run checks them once it is built)."""
         from visphy_plugins.datasets.visphybench.build import dataset_root
 
+        root = OmegaConf.select(cfg, "dataset.root", default=None)
+        if root not in (None, ""):
+            raise ConfigError(f"dataset.root={root} is not used by the generated VisPhyBench "
+                              f"(dataset.source=generated builds under paths.data_dir): set "
+                              "paths.data_dir instead, or use dataset=original "
+                              f"dataset.root={root} for the published layout")
         version = _version(OmegaConf.select(cfg, "dataset"))
         lossless = bool(OmegaConf.select(cfg, "dataset.lossless", default=False))
         data_dir = Path(str(OmegaConf.select(cfg, "paths.data_dir")))
