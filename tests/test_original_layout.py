@@ -317,3 +317,13 @@ def test_malformed_difficulty_json_names_the_file(tmp_path, clip_files):
     with pytest.raises(ValueError) as info:
         load_original(tmp_path, "sub")
     _one_line_error(info, str(d / "difficulty_table.json"))
+
+
+def test_generated_ids_in_the_published_layout_load_with_their_template(tmp_path, clip_files):
+    """visphy's own ids (no ``_`` in them) laid out like the published data: each loads with
+    its template (``3d-t004``), where the template rule for published ids raised IndexError."""
+    ids = {"vpb3-s0-3d-t004-v02": clip_files[ID_3D], "vpb3-s0-2d-t017-v01": clip_files[ID_2D_A]}
+    make_split(tmp_path, "sub", ids, sorted(ids), difficulty=None, metadata=None)
+    scenes = load_original(tmp_path, "sub")
+    assert [(s.scene_id, s.template_id, s.dim) for s in scenes] == [
+        ("vpb3-s0-2d-t017-v01", "2d-t017", "2d"), ("vpb3-s0-3d-t004-v02", "3d-t004", "3d")]

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from fractions import Fraction
 from pathlib import Path
 from typing import Any
@@ -170,7 +171,11 @@ def probe_clip(path: Path) -> ClipInfo:
 
 
 def default_template_id(scene_id: str) -> str:
-    """Template of an id: ``task10063_000`` → ``10063``, ``14_tmpl_14`` → ``tmpl_14``."""
+    """Template of an id: ``task10063_000`` → ``10063``, ``14_tmpl_14`` → ``tmpl_14``, a
+    generated id laid out like the published data ``vpb3-s0-3d-t004-v02`` → ``3d-t004``."""
+    generated = re.fullmatch(r"vpb\d+-s\d+-(2d|3d)-(t\d+)-v\d+", scene_id)
+    if generated:
+        return f"{generated.group(1)}-{generated.group(2)}"
     if scene_dim(scene_id) == "2d":
         return scene_id[len("task"):].split("_")[0]
     return "tmpl_" + scene_id.rsplit("_", 1)[1]
