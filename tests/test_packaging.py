@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -15,9 +16,19 @@ from conftest import REPO
 
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
+    """The wheel built from a copy of the tracked files: setuptools writes ``build/`` and
+    ``visphy.egg-info`` into the tree it builds, and a stale egg-info in the checkout would
+    shadow the editable install's entry points."""
     out = tmp_path_factory.mktemp("wheel")
+    src = tmp_path_factory.mktemp("source")
+    tracked = subprocess.run(["git", "-C", str(REPO), "ls-files", "-z"], check=True,
+                             capture_output=True).stdout.decode().split("\0")
+    for name in filter(None, tracked):
+        if (REPO / name).is_file() and not (REPO / name).is_symlink():
+            (src / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(REPO / name, src / name)
     subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation",
-                    "-q", "-w", str(out), str(REPO)], check=True, capture_output=True)
+                    "-q", "-w", str(out), str(src)], check=True, capture_output=True)
     return next(out.glob("visphy-*.whl"))
 
 
