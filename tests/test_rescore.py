@@ -118,6 +118,9 @@ def test_one_more_metric_without_a_model_call_or_a_render(finished, no_chromium)
         "run.cache": {"before": True, "after": False},
         "tracking.backend": {"before": "none", "after": "mlflow"}}
     assert "calls made now: none" in proc.stdout
+    # the run's own call lines (the oracle's 'generate' calls of the original run) are labelled
+    heading = proc.stdout.index("(the original run's included; the calls made by this re-score")
+    assert heading < proc.stdout.index("generate: ")
     # a new MLflow run, tagged with the run it re-scores, in the store the printed command opens
     from mlflow.tracking import MlflowClient
 

@@ -183,8 +183,10 @@ def split_column(name: str) -> tuple[str, str]:
     return name, "visphy"
 
 
-def print_summary(summary: dict, results: list) -> None:
-    """Per-scene table, then metric means with their denominators, then failures and cache."""
+def print_summary(summary: dict, results: list, calls_heading: str | None = None) -> None:
+    """Per-scene table, then metric means with their denominators, then failures and cache.
+    ``calls_heading``: a line before the model/judge call lines (a re-score says they are the
+    run's, the original run's calls included)."""
     # per scene: the primary columns only (visphy, unaligned); every column is in the means
     primary = [n for n in summary["metrics"] if "." not in n
                and not summary["metrics"][n]["unavailable"]]
@@ -274,6 +276,9 @@ def print_summary(summary: dict, results: list) -> None:
                   f"replies {cache.get('response', {}).get('hits', 0)} hit · "
                   f"scores {cache.get('score', {}).get('hits', 0)} hit")
     usage = summary.get("usage") or {}
+    if calls_heading and any(t["calls"] or t["cache_hits"] for stage, t in usage.items()
+                             if stage != "all"):
+        console.print(calls_heading, soft_wrap=True)
     for stage, t in usage.items():
         if stage == "all" or not (t["calls"] or t["cache_hits"]):
             continue

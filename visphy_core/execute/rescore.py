@@ -433,7 +433,9 @@ def _write_run(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, chang
         pm.hook.visphy_scene_done(run=ctx, scene=by_id[result.scene_id], result=result)
     pm.hook.visphy_run_end(run=ctx, summary=summary)
     write_json(out / "summary.json", summary)
-    print_summary(summary, results)
+    print_summary(summary, results, calls_heading=(
+        f"calls recorded in {out.name} (the original run's included; the calls made by this "
+        "re-score are counted below):"))
     calls = ", ".join(f"{n} {stage}" for stage, n in made.items()) or "none"
     note = f"re-scored {len(results)} row(s) of {src} · calls made now: {calls}"
     if status != FINISHED:
