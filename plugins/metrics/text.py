@@ -91,8 +91,12 @@ def rouge_scorer():
     with _LOCK:
         if not _ROUGE:
             from rouge_score import rouge_scorer as rs
+            from rouge_score import tokenizers
 
-            _ROUGE.append(rs.RougeScorer(["rougeL"], use_stemmer=True))
+            # the tokenizer RougeScorer makes by default, made here: it would log "Using default
+            # tokenizer." into the progress display
+            _ROUGE.append(rs.RougeScorer(["rougeL"], use_stemmer=True,
+                                         tokenizer=tokenizers.DefaultTokenizer(use_stemmer=True)))
         return _ROUGE[0]
 
 
