@@ -75,6 +75,7 @@ def test_a_run_ends_with_the_stage_line_report_and_mlflow_command(tmp_path):
         [e.experiment_id for e in MlflowClient(tracking_uri=uri).search_experiments()],
         filter_string=f"tags.`visphy.run_dir` = '{run_dir}'")
     assert len(runs) == 1 and runs[0].info.status == "FINISHED"
+    assert runs[0].info.run_name == "static · threejs · tiny:sub"   # the runs list's name
 
 
 def test_live_bars_on_a_terminal_and_nothing_without_tracking(tmp_path):

@@ -206,6 +206,16 @@ def _study_parent(uri: str) -> tuple[dict, dict] | None:
 # ------------------------------------------------------------------------------ hooks
 
 
+def run_display_name(cfg) -> str:
+    """``model · engine · dataset`` (``dataset:split`` when the split is not the dataset's
+    name): what the MLflow runs list shows of a run (its folder name stays a tag)."""
+    dataset = str(OmegaConf.select(cfg, "dataset.name", default="?"))
+    split = OmegaConf.select(cfg, "dataset.split", default=None)
+    if split not in (None, "", dataset):
+        dataset = f"{dataset}:{split}"
+    return f"{cfg.model.name} · {cfg.engine.name} · {dataset}"
+
+
 def _enabled(run) -> bool:
     return run.cfg.tracking.backend == "mlflow"
 
@@ -215,7 +225,7 @@ def visphy_run_start(run):
     if not _enabled(run):
         return
     client, uri, exp_id = open_store(run.cfg, run.root)
-    tags, run_name = _run_tags(run), run.run_dir.name
+    tags, run_name = _run_tags(run), run_display_name(run.cfg)
     study = _study_parent(uri)
     if study is not None:
         job, parent = study
