@@ -22,8 +22,9 @@ test: setup-test
 plugins: setup
 	$(PY) -m visphy_core plugins
 
+# The MLflow UI of the runs under $(VISPHY_HOME) (default visphy-out); installs nothing.
 ui:
-	bash scripts/setup.sh ui
+	@test -x .venv/bin/mlflow || { echo "no .venv/bin/mlflow: run 'make run' first" >&2; exit 2; }
 	.venv/bin/mlflow ui --backend-store-uri sqlite:///$(abspath $(or $(VISPHY_HOME),visphy-out))/mlflow.db
 
 clean:

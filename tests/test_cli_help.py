@@ -8,7 +8,8 @@ import subprocess
 
 import pytest
 
-from visphy_core.cli.main import COMMANDS, config_options, main
+from visphy_core.cli.help import config_options
+from visphy_core.cli.main import COMMANDS, main
 
 
 def test_help_lists_every_command_with_one_line(capsys):

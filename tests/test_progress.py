@@ -8,6 +8,7 @@ import io
 import os
 import pty
 import re
+import shutil
 import subprocess
 import sys
 import threading
@@ -68,7 +69,15 @@ def test_a_run_ends_with_the_stage_line_report_and_mlflow_command(tmp_path):
     assert report == run_dir / "report" / "index.html" and report.is_file()
     command = tail[2].removeprefix("MLflow: ")
     uri = f"sqlite:///{(home / 'mlflow.db').resolve()}"
-    assert command == f"mlflow ui --backend-store-uri {uri}"
+    executable, rest = command.split(" ", 1)
+    assert rest == f"ui --backend-store-uri {uri}"
+    # it works as printed, the venv not activated: its mlflow by full path unless on the path
+    bare = {k: v for k, v in os.environ.items() if k not in ("VIRTUAL_ENV", "PATH")}
+    bare["PATH"] = "/usr/bin:/bin"
+    exe = shutil.which(executable, path=bare["PATH"]) or executable
+    check = subprocess.run([exe, "ui", "--help"], env=bare, capture_output=True, text=True,
+                           timeout=120)
+    assert check.returncode == 0 and "--backend-store-uri" in check.stdout, check.stderr
     from mlflow.tracking import MlflowClient
 
     runs = MlflowClient(tracking_uri=uri).search_runs(

@@ -125,7 +125,7 @@ def test_one_more_metric_without_a_model_call_or_a_render(finished, no_chromium)
     from mlflow.tracking import MlflowClient
 
     (uri,) = [line.split("--backend-store-uri ", 1)[1] for line in proc.stdout.splitlines()
-              if line.startswith("MLflow: mlflow ui --backend-store-uri ")]
+              if line.startswith("MLflow: ") and " ui --backend-store-uri " in line]
     assert uri == manifest["tracking"]["mlflow"]["tracking_uri"]
     mlrun = MlflowClient(tracking_uri=uri).get_run(manifest["tracking"]["mlflow"]["run_id"])
     assert mlrun.data.tags["visphy.rescored_from"] == str(run)

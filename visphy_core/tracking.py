@@ -21,6 +21,7 @@ from __future__ import annotations
 import functools
 import logging
 import os
+import shlex
 import subprocess
 import time
 from pathlib import Path
@@ -204,6 +205,27 @@ def _study_parent(uri: str) -> tuple[dict, dict] | None:
 
 
 # ------------------------------------------------------------------------------ hooks
+
+
+def mlflow_executable() -> str:
+    """``mlflow`` when that is this environment's MLflow on the path, else its full path (the
+    venv not activated), so the printed command works as printed."""
+    import shutil
+    import sys
+
+    here = Path(sys.executable).with_name("mlflow")
+    found = shutil.which("mlflow")
+    if found and (not here.exists() or Path(found).resolve() == here.resolve()):
+        return "mlflow"
+    return str(here) if here.exists() else "mlflow"
+
+
+def mlflow_command(tracking_uri: str) -> str:
+    """How to look at a tracking store: the exact ``mlflow ui`` command for a local store, the
+    server's address for a remote one."""
+    if tracking_uri.split("://", 1)[0].lower() in ("http", "https", "databricks"):
+        return f"open {tracking_uri} (the tracking server holding this run)"
+    return f"{shlex.quote(mlflow_executable())} ui --backend-store-uri {shlex.quote(tracking_uri)}"
 
 
 def run_display_name(cfg) -> str:

@@ -3,7 +3,6 @@ table, the report's path and the command that opens the run in MLflow."""
 
 from __future__ import annotations
 
-import shlex
 import sys
 import threading
 import time
@@ -16,6 +15,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from visphy_core.infra.events import STAGES, StageEvents
+from visphy_core.tracking import mlflow_command
 
 # A pipe or a log file gets 120 columns (rich's 80 would truncate the means table); a terminal
 # keeps its own width.
@@ -140,14 +140,6 @@ def stage_progress(total: int, stages: tuple[str, ...] | list[str], enabled: boo
     finally:
         if stages_progress.progress is None:
             print(stages_progress.final_line(), file=sys.stderr, flush=True)
-
-
-def mlflow_command(tracking_uri: str) -> str:
-    """How to look at a tracking store: the exact ``mlflow ui`` command for a local store, the
-    server's address for a remote one."""
-    if tracking_uri.split("://", 1)[0].lower() in ("http", "https", "databricks"):
-        return f"open {tracking_uri} (the tracking server holding this run)"
-    return f"mlflow ui --backend-store-uri {shlex.quote(tracking_uri)}"
 
 
 def print_where_to_look(report: Path | None, tracking_uri: str | None) -> None:

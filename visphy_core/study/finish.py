@@ -73,8 +73,10 @@ def _mlflow_hint(parent: dict | None) -> str | None:
     if uri.startswith(("http://", "https://")):
         return (f"MLflow: {uri.rstrip('/')}/#/experiments/{parent['experiment_id']}/runs/"
                 f"{parent['run_id']}")
+    from visphy_core.tracking import mlflow_command
+
     return (f"MLflow: parent run {parent['run_id']} in experiment '{parent['experiment']}'; "
-            f"view with: mlflow ui --backend-store-uri {uri}")
+            f"view with: {mlflow_command(uri)}")
 
 
 def finish_study(sweep_dir: Path, *, ended_early: bool = False) -> dict[str, Any] | None:
