@@ -244,8 +244,9 @@ def check_overrides(overrides: list[str], inputs: bool = False) -> list[DictConf
         configs = compose_all(_split_hydra(overrides))
     finally:
         GlobalHydra.instance().clear()
-    if any(o.lstrip("+").startswith("prompt.frames=") for o in overrides):
-        for cfg in configs:
+    for cfg in configs:  # what a run needs that composing alone does not ask
+        check_required(cfg)
+        if any(o.lstrip("+").startswith("prompt.frames=") for o in overrides):
             check_frames_with_forecast(cfg)
     if inputs:
         for cfg in configs:
@@ -406,9 +407,7 @@ def check_tracking(cfg: DictConfig) -> None:
 
 
 def check_values(cfg: DictConfig) -> None:
-    """Values left open, ranges, unknown keys, plugin names and the tracking URI of a composed
-    config."""
-    check_required(cfg)
+    """Ranges, unknown keys, plugin names and the tracking URI of a composed config."""
     check_ranges(cfg)
     check_names(cfg)
     check_tracking(cfg)
