@@ -118,3 +118,96 @@ def test_live_bars_on_a_terminal_and_nothing_without_tracking(tmp_path):
     assert "stages: " not in proc.stderr
     assert re.search(r"generate\s.*3/3", proc.stderr) and re.search(r"score\s.*3/3", proc.stderr)
     assert b"report: " in shown and b"MLflow: " not in shown
+
+
+class FakeClock:
+    """A clock the test moves by hand: no sleeping."""
+
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def _bar_of(text: str, stage: str) -> str:
+    """The last drawing of ``stage``'s line on a live console's output."""
+    plain = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "\n", text).replace("\r", "\n")
+    return [ln for ln in plain.split("\n") if ln.strip().startswith(stage)][-1]
+
+
+def test_a_stage_bar_never_goes_back_after_its_total():
+    """A scene back in a stage it is done with (its score stage's reference renders enter
+    ``render`` again) adds its time but is no new work: the finished bar stays "done", never
+    "1 in flight"."""
+    clock = FakeClock()
+    out = io.StringIO()
+    console = Console(file=out, force_terminal=True, width=120, color_system=None)
+    progress = StageProgress(2, ["render", "score"], live=True, out=console, clock=clock)
+    with progress.progress:
+        for scene in ("a", "b"):
+            progress.begin("render", scene)
+            clock.now += 2
+            progress.end("render", scene)
+        assert progress.progress.tasks[progress.tasks["render"]].description == "done"
+        progress.begin("score", "b")
+        progress.begin("render", "b")  # the spec track's reference render, during score
+        clock.now += 3
+        assert progress.in_flight("render") == []
+        assert progress.progress.tasks[progress.tasks["render"]].description == "done"
+        assert progress.spent_now("render") == 7.0  # its time still adds up
+        progress.end("render", "b")
+        progress.end("score", "b")
+    task = progress.progress.tasks[progress.tasks["render"]]
+    assert task.completed == 2 and task.description == "done"
+    assert progress.spent["render"] == 7.0
+    assert "in flight" not in _bar_of(out.getvalue(), "render")
+
+
+def test_a_running_stage_shows_its_time_advancing():
+    """The seconds column counts the scenes in a stage now, not only those that left it."""
+    clock = FakeClock()
+    out = io.StringIO()
+    console = Console(file=out, force_terminal=True, width=120, color_system=None)
+    progress = StageProgress(1, ["score"], live=True, out=console, clock=clock)
+    with progress.progress:
+        progress.begin("score", "a")
+        clock.now += 61.5
+        assert progress.spent_now("score") == 61.5
+        progress.progress.refresh()
+        assert "61.5s" in _bar_of(out.getvalue(), "score")
+        clock.now += 1
+        progress.end("score", "a")
+    assert progress.spent["score"] == 62.5 and progress.spent_now("score") == 62.5
+
+
+def test_the_summary_is_never_cut_when_stdout_is_not_a_terminal(capsys):
+    """A pipe or a log file gets the tables whole: every header and value in full, however many
+    and however long the columns are (rich alone would cut them at 80 columns with "…")."""
+    from visphy_core.execute.console import print_summary
+    from visphy_core.results.row import SceneResult
+
+    long_names = [f"a_rather_long_metric_name_number_{i}_moving_dis" for i in range(5)]
+    metric = {"unavailable": None, "direction": "lower", "n_model_success": 1,
+              "mean_model_success": 0.123456, "mean_with_fallbacks": 0.5, "n_with_fallbacks": 2}
+    metrics = {name: dict(metric) for name in long_names}
+    metrics.update({f"{long_names[0]}.aligned": dict(metric), f"paper.{long_names[1]}":
+                    dict(metric), f"spec.{long_names[2]}": dict(metric)})
+    scene_id = "vpb3-s0-2d-t001-v00-with-an-unusually-long-scene-identifier"
+    results = [SceneResult(scene_id=scene_id, dim="2d", difficulty=None, model_success=True,
+                           attempts=1, render_wall_s=1.25,
+                           scores={n: 0.1 + i for i, n in enumerate(long_names)})]
+    summary = {"model": "a_model_with_a_long_name", "engine": "threejs", "dataset": "mini",
+               "n_scenes": 1, "metrics": metrics, "headline": {}, "model_success": 1,
+               "system_success": 1, "fallbacks": 0, "repaired": 0,
+               "cache": {"render": {"hits": 0, "misses": 1}}, "run_dir": "/tmp/" + "x" * 150}
+    print_summary(summary, results)
+    text = capsys.readouterr().out
+    assert "…" not in text
+    for i, name in enumerate(long_names):
+        assert f"{name} ↓" in text  # a header of both tables, whole on one line
+        assert f"{0.1 + i:.4f}" in text
+    for column in ("aligned", "paper", "spec", "with fallbacks"):
+        assert column in text
+    assert scene_id in text and "0.5000 (n=2)" in text and "1.25s" in text
+    assert f"run directory: /tmp/{'x' * 150}" in text

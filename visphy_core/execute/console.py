@@ -8,19 +8,35 @@ import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    ProgressColumn,
+    TextColumn,
+    TimeElapsedColumn,
+)
 from rich.table import Table
+from rich.text import Text
 
 from visphy_core.infra.events import STAGES, StageEvents
 from visphy_core.tracking import mlflow_command
 
-# A pipe or a log file gets 120 columns (rich's 80 would truncate the means table); a terminal
-# keeps its own width.
-console = Console(stderr=False, highlight=False,
-                  width=None if sys.stdout.isatty() else 120)
+#: A pipe or a log file has no width: lines and tables are written whole, however wide (rich
+#: would cut them at 80 columns).
+UNBOUNDED = 100_000
+
+
+def summary_console() -> Console:
+    """Where the end-of-run summary goes: stdout as it is now (a test's capture included). A
+    terminal keeps its width (table cells fold onto more lines, never cut with "…"); anything
+    else gets `UNBOUNDED` columns."""
+    tty = sys.stdout.isatty()
+    return Console(stderr=False, highlight=False, width=None if tty else UNBOUNDED,
+                   soft_wrap=not tty)
 #: the per-scene table's metric columns, by preference (every column is in the means table)
 SCENE_COLUMNS = ("psnr", "ssim", "st_lpips", "track_pos_err", "flow_epe_dis")
 
@@ -36,7 +52,8 @@ class StageProgress(StageEvents):
     """
 
     def __init__(self, total: int, stages: tuple[str, ...] | list[str], live: bool,
-                 out: Console | None = None):
+                 out: Console | None = None, clock: Callable[[], float] = time.monotonic):
+        self.clock = clock
         self.total = total
         self.stages = [s for s in STAGES if s in stages] + [s for s in stages
                                                              if s not in STAGES]
@@ -45,33 +62,48 @@ class StageProgress(StageEvents):
         self.spent = dict.fromkeys(self.stages, 0.0)
         #: (stage, scene id) -> when the scene entered the stage
         self._since: dict[tuple[str, str], float] = {}
+        #: the same for a scene back in a stage it is done with (a repair call, the reference
+        #: renders of its score stage): its time adds up, it is no new work on the bar
+        self._again: dict[tuple[str, str], float] = {}
         #: the most scenes that were in each stage at once
         self.most_in_flight = dict.fromkeys(self.stages, 0)
         self._lock = threading.RLock()
-        self.started = time.monotonic()
+        self.started = clock()
         self.progress = None
         self.tasks: dict[str, int] = {}
         if live:
             self.progress = Progress(
                 TextColumn("[bold]{task.fields[stage]:<8}"), BarColumn(bar_width=24),
                 MofNCompleteColumn(), TextColumn("{task.fields[in_flight]:>11}"),
-                TextColumn("{task.fields[spent]:>7}"), TimeElapsedColumn(),
+                SpentColumn(self), TimeElapsedColumn(),
                 TextColumn("{task.description}"),
                 console=out or Console(file=sys.stderr), transient=False)
             for stage in self.stages:
                 self.tasks[stage] = self.progress.add_task("", total=total, stage=stage,
-                                                           spent="0.0s", in_flight="")
+                                                           in_flight="")
 
     def in_flight(self, stage: str) -> list[str]:
         """The scenes in ``stage`` now, in the order they entered it."""
         with self._lock:
             return [sid for (st, sid) in self._since if st == stage]
 
+    def spent_now(self, stage: str) -> float:
+        """Seconds spent in ``stage`` so far, summed over scenes, the scenes in it now
+        included (so a running stage's time advances while it runs)."""
+        with self._lock:
+            now = self.clock()
+            return self.spent[stage] + sum(now - since for since_of in (self._since, self._again)
+                                           for (st, _), since in since_of.items()
+                                           if st == stage)
+
     def begin(self, stage: str, scene_id: str) -> None:
         if stage not in self.done:
             return
         with self._lock:
-            self._since[(stage, scene_id)] = time.monotonic()
+            if scene_id in self.done[stage]:  # back in a stage it is done with: not new work
+                self._again.setdefault((stage, scene_id), self.clock())
+                return
+            self._since[(stage, scene_id)] = self.clock()
             now = self.in_flight(stage)
             self.most_in_flight[stage] = max(self.most_in_flight[stage], len(now))
             self._show(stage)
@@ -81,14 +113,17 @@ class StageProgress(StageEvents):
             return
         with self._lock:
             since = self._since.pop((stage, scene_id), None)
+            if since is None:
+                since = self._again.pop((stage, scene_id), None)
             if since is not None:
-                self.spent[stage] += time.monotonic() - since
+                self.spent[stage] += self.clock() - since
             self._count(stage, scene_id)
 
     def scene_finished(self, scene_id: str) -> None:
         with self._lock:
             for stage in self.stages:
                 self._since.pop((stage, scene_id), None)
+                self._again.pop((stage, scene_id), None)
                 if scene_id not in self.done[stage]:
                     self.skipped[stage] += 1
                     self._count(stage, scene_id)
@@ -104,7 +139,6 @@ class StageProgress(StageEvents):
         description = ("done" if finished else
                        now[0] + (f" +{len(now) - 1}" if len(now) > 1 else "") if now else "")
         self.progress.update(self.tasks[stage], advance=advance,
-                             spent=f"{self.spent[stage]:.1f}s",
                              in_flight=f"{len(now)} in flight" if now else "",
                              description=description)
 
@@ -119,8 +153,20 @@ class StageProgress(StageEvents):
             skipped = f", {self.skipped[stage]} skipped" if self.skipped[stage] else ""
             parts.append(f"{stage} {len(self.done[stage])}/{self.total} "
                          f"({self.spent[stage]:.1f} s{skipped})")
-        return (f"stages: {' · '.join(parts)} · {time.monotonic() - self.started:.1f} s "
+        return (f"stages: {' · '.join(parts)} · {self.clock() - self.started:.1f} s "
                 "in all")
+
+
+class SpentColumn(ProgressColumn):
+    """A stage's seconds so far (`StageProgress.spent_now`), read at each refresh: a stage with
+    scenes in it shows its time advancing, not the seconds of the scenes that left it."""
+
+    def __init__(self, stages: StageProgress):
+        super().__init__()
+        self.stages = stages
+
+    def render(self, task) -> Text:
+        return Text(f"{self.stages.spent_now(task.fields['stage']):.1f}s".rjust(7))
 
 
 @contextmanager
@@ -145,6 +191,7 @@ def stage_progress(total: int, stages: tuple[str, ...] | list[str], enabled: boo
 def print_where_to_look(report: Path | None, tracking_uri: str | None) -> None:
     """After the summary table: the HTML report and the command that opens the run in MLflow
     (one line each; each only when there is one)."""
+    console = summary_console()
     if report is not None:
         console.print(f"report: {report}", markup=False, soft_wrap=True)
     if tracking_uri:
@@ -178,7 +225,8 @@ def split_column(name: str) -> tuple[str, str]:
 def print_summary(summary: dict, results: list, calls_heading: str | None = None) -> None:
     """Per-scene table, then metric means with their denominators, then failures and cache.
     ``calls_heading``: a line before the model/judge call lines (a re-score says they are the
-    run's, the original run's calls included)."""
+    run's, the original run's calls included). Nothing is cut: see `summary_console`."""
+    console = summary_console()
     # per scene: the primary columns only (visphy, unaligned); every column is in the means
     primary = [n for n in summary["metrics"] if "." not in n
                and not summary["metrics"][n]["unavailable"]]
@@ -188,12 +236,12 @@ def print_summary(summary: dict, results: list, calls_heading: str | None = None
                             or [n for n in primary if n not in first])[:5 - len(first)]
     table = Table(title=f"visphy · {summary['model']} × {summary['engine']} · "
                         f"{summary['dataset']} ({summary['n_scenes']} scenes)")
-    table.add_column("scene")
-    table.add_column("status")
+    table.add_column("scene", overflow="fold")
+    table.add_column("status", overflow="fold")
     for name in metric_names:
         arrow = "↑" if summary["metrics"][name]["direction"] == "higher" else "↓"
-        table.add_column(f"{name} {arrow}", justify="right")
-    table.add_column("render", justify="right")
+        table.add_column(f"{name} {arrow}", justify="right", overflow="fold")
+    table.add_column("render", justify="right", overflow="fold")
     for r in results:
         status = ("ok" if r.model_success and r.attempts == 1 else
                   "repaired" if r.model_success else
@@ -212,13 +260,13 @@ def print_summary(summary: dict, results: list, calls_heading: str | None = None
                       soft_wrap=True)
 
     means = Table(title="means over model successes · n · with fallbacks (all scenes)")
-    means.add_column("metric", no_wrap=True)
+    means.add_column("metric", overflow="fold")
     views = [v for v in ("visphy", "aligned", "paper", "spec", "norm")
              if any(split_column(c)[1] == v for c in summary["metrics"])]
     for v in views:
-        means.add_column(v, justify="right", no_wrap=True)
-    means.add_column("n", justify="right", no_wrap=True)
-    means.add_column("with fallbacks", justify="right", no_wrap=True)
+        means.add_column(v, justify="right", overflow="fold")
+    means.add_column("n", justify="right", overflow="fold")
+    means.add_column("with fallbacks", justify="right", overflow="fold")
     rows: dict[str, dict[str, dict]] = {}
     unavailable: dict[str, str] = {}
     for name, m in summary["metrics"].items():
