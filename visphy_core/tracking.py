@@ -5,21 +5,36 @@ Default store: ``sqlite:///<paths.root>/mlflow.db`` with the explicit artifact r
 ``<paths.root>/mlartifacts`` (MLflow 3 refuses the plain file store); ``tracking.uri`` may name
 a tracking server (``http://host:port``), which then decides where artifacts go unless
 ``tracking.artifact_root`` says. See the runs with
-``mlflow ui --backend-store-uri sqlite:///visphy-out/mlflow.db``.
+``mlflow ui --backend-store-uri sqlite:///visphy-out/mlflow.db`` (docs/results/mlflow.md).
 
-A run logs the flattened config as params, every metric mean in both success views with its
-count, success rates, usage and judge counts as metrics, per-scene scores as steps, and the run's
-files (config, manifest, summary, the per-scene table as Parquet and JSONL, the call ledger, the
-HTML report under ``report/`` when one was written, the clips under ``videos/`` with
-``tracking.log_videos=true``) as artifacts. System tags: ``visphy.model``, ``visphy.engine``,
+A run logs, at its end:
+
+* metrics, the ones to look at first: ``headline`` (the summary's headline mean over every
+  scored scene) with ``headline.lo``/``headline.hi`` (its 95% bootstrap interval) and
+  ``headline.n``; ``family.<family>`` per metric family (`family_means`); success rates and
+  counts; then each score column's mean over model successes (``<column>``) and over every
+  scored scene (``<column>_with_fallbacks``, for the metrics' own and normalised columns);
+  usage, judge counts and stage seconds. No per-scene steps: the per-scene values are the
+  table artifact ``scenes.json``;
+* params: only those that tell runs apart (`KEY_PARAMS`, the swept keys of a study); the whole
+  resolved config is the artifact ``config.yaml``;
+* artifacts: ``scenes.json`` (`MlflowClient.log_table`: one row per scene, a column per score,
+  shown as a table by the UI), the run's files (config, manifest, summary, the per-scene table
+  as Parquet and JSONL, the call ledger), the HTML report under ``report/`` when one was
+  written, the clips under ``videos/`` with ``tracking.log_videos=true``.
+
+System tags: ``visphy.run_dir``, ``visphy.model``, ``visphy.engine``, ``visphy.dataset``,
 ``visphy.prompt_version``, ``visphy.benchmark_version``, ``visphy.study``,
 ``mlflow.source.git.commit`` and ``visphy.git_commit`` (when visphy runs from a git checkout).
+A study's parent run gets the comparison table ``comparison.json`` (`study_row` per job) from
+`visphy_core.study.finish`.
 """
 
 from __future__ import annotations
 
 import functools
 import logging
+import math
 import os
 import shlex
 import subprocess
@@ -30,6 +45,7 @@ from typing import Any
 from omegaconf import OmegaConf
 
 from visphy_core.api.hookspecs import hookimpl
+from visphy_core.results.columns import NORM_PREFIX
 
 log = logging.getLogger("visphy.tracking")
 _ACTIVE: dict[int, Any] = {}
@@ -40,6 +56,17 @@ _MLFLOW_STATUS = {"finished": "FINISHED", "interrupted": "KILLED", "failed": "FA
 #: The run's own files logged as artifacts (when present).
 RUN_FILES = ("config.yaml", "manifest.json", "summary.json", "results.parquet", "results.jsonl",
              "calls.jsonl")
+#: The per-scene table (one row per scene, a column per score) and a study's comparison table,
+#: logged with `MlflowClient.log_table`: the UI shows them as tables.
+SCENE_TABLE, STUDY_TABLE = "scenes.json", "comparison.json"
+#: The config values logged as params (when set): what tells runs apart. The whole resolved
+#: config is the artifact config.yaml; a study's swept keys are params too.
+KEY_PARAMS = ("model.name", "model.model_id", "model.style", "model.reasoning_effort",
+              "model.thinking_budget", "model.temperature", "engine.name", "dataset.name",
+              "dataset.split", "dataset.limit", "dataset.seed", "metrics.variance_norm",
+              "metrics.spec_track", "prompt.frames", "prompt.detection",
+              "prompt.forecast_only", "prompt.timed", "run.seed", "run.retry", "run.fallback",
+              "reference.source")
 #: Summary counts logged as metrics.
 SUMMARY_COUNTS = ("model_success_rate", "model_success_rate_evaluable", "system_success_rate",
                   "model_success", "system_success", "repaired", "fallbacks", "n_scenes",
@@ -145,6 +172,7 @@ def _run_tags(run) -> dict[str, str]:
     rescored = run.extra.get("rescored_from") or {}  # `score`: the run this one re-scores
     return {"visphy.run_dir": str(run.run_dir), "visphy.model": run.model_name,
             "visphy.engine": run.engine_name, "visphy.benchmark_version": benchmark_version(run),
+            "visphy.dataset": str(OmegaConf.select(run.cfg, "dataset.name", default="")),
             **source_tags(),
             **({"visphy.rescored_from": rescored["run_dir"]} if rescored else {}),
             **({"visphy.rescored_from_run_id": rescored["mlflow_run_id"]}
@@ -167,10 +195,24 @@ def start_study_run(cfg, study: str, run_name: str, tags: dict[str, str],
             "experiment": str(cfg.tracking.experiment)}
 
 
+#: A study's comparison table: of `headline_metrics`, these (and every ``family.*``).
+STUDY_COLUMNS = ("headline", "headline.lo", "headline.hi", "model_success_rate",
+                 "system_success_rate", "n_scenes", "fallbacks")
+
+
+def study_row(summary: dict, clip: tuple[float, float] = (-1.0, 1.0)) -> dict[str, float]:
+    """A job's numbers in its study's comparison table: the headline with its interval, the
+    family means, success rates and counts (as its own run logs them)."""
+    values = headline_metrics(summary, clip)
+    return {k: v for k, v in values.items() if k in STUDY_COLUMNS or k.startswith("family.")}
+
+
 def end_study_run(parent: dict[str, str], status: str, metrics: dict[str, float],
-                  artifacts: list[tuple[Path, str | None]], tags: dict[str, str]) -> None:
-    """Log the study's metrics and outputs (files or folders, each with its artifact path) to
-    the parent run and close it with MLflow status ``status``."""
+                  artifacts: list[tuple[Path, str | None]], tags: dict[str, str],
+                  table: list[dict] | None = None) -> None:
+    """Log the study's metrics, its comparison table (``table``, one row per job, as
+    ``comparison.json``) and outputs (files or folders, each with its artifact path) to the
+    parent run and close it with MLflow status ``status``."""
     from mlflow.tracking import MlflowClient
 
     client = MlflowClient(tracking_uri=parent["tracking_uri"])
@@ -178,6 +220,10 @@ def end_study_run(parent: dict[str, str], status: str, metrics: dict[str, float]
     log_metrics(client, run_id, metrics)
     for key, value in tags.items():
         client.set_tag(run_id, key, value)
+    if table:
+        import pandas as pd
+
+        client.log_table(run_id, pd.DataFrame(table), STUDY_TABLE)
     for path, artifact_path in artifacts:
         if path.is_dir():
             client.log_artifacts(run_id, str(path), artifact_path)
@@ -201,7 +247,7 @@ def _study_parent(uri: str) -> tuple[dict, dict] | None:
                     study.get("name", ""), parent.get("tracking_uri"), uri)
     if not parent or parent.get("tracking_uri") != uri:
         return None
-    return job, dict(parent, study=study.get("name", ""))
+    return job, dict(parent, study=study.get("name", ""), sweep=list(study.get("sweep") or {}))
 
 
 # ------------------------------------------------------------------------------ hooks
@@ -256,7 +302,8 @@ def visphy_run_start(run):
                      "visphy.job": str(job.get("num", ""))})
         run_name = job.get("label") or run_name
     mlrun = client.create_run(exp_id, run_name=run_name, tags=tags)
-    log_params(client, mlrun.info.run_id, flatten(OmegaConf.to_container(run.cfg, resolve=True)))
+    log_params(client, mlrun.info.run_id,
+               run_params(run.cfg, study[1].get("sweep", ()) if study else ()))
     _ACTIVE[id(run)] = (client, mlrun.info.run_id)
     previous = (run.extra.get("resumed_from") or {}).get("mlflow") or {}
     if previous.get("run_id"):  # the killed process's run: resumed here, so no longer RUNNING
@@ -271,34 +318,85 @@ def visphy_run_start(run):
                            "experiment_id": exp_id}
 
 
-@hookimpl
-def visphy_scene_done(run, scene, result):
-    active = _ACTIVE.get(id(run))
-    if active is None:
-        return
-    client, run_id = active
-    log_metrics(client, run_id, {f"scene/{name}": value for name, value in result.scores.items()},
-                step=len(run.results))
+def run_params(cfg, swept=()) -> dict[str, Any]:
+    """The params of a run: `KEY_PARAMS` and a study's swept keys (those with a value, a group
+    such as ``model`` by its ``.name``), the judges (``judge``, ``none`` without one) and the
+    metric suite chosen (``metrics.suite``: ``default``, ``fast``… when Hydra composed it)."""
+    out: dict[str, Any] = {}
+    for key in (*KEY_PARAMS, *(k.lstrip("+~") for k in swept if "/" not in k)):
+        value = OmegaConf.select(cfg, key, default=None)
+        if OmegaConf.is_list(value):
+            value = ",".join(str(v) for v in value)
+        elif OmegaConf.is_dict(value):
+            value = value.get("name")
+        if value is not None:
+            out[key] = value
+    out["judge"] = ",".join(sorted(OmegaConf.select(cfg, "judge", default=None) or {})) or "none"
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        out["metrics.suite"] = str(HydraConfig.get().runtime.choices["metrics"])
+    except Exception:  # noqa: BLE001 - not composed by Hydra (merge, score): no suite name
+        pass
+    return out
 
 
-def summary_metrics(summary: dict) -> dict[str, float]:
-    """The run's aggregate metrics: each metric's mean over model successes (``<name>``) and
-    over all scenes with fallbacks scored (``<name>_with_fallbacks``), each with its count
-    (``_n``); success counts and rates; usage per stage; judge verdict counts."""
+def headline_clip(cfg) -> tuple[float, float]:
+    """``metrics.headline.clip``: the range each normalised component is clipped to."""
+    clip = OmegaConf.select(cfg, "metrics.headline.clip", default=None) or (-1.0, 1.0)
+    return float(clip[0]), float(clip[1])
+
+
+def family_means(summary: dict, clip: tuple[float, float] = (-1.0, 1.0)) -> dict[str, float]:
+    """``family.<family>``: per metric family (``metric_info``), the mean of its metrics'
+    variance-normalised means over every scored scene (``norm.<metric>``: the still clip 0, the
+    ground truth's twin 1, higher is better for every metric and direction), each clipped to
+    the headline's ``clip`` first, as the headline clips its components. A family none of
+    whose metrics has a normalised mean (text metrics, a dataset without specs,
+    ``metrics.variance_norm=false``) has no entry: raw means in different units do not
+    average."""
+    info = summary.get("metric_info") or {}
+    groups: dict[str, list[float]] = {}
+    for name, m in (summary.get("metrics") or {}).items():
+        family = (info.get(name[len(NORM_PREFIX):]) or {}).get("family")
+        mean = m.get("mean_with_fallbacks")
+        if name.startswith(NORM_PREFIX) and family and mean is not None and math.isfinite(mean):
+            groups.setdefault(str(family), []).append(min(max(float(mean), clip[0]), clip[1]))
+    return {f"family.{f}": sum(v) / len(v) for f, v in sorted(groups.items())}
+
+
+def headline_metrics(summary: dict, clip: tuple[float, float] = (-1.0, 1.0)
+                     ) -> dict[str, float]:
+    """The few metrics to look at first: ``headline`` (+ ``.lo``, ``.hi``, ``.n``), the
+    family means, success rates and counts."""
     out: dict[str, float] = {}
-    for name, m in summary["metrics"].items():
-        for key, mean, count in ((name, "mean_model_success", "n_model_success"),
-                                 (f"{name}_with_fallbacks", "mean_with_fallbacks",
-                                  "n_with_fallbacks")):
-            if m.get(mean) is not None:
-                out[key] = m[mean]
-            out[f"{key}_n"] = float(m.get(count) or 0)
     head = summary.get("headline") or {}
-    if head.get("ci"):  # the headline's mean is its column's (above); its interval here
-        out[f"{head['metric']}_ci_low"], out[f"{head['metric']}_ci_high"] = head["ci"]
+    if head.get("mean") is not None:
+        out["headline"] = float(head["mean"])
+        out["headline.n"] = float(head.get("n") or 0)
+        if head.get("ci"):
+            out["headline.lo"], out["headline.hi"] = (float(v) for v in head["ci"])
+    out.update(family_means(summary, clip))
     for key in SUMMARY_COUNTS:
         if summary.get(key) is not None:
             out[key] = float(summary[key])
+    return out
+
+
+def summary_metrics(summary: dict, clip: tuple[float, float] = (-1.0, 1.0)
+                    ) -> dict[str, float]:
+    """Every metric of a run: `headline_metrics`; each score column's mean over model
+    successes (``<name>``) and, for the metrics' own columns (``psnr``, the headline's, a
+    judge's) and their normalised ones (``norm.psnr``), over all scenes with fallbacks scored
+    (``<name>_with_fallbacks``; the counts are in ``scenes.json`` and ``summary.json``); usage
+    per stage; judge verdict counts; stage seconds."""
+    out = headline_metrics(summary, clip)
+    for name, m in summary["metrics"].items():
+        if m.get("mean_model_success") is not None:
+            out[name] = m["mean_model_success"]
+        own = "." not in name.removeprefix(NORM_PREFIX)
+        if own and m.get("mean_with_fallbacks") is not None:
+            out[f"{name}_with_fallbacks"] = m["mean_with_fallbacks"]
     for stage, totals in (summary.get("usage") or {}).items():
         for field in USAGE_FIELDS:
             out[f"usage.{stage}.{field}"] = float(totals.get(field) or 0)
@@ -310,6 +408,23 @@ def summary_metrics(summary: dict) -> dict[str, float]:
         if totals.get("mean") is not None:
             out[f"seconds.{stage}.per_scene"] = float(totals["mean"])
     return out
+
+
+def outcome(result) -> str:
+    """A scene's outcome in a word or two (as the console's per-scene table says it)."""
+    if result.model_success:
+        return "ok" if result.attempts == 1 else "repaired"
+    return f"{'fallback' if result.fallback else 'failed'} ({result.failure_class})"
+
+
+def scene_table(results: list, columns: list[str]):
+    """The per-scene table: ``scene_id``, ``outcome``, then a column per score (in the
+    summary's order, the headline first); an undefined score is empty."""
+    import pandas as pd
+
+    rows = [{"scene_id": r.scene_id, "outcome": outcome(r),
+             **{c: r.scores.get(c) for c in columns}} for r in results]
+    return pd.DataFrame(rows, columns=["scene_id", "outcome", *columns])
 
 
 def run_report(run_dir: Path) -> Path | None:
@@ -328,7 +443,10 @@ def run_report(run_dir: Path) -> Path | None:
         return None
 
 
-def _log_run_files(client, run_id: str, run) -> None:
+def _log_run_files(client, run_id: str, run, summary: dict) -> None:
+    if run.results:
+        client.log_table(run_id, scene_table(run.results, list(summary.get("metrics") or {})),
+                         SCENE_TABLE)
     for name in RUN_FILES:
         path = run.run_dir / name
         if path.is_file():
@@ -347,10 +465,10 @@ def visphy_run_end(run, summary):
     if active is None:
         return
     client, run_id = active
-    log_metrics(client, run_id, summary_metrics(summary))
+    log_metrics(client, run_id, summary_metrics(summary, headline_clip(run.cfg)))
     if summary.get("prompt_versions"):
         client.set_tag(run_id, "visphy.prompt_version", ",".join(summary["prompt_versions"]))
-    _log_run_files(client, run_id, run)
+    _log_run_files(client, run_id, run, summary)
     status = _MLFLOW_STATUS.get(summary.get("status", "finished"), "FAILED")
     client.set_terminated(run_id, status=status)
     summary["mlflow"] = dict(run.extra["mlflow"], status=status)

@@ -10,9 +10,11 @@ for the shipped experiments)::
     report/index.html     the study report (`visphy_core.report.write_study_report`)
     study_summary.json    the jobs, their outcomes and where every output is
 
-and the same outputs are logged to the parent MLflow run as artifacts. A study whose jobs did
-not all finish is analysed over the ones that did; its parent run ends FAILED (a job raised)
-or KILLED (a job never returned: interrupted).
+and the same outputs are logged to the parent MLflow run as artifacts, with the comparison table
+``comparison.json`` (`comparison_rows`: one row per job, its swept values, headline, family means
+and success rates), the metric ``best.headline`` and the tag ``visphy.best_job`` (the job with
+the highest headline). A study whose jobs did not all finish is analysed over the ones that
+did; its parent run ends FAILED (a job raised) or KILLED (a job never returned: interrupted).
 """
 
 from __future__ import annotations
@@ -64,6 +66,46 @@ def analyse_runs(run_dirs: list[Path], study_dir: Path, study: str) -> dict[str,
                                     tables=tables, figures=figures, markdown=markdown)
         out["report"] = str(report)
     return out
+
+
+def swept_values(job: dict, keys) -> dict[str, str]:
+    """The job's value of each swept key, from its overrides (``model=static`` → model)."""
+    values = {}
+    for override in job.get("overrides") or []:
+        key, _, value = str(override).partition("=")
+        if key.lstrip("+~") in {k.lstrip("+~") for k in keys}:
+            values[key.lstrip("+~")] = value
+    return values
+
+
+def comparison_rows(jobs: list[dict], sweep) -> list[dict[str, Any]]:
+    """The study's comparison table: per job its number, label, swept values, status, MLflow run
+    and, when it completed, its headline with interval, family means and success rates
+    (`visphy_core.tracking.study_row`)."""
+    from omegaconf import OmegaConf
+
+    from visphy_core.tracking import headline_clip, study_row
+
+    rows = []
+    for job in jobs:
+        row: dict[str, Any] = {"job": job.get("num"), "label": job.get("label"),
+                               **swept_values(job, sweep or {}),
+                               "status": job.get("run_status") or job.get("status"),
+                               "mlflow_run_id": job.get("mlflow_run_id")}
+        run_dir = Path(job["run_dir"]) if job.get("run_dir") else None
+        if job.get("status") == records.COMPLETED and run_dir and \
+                (run_dir / "summary.json").is_file():
+            summary = records.read_json(run_dir / "summary.json") or {}
+            config = run_dir / "config.yaml"
+            clip = headline_clip(OmegaConf.load(config)) if config.is_file() else (-1.0, 1.0)
+            row.update(study_row(summary, clip))
+        rows.append(row)
+    return rows
+
+
+def _best(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
+    scored = [r for r in rows if r.get("headline") is not None]
+    return max(scored, key=lambda r: r["headline"]) if scored else None
 
 
 def _mlflow_hint(parent: dict | None) -> str | None:
@@ -118,14 +160,19 @@ def finish_study(sweep_dir: Path, *, ended_early: bool = False) -> dict[str, Any
     if parent:
         from visphy_core.tracking import end_study_run
 
+        rows = comparison_rows(jobs, study.get("sweep"))
+        best = _best(rows)
         end_study_run(parent, status,
                       metrics={"n_jobs": len(jobs), "n_completed": len(run_dirs),
-                               "n_failed": len(jobs) - len(run_dirs)},
+                               "n_failed": len(jobs) - len(run_dirs),
+                               **({"best.headline": best["headline"]} if best else {})},
                       artifacts=[(sweep_dir / "analysis", "analysis"),
                                  (sweep_dir / "report", "report"),
                                  (sweep_dir / "study_summary.json", None),
                                  (sweep_dir / "study.json", None)],
-                      tags={"visphy.study_status": status.lower()})
+                      tags={"visphy.study_status": status.lower(),
+                            **({"visphy.best_job": str(best["label"])} if best else {})},
+                      table=rows)
     records.update_study(sweep_dir, status=status.lower(),
                          ended=dt.datetime.now().isoformat(timespec="seconds"))
     _print_outcome(summary, parent)
