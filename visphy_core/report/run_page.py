@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from visphy_core.report.columns import HEADINGS, PRIMARY, direction_of, grouped, label
 from visphy_core.report.markup import arrow, attr, details, esc, fmt, rate, table
+from visphy_core.report.plots import family_bars, headline_plot
 from visphy_core.report.scene_section import SceneView, anchor, outcome_of
 from visphy_core.results.load import RunData
 
@@ -110,8 +111,13 @@ def leaderboard(run: RunData) -> str:
                      f"n={head.get('n', 0)}; a still clip scores 0, the ground truth about "
                      f"1{small})", f"{esc(fmt(head.get('mean')))}{interval}")
         main.insert(0, f'<div class="cards" id="headline">{card}</div>')
+    plots = headline_plot(s, run.cfg("metrics.headline.clip")) + family_bars(s)
     if not metrics:
         main.append('<p class="note">no scores yet</p>')
+    else:
+        first = 1 if head.get("metric") else 0
+        main[first:] = [f'<div class="board"><div>{"".join(main[first:])}</div>'
+                        f'<div class="board-plots" id="run-plots">{plots}</div></div>']
     if folded:
         main.append(details("other pairings and tracks (aligned, paper protocol, spec track, "
                             "variance-normalised)", "".join(folded)))

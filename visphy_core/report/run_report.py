@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from visphy_core.infra.files import atomic_write
+from visphy_core.report.frame_data import FrameData
 from visphy_core.report.ground_truth import locate_ground_truth
 from visphy_core.report.markup import esc, page
 from visphy_core.report.media import MediaStore
@@ -37,8 +38,10 @@ def build_run_page(run: RunData, out_dir: Path) -> str:
     views = [SceneView(scene_id=sid, result=results.get(sid),
                        scene_dir=run.run_dir / "scenes" / sid, truth=truths[sid],
                        summary=run.summary, preload=preload) for sid in ids]
-    sections = "".join(scene_section(v, media) for v in views)
+    frames = FrameData(out_dir)
+    sections = "".join(scene_section(v, media, frames) for v in views)
     media.close()
+    frames.close()
     body = (header(run) + leaderboard(run) + counts(run) + scene_list(run, views)
             + sections + f'<p class="note">written by visphy from {esc(run.run_dir)}</p>')
     return page(f"visphy run {run.name}", body)

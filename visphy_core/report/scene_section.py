@@ -15,9 +15,11 @@ from pathlib import Path
 from typing import Any
 
 from visphy_core.report.columns import HEADINGS, PRIMARY, direction_of, grouped, label
+from visphy_core.report.frame_data import FrameData
 from visphy_core.report.ground_truth import GroundTruth
 from visphy_core.report.markup import arrow, attr, details, esc, fmt, pre, table, url
 from visphy_core.report.media import MediaStore, Placed, clip_timing
+from visphy_core.report.scene_plots import scene_plots
 from visphy_core.report.spec_diff import diff_table
 from visphy_core.results.row import NOT_EVALUABLE, SceneResult
 
@@ -350,8 +352,26 @@ def files(view: SceneView) -> str:
     return "<h3>Program, replies, logs</h3>" + "".join(folded) if folded else ""
 
 
-def scene_section(view: SceneView, media: MediaStore) -> str:
-    """The ``<section>`` of one scene."""
+def _key_frames(view: SceneView) -> list[int]:
+    prompt = _json(view.scene_dir / "prompt.json") or {}
+    found = (re.fullmatch(r"frame_(\d+)", str(name)) for name in prompt.get("images") or [])
+    return [int(m.group(1)) for m in found if m]
+
+
+def plots(view: SceneView, media: MediaStore, frames: FrameData) -> str:
+    """The per-frame curve and the track overlay (`visphy_core.report.scene_plots`)."""
+    r = view.result
+    key_frames = _key_frames(view)
+    first = f"media/{safe_name(view.scene_id)}/key_frame_{min(key_frames or [1]):02d}.png"
+    return scene_plots(safe_name(view.scene_id), view.truth.video, view.truth.missing,
+                       view.scene_dir / "video.mp4", view.truth.spec,
+                       view.scene_dir / "metric_details.json", frames, key_frames,
+                       first if first in media.used else None,
+                       bool(r is not None and r.fallback))
+
+
+def scene_section(view: SceneView, media: MediaStore, frames: FrameData | None = None) -> str:
+    """The ``<section>`` of one scene (with its plots when ``frames`` is given)."""
     r = view.result
     difficulty = (r.difficulty if r is not None else None) or ""
     head = (f'<h2><a href="#{anchor(view.scene_id)}">{esc(view.scene_id)}</a>'
@@ -361,6 +381,8 @@ def scene_section(view: SceneView, media: MediaStore) -> str:
     body = [head, _outcome_text(r), truth_note]
     if view.scene_dir.is_dir() or view.truth.video is not None:
         body += [clips(view, media), keyframes(view, media)]
+    if view.scene_dir.is_dir() and frames is not None:
+        body.append(plots(view, media, frames))
     if view.scene_dir.is_dir():
         body += [analysis(view), scores(view), verdicts(view), spec_section(view), files(view)]
     return (f'<section class="scene" id={attr(anchor(view.scene_id))} '

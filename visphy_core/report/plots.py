@@ -1,0 +1,211 @@
+"""The run report's plots, as inline SVG (`visphy_core.report.svg`):
+
+* `headline_plot`: the headline score with its 95% bootstrap interval, over every scored scene
+  and over the model's successes, on the headline's own scale (0 = a still clip, 1 = the ground
+  truth);
+* `family_bars`: every metric of the plain pairing, grouped by family, as bars on one scale
+  where longer is better: the variance-normalised score where the run has it (0 = the still
+  clip, 1 = the ground truth's twin), else the mean's place in the metric's declared range
+  (metrics without a bounded range are listed without a bar);
+* `scene_plots`: per scene, the per-frame PSNR curve against the ground truth (with the still
+  clip's for scale) and the tracked bodies' paths in both clips over the first key frame
+  (`visphy_core.report.frame_data`).
+
+A plot that cannot be drawn is one line saying why, never an empty or broken element. Every
+plotted number is also in the element's ``data-*`` attributes (what the tests read).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from visphy_core.report.columns import direction_of, group_of
+from visphy_core.report.markup import attr, esc, fmt
+from visphy_core.report.svg import (GRID, MUTED, SERIES, line, n, nice_ticks,
+                                    svg, text)
+
+#: The headline's axis always shows at least this range (its default clip).
+HEADLINE_SPAN = (-1.0, 1.0)
+#: Normalised bars are drawn within this range; a value beyond it ends in an arrow.
+NORM_SPAN = (-1.0, 2.0)
+#: Highest PSNR drawn (dB): identical frames (infinite PSNR) sit on this line.
+PSNR_CAP = 60.0
+
+
+def _why(reason: str, cls: str) -> str:
+    return f'<p class="note plot-missing {esc(cls)}">{esc(reason)}</p>'
+
+
+def _finite(value: Any) -> float | None:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+# ------------------------------------------------------------------ run level
+
+
+def headline_plot(summary: dict, clip: Any = None) -> str:
+    """The headline mean with its interval, one row per view (all scored scenes, model
+    successes)."""
+    head = summary.get("headline") or {}
+    if not head.get("metric"):
+        return _why("no headline plot: the run has no headline score (none of its components "
+                    "was among the run's metrics, or metrics.headline.enabled=false)",
+                    "headline-plot")
+    rows = []
+    for label_, mean, ci, count in (
+            ("all scored scenes", head.get("mean"), head.get("ci"), head.get("n")),
+            ("model successes", head.get("mean_model_success"), head.get("ci_model_success"),
+             head.get("n_model_success"))):
+        m = _finite(mean)
+        if m is None:
+            continue
+        lo, hi = ((_finite(ci[0]), _finite(ci[1])) if isinstance(ci, (list, tuple))
+                  and len(ci) == 2 else (None, None))
+        rows.append((label_, m, lo, hi, int(count or 0)))
+    if not rows:
+        return _why("no headline plot: no scene has a headline value yet", "headline-plot")
+    try:
+        span = [float(clip[0]), float(clip[1])] if clip else list(HEADLINE_SPAN)
+    except (TypeError, ValueError, IndexError):
+        span = list(HEADLINE_SPAN)
+    values = [v for r in rows for v in r[1:4] if v is not None]
+    lo_axis, hi_axis = min(span[0], *values), max(span[1], *values)
+    left, width, top, row_h = 130.0, 300.0, 18.0, 26.0
+    height = top + row_h * len(rows) + 34
+
+    def x(v: float) -> float:
+        return left + (v - lo_axis) / (hi_axis - lo_axis) * width
+
+    body = []
+    for t in nice_ticks(lo_axis, hi_axis, 5):
+        body.append(line(x(t), top - 6, x(t), height - 28))
+        body.append(text(x(t), height - 16, fmt(t, 3), "middle", fill=MUTED))
+    body.append(line(x(0), top - 6, x(0), height - 28, MUTED, 1, ' stroke-dasharray="3 3"'))
+    body.append(text(x(0), height - 4, "still clip", "middle", fill=MUTED, size=10))
+    if lo_axis <= 1 <= hi_axis:
+        body.append(line(x(1), top - 6, x(1), height - 28, "#17803d", 1,
+                         ' stroke-dasharray="3 3"'))
+        body.append(text(x(1), height - 4, "ground truth", "middle", fill="#17803d", size=10))
+    for i, (label_, m, lo, hi, count) in enumerate(rows):
+        y = top + row_h * i + row_h / 2
+        interval = f" [{fmt(lo, 3)}, {fmt(hi, 3)}]" if lo is not None and hi is not None else ""
+        parts = [text(left - 8, y + 4, label_, "end")]
+        if lo is not None and hi is not None:
+            parts += [line(x(lo), y, x(hi), y, SERIES[0], 2),
+                      line(x(lo), y - 6, x(lo), y + 6, SERIES[0], 2),
+                      line(x(hi), y - 6, x(hi), y + 6, SERIES[0], 2)]
+        parts.append(f'<circle cx="{n(x(m))}" cy="{n(y)}" r="5" fill="{SERIES[0]}"/>')
+        parts.append(text(left + width + 10, y + 4, f"{fmt(m, 3)}{interval}  n={count}",
+                          weight="600"))
+        body.append(f'<g class="headline-row" data-view={attr(label_)} data-mean="{m!r}" '
+                    f'data-lo={attr(repr(lo) if lo is not None else "")} '
+                    f'data-hi={attr(repr(hi) if hi is not None else "")} data-n="{count}">'
+                    + "".join(parts) + "</g>")
+    small = " · fewer than 10 scenes: read the interval" if head.get("small_sample") else ""
+    caption = (f"headline {head['metric']} ↑ higher is better: mean and 95% bootstrap "
+               f"interval (0 = a still clip, 1 = the ground truth){small}")
+    return (f'<figure class="plot headline-plot"><figcaption>{esc(caption)}</figcaption>'
+            + svg(left + width + 170, height, "".join(body), caption) + "</figure>")
+
+
+def _bar_rows(summary: dict) -> tuple[str, list[tuple[str, list[tuple]]]]:
+    """The scale and, per family, ``(column, shown text, bar value or None, n, why no bar)``."""
+    metrics = summary.get("metrics") or {}
+    info = summary.get("metric_info") or {}
+    headline = (summary.get("headline") or {}).get("metric")
+    names = [c for c in metrics if group_of(c) == "visphy" and c != headline]
+    normed = any((metrics.get(f"norm.{c}") or {}).get("mean_model_success") is not None
+                 for c in names)
+    scale = "normalised" if normed else "range"
+    families: dict[str, list[tuple]] = {}
+    for c in names:
+        entry = metrics[c]
+        meta = info.get(c) if isinstance(info.get(c), dict) else {}
+        family = "judges" if c.startswith("judge_") else str(meta.get("family") or "other")
+        mean, count = _finite(entry.get("mean_model_success")), int(
+            entry.get("n_model_success") or 0)
+        shown = (f"{fmt(mean)} (n={count})" if mean is not None else
+                 f"unavailable: {entry['unavailable']}" if entry.get("unavailable")
+                 else "— (n=0)")
+        bar, why = None, ""
+        if mean is None:
+            why = "no value"
+        elif normed:
+            norm = metrics.get(f"norm.{c}") or {}
+            bar = _finite(norm.get("mean_model_success"))
+            why = "" if bar is not None else "not normalised"
+        else:
+            rng = meta.get("range") if not c.startswith("judge_") else (0, 10)
+            lo, hi = ((_finite(rng[0]), _finite(rng[1])) if isinstance(rng, (list, tuple))
+                      and len(rng) == 2 else (None, None))
+            if lo is None or hi is None or hi <= lo:
+                why = "unbounded range"
+            else:
+                frac = (mean - lo) / (hi - lo)
+                bar = min(max(frac if direction_of(c, summary) != "lower" else 1 - frac,
+                              0.0), 1.0)
+        families.setdefault(family, []).append((c, shown, bar, count, why))
+    return scale, list(families.items())
+
+
+def family_bars(summary: dict) -> str:
+    """Every plain-pairing metric's mean over the model's successes, grouped by family, as
+    bars where longer is better."""
+    scale, families = _bar_rows(summary)
+    if not families:
+        return _why("no family bars: no scores yet", "family-bars")
+    lo_axis, hi_axis = NORM_SPAN if scale == "normalised" else (0.0, 1.0)
+    left, width, row_h, top = 190.0, 220.0, 17.0, 20.0
+    n_rows = sum(len(m) + 1 for _, m in families)
+    height = top + row_h * n_rows + 30
+
+    def x(v: float) -> float:
+        return left + (min(max(v, lo_axis), hi_axis) - lo_axis) / (hi_axis - lo_axis) * width
+
+    body = []
+    ticks = ([(-1, "−1"), (0, "0 still"), (1, "1 twin"), (2, "2")] if scale == "normalised"
+             else [(0, "worst end"), (0.5, "½"), (1, "best end")])
+    for t, name in ticks:
+        body.append(line(x(t), top - 4, x(t), height - 26, GRID if t not in (0, 1) else MUTED,
+                         1, "" if t not in (0, 1) else ' stroke-dasharray="3 3"'))
+        body.append(text(x(t), height - 12, name, "middle", fill=MUTED, size=10))
+    y = top
+    for k, (family, rows) in enumerate(families):
+        body.append(text(4, y + 12, family, weight="700"))
+        y += row_h
+        colour = SERIES[k % len(SERIES)]
+        for c, shown, bar, count, why in rows:
+            arrow = {"higher": " ↑", "lower": " ↓"}.get(direction_of(c, summary), "")
+            parts = [text(left - 6, y + 12, f"{c}{arrow}", "end")]
+            if bar is not None:
+                x0, x1 = x(0.0 if scale == "normalised" else lo_axis), x(bar)
+                parts.append(f'<rect x="{n(min(x0, x1))}" y="{n(y + 3)}" '
+                             f'width="{n(max(abs(x1 - x0), 1.5))}" height="{n(row_h - 6)}" '
+                             f'fill="{colour}"/>')
+                if bar > hi_axis or bar < lo_axis:
+                    edge = x(bar) + (4 if bar > hi_axis else -4)
+                    parts.append(text(edge, y + 12, "›" if bar > hi_axis else "‹", "middle",
+                                      weight="700"))
+            parts.append(text(left + width + 10, y + 12,
+                              shown + (f"  [{fmt(bar, 3)}]" if bar is not None and
+                                       scale == "normalised" else "")
+                              + (f"  no bar: {why}" if why and why != "no value" else ""),
+                              fill="" if bar is not None else MUTED))
+            body.append(f'<g class="bar" data-metric={attr(c)} data-family={attr(family)} '
+                        f'data-value={attr(repr(bar) if bar is not None else "")} '
+                        f'data-n="{count}">' + "".join(parts) + "</g>")
+            y += row_h
+    caption = ("metric means over the model's successes by family, longer is better: "
+               + ("the variance-normalised score (0 = the still clip, 1 = the ground truth's "
+                  "twin; raw mean and its n beside, normalised value in brackets)"
+                  if scale == "normalised" else
+                  "the mean's place in the metric's declared range, the best end at the right "
+                  "(raw mean and its n beside)"))
+    return (f'<figure class="plot family-bars" data-scale="{scale}"><figcaption>'
+            f'{esc(caption)}</figcaption>'
+            + svg(left + width + 230, height, "".join(body), caption) + "</figure>")
