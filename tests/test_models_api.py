@@ -14,6 +14,7 @@ from visphy_core.api.errors import ConfigError
 from visphy_core.api.registry import build_registry, get_plugin_manager, get_registry
 from visphy_core.config.check import compose
 from visphy_plugins.models.api import api_model_names
+from visphy_plugins.models.preflight import CheckedApiModel
 from visphy_plugins.providers.base import ApiModel
 
 #: the API models the shipped configs declare, in registration (file-name) order
@@ -26,7 +27,7 @@ def test_the_shipped_api_model_configs_are_the_registered_api_models():
     registry = get_registry()
     api = [name for name, (factory, plugin) in registry.models.items() if plugin == "models_api"]
     assert api == list(SHIPPED)
-    assert all(registry.models[name][0] is ApiModel for name in api)
+    assert all(registry.models[name][0] is CheckedApiModel for name in api)
     # the other model configs (other schemas) stay with their own plugins
     for name in ("oracle", "replay", "static", "flow_extrapolate", "veo", "sora", "svd", "cosmos"):
         assert registry.models[name][1] != "models_api"
@@ -63,7 +64,7 @@ def test_a_new_model_yaml_is_all_a_new_api_model_needs(conf_copy):
 
     cfg = compose(["model=my_new_model"])  # the CLI's path: registry, schema, name check
     registry = get_registry()
-    assert registry.models["my_new_model"] == (ApiModel, "models_api")
+    assert registry.models["my_new_model"] == (CheckedApiModel, "models_api")
     assert api_model_names() == tuple(sorted((*SHIPPED, "my_new_model")))
     model = registry.get("models", cfg.model.name)(cfg.model)
     assert isinstance(model, ApiModel)

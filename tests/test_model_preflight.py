@@ -1,0 +1,132 @@
+"""The pre-flight of an API model (`visphy_plugins.models.preflight`): an OpenAI-compatible
+server that is not there, or does not serve ``model.model_id``, is one line and exit status 2
+before any scene; a local server needs no key. Against a fake OpenAI-compatible server on
+loopback that lists its models (``GET /v1/models``) as vLLM, Ollama and llama.cpp do."""
+
+from __future__ import annotations
+
+import socket
+
+import pytest
+
+from conftest import run_cli
+from visphy_core.api.errors import UserError
+from visphy_core.api.model import ModelRequest, OutputContract
+from visphy_core.api.registry import get_registry
+from visphy_core.config.check import compose
+from visphy_plugins.models.preflight import is_local
+from visphy_plugins.testing.fake_openai import FakeOpenAIServer
+from visphy_plugins.testing.fake_server import Recorded
+
+SERVED = ("Qwen/Qwen2.5-VL-7B-Instruct", "llava:13b")
+
+
+class ListingServer(FakeOpenAIServer):
+    """The fake Chat Completions server plus the model list an OpenAI-compatible server
+    publishes."""
+
+    def other(self, req: Recorded):
+        if req.method == "GET" and req.path.rstrip("/").endswith("/models"):
+            return 200, {"object": "list", "data": [
+                {"id": mid, "object": "model", "created": 0, "owned_by": "vllm"}
+                for mid in SERVED]}, {}
+        return None
+
+
+def chat_calls(server: FakeOpenAIServer) -> int:
+    return server.count(lambda r: r.path.endswith("/chat/completions"))
+
+
+def closed_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def no_key(monkeypatch):
+    monkeypatch.delenv("OPENAI_COMPAT_API_KEY", raising=False)
+    monkeypatch.setenv("VISPHY_ENV_FILE", "/nonexistent/.env")
+
+
+def _error_line(proc) -> str:
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert len(lines) == 1 and lines[0].startswith("error: "), proc.stderr[-3000:]
+    return lines[0]
+
+
+def test_a_missing_model_id_is_one_line_before_any_scene(tmp_path, no_key):
+    home = tmp_path / "home"
+    with ListingServer() as server:
+        proc = run_cli("model=openai_compat", f"model.base_url={server.url}/v1",
+                       "dataset=tiny", "tracking=none", home=home, check=False)
+        line = _error_line(proc)
+        assert chat_calls(server) == 0
+        assert "model.model_id=" in line and f"{server.url}/v1" in line
+    assert all(mid in line for mid in SERVED)  # what to set it to
+    assert not (home / "runs").exists()
+
+
+def test_a_model_id_the_server_does_not_serve_is_one_line(tmp_path, no_key):
+    home = tmp_path / "home"
+    with ListingServer() as server:
+        proc = run_cli("model=openai_compat", f"model.base_url={server.url}/v1",
+                       "model.model_id=qwen-typo", "dataset=tiny", "tracking=none",
+                       home=home, check=False)
+        line = _error_line(proc)
+        assert chat_calls(server) == 0
+    assert "model.model_id=qwen-typo is not served" in line and SERVED[0] in line
+    assert not (home / "runs").exists()
+
+
+def test_no_server_listening_is_one_line_naming_the_url(tmp_path, no_key):
+    home = tmp_path / "home"
+    url = f"http://127.0.0.1:{closed_port()}/v1"
+    proc = run_cli("model=openai_compat", f"model.base_url={url}", "model.model_id=m",
+                   "dataset=tiny", "tracking=none", home=home, check=False)
+    line = _error_line(proc)
+    assert f"no server answers at {url}" in line and "model.base_url=" in line
+    assert not (home / "runs").exists()
+
+
+def _model(*overrides: str):
+    cfg = compose(["model=openai_compat", *overrides])
+    return get_registry().get("models", str(cfg.model.name))(cfg.model)
+
+
+def test_a_good_local_setup_proceeds_without_a_key(no_key):
+    with ListingServer() as server:
+        model = _model(f"model.base_url={server.url}/v1", f"model.model_id={SERVED[1]}")
+        assert model.needs_key is None
+        model.check_ready()  # lists the models, finds the id
+        response = model.generate(ModelRequest(
+            scene_id="s1", prompt="hello", images=[], detection=None, engine_name="p5",
+            language="javascript", output=OutputContract(5, 17, 512, 512)))
+        assert response.error is None and response.text == "fake reply"
+        (call,) = [r for r in server.requests if r.path.endswith("/chat/completions")]
+        assert call.json["model"] == SERVED[1]
+        assert call.headers["authorization"] == "Bearer none"
+
+
+def test_a_server_that_lists_no_models_is_taken_at_its_word(no_key):
+    with FakeOpenAIServer() as server:  # GET /models: 404
+        _model(f"model.base_url={server.url}/v1", "model.model_id=anything").check_ready()
+
+
+def test_a_remote_endpoint_still_needs_its_key(no_key):
+    model = _model("model.base_url=https://api.example.com/v1", "model.model_id=m")
+    assert model.needs_key == "OPENAI_COMPAT_API_KEY"
+    with pytest.raises(UserError, match=r"needs the API key in \$OPENAI_COMPAT_API_KEY"):
+        model.check_ready()  # before any connection
+
+
+@pytest.mark.parametrize("url, local", [
+    ("http://localhost:8000/v1", True), ("http://127.0.0.1:11434/v1", True),
+    ("http://[::1]:8080/v1", True), ("http://192.168.1.20:8000/v1", True),
+    ("http://10.0.0.5/v1", True), ("http://gpu-box:8000/v1", True),
+    ("http://gpu-box.local:8000/v1", True), ("https://api.openai.com/v1", False),
+    ("https://dashscope-intl.aliyuncs.com/compatible-mode/v1", False), (None, False),
+    ("https://8.8.8.8/v1", False)])
+def test_which_endpoints_are_local(url, local):
+    assert is_local(url) is local
