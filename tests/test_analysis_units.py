@@ -337,8 +337,46 @@ def test_radar_scales_each_metric_with_its_direction():
     b = make_run(None, "b", scenes({"psnr": [20, 20], "flow_epe_dis": [3, 3]}))
     c = make_run(None, "c", scenes({"psnr": [25, 25], "flow_epe_dis": [2, 2]}))
     t = figures.radar_table([a, b, c], ["A", "B", "C"], ["psnr", "flow_epe_dis"])
-    assert t["psnr ↑"].tolist() == [1.0, 0.0, 0.5]
-    assert t["flow_epe_dis ↓"].tolist() == [1.0, 0.0, 0.5]      # lowest error = best = 1
+    assert figures.RADAR_FLOOR == 0.2       # the worst run sits at 0.2, not at the centre
+    assert t["psnr ↑"].tolist() == pytest.approx([1.0, 0.2, 0.6])
+    assert t["flow_epe_dis ↓"].tolist() == pytest.approx([1.0, 0.2, 0.6])  # lowest error best
+
+
+def _polygon_area(radii: np.ndarray, angles: np.ndarray) -> float:
+    x, y = radii * np.cos(angles), radii * np.sin(angles)
+    return 0.5 * abs(float(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1))))
+
+
+@pytest.mark.parametrize("n_runs", [2, 3])
+def test_radar_draws_every_run_as_a_visible_distinct_polygon(tmp_path, monkeypatch, n_runs):
+    """The worst run (worst on every metric) is still a polygon of non-zero area, and each run
+    has its own marker and a legend entry."""
+    cols = ["psnr", "judge_a", "flow_epe_dis", "param_gravity_err"]
+    runs = [make_run(None, f"r{i}", scenes({"psnr": [30 - 5 * i] * 2, "judge_a": [9 - 3 * i] * 2,
+                                             "flow_epe_dis": [1 + i] * 2,
+                                             "param_gravity_err": [0.5 + i] * 2}))
+            for i in range(n_runs)]
+    labels = [f"run {i}" for i in range(n_runs)]
+    table = figures.radar_table(runs, labels, cols)
+    drawn = {}
+    real_save = figures.save
+
+    def capture(fig, out_dir, name, tight_box=False):
+        ax = fig.axes[0]
+        drawn["lines"] = [(np.asarray(ln.get_xdata()), np.asarray(ln.get_ydata()),
+                           ln.get_marker(), ln.get_label()) for ln in ax.get_lines()]
+        drawn["legend"] = [t.get_text() for t in ax.get_legend().get_texts()]
+        return real_save(fig, out_dir, name, tight_box)
+
+    monkeypatch.setattr(figures, "save", capture)
+    assert [p.suffix for p in figures.radar(table, tmp_path)] == [".png", ".svg"]
+    lines = drawn["lines"]
+    assert len(lines) == n_runs and drawn["legend"] == labels
+    areas = [_polygon_area(r[:-1], a[:-1]) for a, r, _, _ in lines]
+    assert min(areas) > 0.05                      # the worst run is not a point at the centre
+    assert min(r.min() for _, r, _, _ in lines) == pytest.approx(figures.RADAR_FLOOR)
+    assert len({m for _, _, m, _ in lines}) == n_runs          # each run its own marker
+    assert len({tuple(np.round(r, 6)) for _, r, _, _ in lines}) == n_runs
 
 
 # ----------------------------------------------------------------------------- analyse

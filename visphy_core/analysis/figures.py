@@ -2,10 +2,13 @@
 runs over the headline metrics, each written as PNG and SVG (matplotlib, Agg backend: no
 display needed).
 
-The radar scales each metric to 0..1 across the runs compared, with direction respected: the
-best run on a metric sits at 1 and the worst at 0 whether higher or lower is better (a metric on
-which all runs tie sits at 1 for all). The scaled values are returned as a table as well, so the
-figure can be checked and re-drawn. SVG output is deterministic (no date, fixed id salt).
+The radar scales each metric to `RADAR_FLOOR`..1 across the runs compared, with direction
+respected: the best run on a metric sits at 1 and the worst at `RADAR_FLOOR` (0.2) whether higher
+or lower is better (a metric on which all runs tie sits at 1 for all). The floor keeps the worst
+run a visible polygon (scaled to 0 it would collapse to the centre); each run also has its own
+marker and line style, and the legend names them. The scaled values are returned as a table as
+well, so the figure can be checked and re-drawn. SVG output is deterministic (no date, fixed id
+salt).
 """
 
 from __future__ import annotations
@@ -21,6 +24,10 @@ from visphy_core.analysis.columns import MODEL_SUCCESS, direction, header, scene
 from visphy_core.results.load import RunData
 
 FORMATS = ("png", "svg")
+#: Where the worst run on a metric sits on the radar (the best at 1).
+RADAR_FLOOR = 0.2
+#: Each run's marker and line style on the radar (cycled).
+RADAR_STYLES = (("o", "-"), ("s", "--"), ("^", "-."), ("D", ":"), ("v", "-"), ("P", "--"))
 
 
 def _pyplot():
@@ -81,8 +88,9 @@ def boxplot(runs: list[RunData], labels: list[str], column: str, out_dir: Path,
 
 def radar_table(runs: list[RunData], labels: list[str], columns: list[str],
                 view: str = MODEL_SUCCESS) -> pd.DataFrame:
-    """Runs × metrics, each metric's run means scaled to 0..1 across runs (1 = best); metrics
-    without a direction or with no value for some run are left out."""
+    """Runs × metrics, each metric's run means scaled to `RADAR_FLOOR`..1 across runs (1 = the
+    best, `RADAR_FLOOR` the worst); metrics without a direction or with no value for some run
+    are left out."""
     means = {}
     for col in columns:
         way = direction(runs, col)
@@ -91,9 +99,11 @@ def radar_table(runs: list[RunData], labels: list[str], columns: list[str],
             continue
         m = np.array([v.mean() for v in vals], dtype=np.float64)
         span = m.max() - m.min()
-        scaled = np.ones_like(m) if span == 0 else (m - m.min()) / span
-        means[header(runs, col)] = scaled if way == "higher" else (
-            np.ones_like(m) if span == 0 else 1.0 - scaled)
+        if span == 0:
+            means[header(runs, col)] = np.ones_like(m)
+            continue
+        good = (m - m.min()) / span if way == "higher" else (m.max() - m) / span
+        means[header(runs, col)] = RADAR_FLOOR + (1.0 - RADAR_FLOOR) * good
     table = pd.DataFrame(means)
     table.insert(0, "run", labels)
     return table
@@ -108,14 +118,19 @@ def radar(table: pd.DataFrame, out_dir: Path) -> list[Path]:
     angles = np.linspace(0, 2 * np.pi, len(metrics), endpoint=False)
     closed = np.concatenate([angles, angles[:1]])
     fig, ax = plt.subplots(figsize=(6.0, 6.0), subplot_kw={"projection": "polar"})
-    for _, row in table.iterrows():
+    for i, (_, row) in enumerate(table.iterrows()):
         values = row[metrics].to_numpy(np.float64)
-        ax.plot(closed, np.concatenate([values, values[:1]]), linewidth=1.5,
-                label=str(row["run"]))
-        ax.fill(closed, np.concatenate([values, values[:1]]), alpha=0.08)
-    ax.set_xticks(angles, metrics, fontsize=8)
+        marker, style = RADAR_STYLES[i % len(RADAR_STYLES)]
+        ring = np.concatenate([values, values[:1]])
+        lines = ax.plot(closed, ring, linewidth=1.8, linestyle=style, marker=marker,
+                        markersize=6, label=_wrapped(str(row["run"]), 28), zorder=3 + i)
+        ax.fill(closed, ring, alpha=0.10, color=lines[0].get_color())
+    ax.set_xticks(angles, [_wrapped(m, 14) for m in metrics], fontsize=8)
+    ax.tick_params(axis="x", pad=12)
     ax.set_ylim(0, 1.05)
-    ax.set_yticks([0.25, 0.5, 0.75, 1.0], ["", "", "", "best"], fontsize=7)
-    ax.set_title("runs over the headline metrics (0 = worst, 1 = best run)", fontsize=10)
-    ax.legend(loc="upper right", bbox_to_anchor=(1.35, 1.12), fontsize=7)
+    ax.set_yticks([RADAR_FLOOR, 0.6, 1.0], ["worst", "", "best"], fontsize=7, color="0.35")
+    ax.set_rlabel_position(90 / len(metrics))
+    ax.set_title(f"runs over the headline metrics (each metric: the worst run at "
+                 f"{RADAR_FLOOR:g}, the best at 1)", fontsize=10, pad=18)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.08, 1.0), fontsize=8, frameon=False)
     return save(fig, out_dir, "radar", tight_box=True)

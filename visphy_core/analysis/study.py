@@ -73,7 +73,7 @@ TITLES = {
     "param_recovery": "Parameter recovery (MAE)",
     "param_reference": "The paper's parameter table beside visphy's parameter columns",
     "retry": "Success at the first attempt and after one retry",
-    "radar": "Radar values (each metric scaled 0..1 across runs, 1 = best)",
+    "radar": "Radar values (each metric scaled 0.2..1 across runs: 0.2 = worst, 1 = best)",
 }
 
 
