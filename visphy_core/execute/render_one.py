@@ -1,11 +1,15 @@
-"""``python -m visphy_core render REPLY --engine E --scene ID``: one reply, end to end.
+"""``visphy render REPLY --engine E [--scene ID]``: one reply, end to end.
 
 What a user does to debug one program: the reply file (a model's whole reply, or a bare
 ``.html``/``.py`` program) goes through exactly the pipeline a run uses (extraction, S
 validation, the sandboxed render, scoring), as the ``replay`` model, with no model call, no
-tracking and no repair call. Everything lands in one folder: the program, the render log, the
-video, the scores. Exit status 0 when the program rendered, 1 when it failed (the class and the
-reason are printed), 2 for bad input.
+tracking and no repair call. Only the named scene is loaded (a generated dataset builds that one
+scene, not its split). Without ``--scene`` the program is rendered alone and nothing is scored
+(`visphy_core.execute.render_program`). Everything lands in one folder: the program, the render
+log, the video, the scores. The terminal gets a few lines: the video with its frames and render
+time, the scores this scene has (every column is in ``scores.json`` / ``result.json``). Exit
+status 0 when the program rendered, 1 when it failed (the class and the reason are printed), 2
+for bad input.
 """
 
 from __future__ import annotations
@@ -14,9 +18,14 @@ import argparse
 import datetime as dt
 import json
 import os
-import sys
 from pathlib import Path
 
+from visphy_core.execute.render_program import (
+    DEFAULT_FPS,
+    DEFAULT_FRAMES,
+    DEFAULT_SIZE,
+    render_alone,
+)
 from visphy_core.infra.errors import UserError
 from visphy_core.scoring.score import ScoringProtocol, select_metrics
 
@@ -24,11 +33,14 @@ from visphy_core.scoring.score import ScoringProtocol, select_metrics
 def _parser() -> argparse.ArgumentParser:
     home = os.environ.get("VISPHY_HOME", "visphy-out")
     p = argparse.ArgumentParser(
-        prog="python -m visphy_core render",
-        description="Extract, render and score one reply file against one scene.")
+        prog="visphy render",
+        description="Extract, render and score one reply file against one scene (only that "
+                    "scene is loaded or built); without --scene, render the program alone "
+                    "and score nothing.")
     p.add_argument("reply", help="a reply file (analysis + fenced program) or a bare program")
     p.add_argument("--engine", required=True, help="threejs, p5, svg, manim, blender, ...")
-    p.add_argument("--scene", required=True, help="scene id, e.g. vpb3-s0-2d-t001-v00")
+    p.add_argument("--scene", default=None,
+                   help="scene id, e.g. vpb3-s0-2d-t001-v00 (omitted: render only, no score)")
     p.add_argument("--dataset", default="visphybench",
                    help="dataset config holding the scene (default: visphybench)")
     p.add_argument("--metrics", default=None, help="comma-separated metric names")
@@ -36,6 +48,14 @@ def _parser() -> argparse.ArgumentParser:
                    help="judge config(s), e.g. gemini or gemini,gpt_frames")
     p.add_argument("-o", "--out", default=None,
                    help=f"output folder (default: {home}/render/<scene>_<engine>_<time>)")
+    p.add_argument("--fps", type=float, default=DEFAULT_FPS,
+                   help=f"without --scene: frames per second (default {DEFAULT_FPS:g})")
+    p.add_argument("--frames", type=int, default=DEFAULT_FRAMES,
+                   help=f"without --scene: frames to capture (default {DEFAULT_FRAMES})")
+    p.add_argument("--size", default=DEFAULT_SIZE,
+                   help=f"without --scene: WIDTHxHEIGHT (default {DEFAULT_SIZE})")
+    p.add_argument("--dim", choices=("2d", "3d"), default="2d",
+                   help="without --scene: a 2D or 3D program (default 2d)")
     p.add_argument("overrides", nargs="*", help="more Hydra overrides, e.g. engine.timeout_s=20")
     return p
 
@@ -56,6 +76,8 @@ def render_reply(argv: list[str]) -> int:
     reply = Path(args.reply).resolve()
     if not reply.is_file():
         raise UserError(f"reply file not found: {reply}")
+    if args.scene is None:
+        return render_alone(args, reply)
     if not args.scene or any(c in args.scene for c in ",[]* "):
         raise UserError(f"--scene {args.scene!r}: name exactly one scene id, e.g. "
                         "--scene task10001_000")
@@ -104,26 +126,39 @@ def render_reply(argv: list[str]) -> int:
     finally:
         engine.close()
     (out / "result.json").write_text(json.dumps(result.row(), indent=1, default=str))
-    _report(result, out)
+    _report(result, out, scene)
     return 0 if result.model_success else 1
 
 
-def _report(result, out: Path) -> None:
+def _report(result, out: Path, scene) -> None:
+    """A few lines: the outcome, the video (frames, render time), the scores this scene has in
+    the primary view; how many more columns ``scores.json`` holds and how many are empty."""
     ok = result.model_success
     print(f"{result.scene_id}: {'rendered' if ok else 'FAILED'}"
           + ("" if ok else f" ({result.failure_class}): {result.failure_detail}"))
     if result.render_wall_s is not None:
-        print(f"render: {result.render_wall_s:.2f} s"
+        clip = scene.clip
+        video = f"{out / 'video.mp4'} ({clip.n_frames} frames {clip.width}x{clip.height} @ " \
+                f"{clip.fps:g} fps) · " if ok and (out / "video.mp4").is_file() else ""
+        print(f"video: {video}render {result.render_wall_s:.2f} s"
               + (" (cached)" if result.render_cached else "")
-              + f", isolation {result.isolation or 'unknown'}")
+              + f" · isolation {result.isolation or 'unknown'}")
     if result.spec_valid is not None:
         print("scene spec S: " + ("valid" if result.spec_valid else
                                   "invalid: " + "; ".join(result.spec_problems[:3])))
     if result.flags:
         print(f"flags: {', '.join(result.flags)}")
-    for name, value in result.scores.items():
-        shown = "—" if value is None else f"{value:.4f}"
-        why = result.unavailable.get(name)
-        print(f"  {name:>14} {shown}" + (f"  ({why})" if why else ""))
-    files = sorted(p.name for p in out.iterdir() if p.is_file())
-    print(f"folder: {out}  ({', '.join(files)})", file=sys.stdout)
+    shown = {n: v for n, v in result.scores.items() if v is not None and "." not in n}
+    width = max((len(n) for n in shown), default=0)
+    for name, value in shown.items():
+        print(f"  {name:>{width}} {value:.4f}")
+    more = sum(1 for n, v in result.scores.items() if v is not None and n not in shown)
+    empty = [n for n, v in result.scores.items() if v is None]
+    if more or empty:
+        why = sorted({w.split(":")[0] for n, w in result.unavailable.items() if n in empty})
+        print(f"scores.json: {len(shown) + more} score(s)"
+              + (f", {more} of them in other views (aligned, paper, spec, norm)" if more else "")
+              + (f"; {len(empty)} empty" + (f" ({'; '.join(why[:3])}"
+                                              + (", …" if len(why) > 3 else "") + ")"
+                                              if why else "") if empty else ""))
+    print(f"folder: {out}")

@@ -272,9 +272,11 @@ def _write_previews(root: Path, metas: list[dict]) -> None:
 
 
 def build_dataset(data_dir: Path, seed: int = 0, split: str | None = None,
-                  progress: bool = True, workers: int = 2, lossless: bool = False) -> Path:
+                  progress: bool = True, workers: int = 2, lossless: bool = False,
+                  scenes: list[str] | None = None) -> Path:
     """Make sure every scene of ``split`` (default: all) is rendered; returns the dataset root
-    (this generator version's; ``lossless``: its exact-RGB twin build)."""
+    (this generator version's; ``lossless``: its exact-RGB twin build). ``scenes``: only
+    those scenes of it (a run naming ``dataset.scenes``, the ``render`` command's one scene)."""
     root = dataset_root(data_dir, seed, lossless=lossless)
     catalogue = load_or_build_catalogue(root, seed, progress=progress, workers=workers)
     start = time.perf_counter()
@@ -282,12 +284,16 @@ def build_dataset(data_dir: Path, seed: int = 0, split: str | None = None,
         raise ValueError(f"the generated benchmark has no split {split!r}; valid: "
                          f"{', '.join(sorted(catalogue.splits))}")
     wanted = set(catalogue.splits[split]) if split else None
+    if scenes:
+        wanted = (wanted if wanted is not None else {e.spec["scene_id"]
+                                                     for e in catalogue.entries}) & set(scenes)
     todo = [e for e in catalogue.entries
             if (wanted is None or e.spec["scene_id"] in wanted)
             and not (root / "meta" / f"{e.spec['scene_id']}.json").is_file()]
     if todo:
         _render(todo, root, progress, workers, lossless=lossless)
-        _note_time(root, f"render_{split or 'all'}_s", time.perf_counter() - start)
+        if not scenes:  # a few scenes' time is no split's build time
+            _note_time(root, f"render_{split or 'all'}_s", time.perf_counter() - start)
     metas = _built_metas(root, catalogue)
     times = json.loads((root / "build_times.json").read_text()) if (
         root / "build_times.json").is_file() else {}

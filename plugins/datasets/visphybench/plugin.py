@@ -61,7 +61,7 @@ class VisPhyBench(Dataset):
         lossless = bool(cfg_get(cfg, "lossless", False))
         if version == GENERATOR_VERSION:
             root = build_dataset(data_dir, seed=cfg.seed, split=cfg.split, progress=progress,
-                                 lossless=lossless)
+                                 lossless=lossless, scenes=list(cfg.scenes or []) or None)
         else:
             root = _existing_build(Path(data_dir), int(cfg.seed), version, lossless)
         return load_generated(root, split=cfg.split, scene_ids=cfg.scenes, strict=False)
