@@ -451,3 +451,20 @@ def test_output_files_are_read_without_following_links(tmp_path):
     assert _read_untrusted(tmp_path / "frames.rgb", 1 << 20) is None
     assert _read_untrusted(tmp_path / "big.rgb", 99) is None
     assert _read_untrusted(tmp_path / "big.rgb", 100) == b"x" * 100
+
+
+def test_manim_chatter_goes_to_the_render_log_not_the_terminal(tmp_path):
+    """A run (Hydra's logging on the terminal) renders with Manim: its "Reading config file"
+    lines, printed while Manim imports on the host and in the sandbox, never reach the terminal
+    (they used to appear inside the progress bars); the sandbox's are in the render log."""
+    from conftest import FAST_METRICS, run_cli
+    from visphy_plugins.testing.replies import MANIM_PROGRAM
+
+    reply = tmp_path / "ball.py"
+    reply.write_text(MANIM_PROGRAM)
+    home = tmp_path / "home"
+    proc = run_cli("model=replay", f"model.source={reply}", "engine=manim", "dataset=tiny",
+                   "dataset.limit=1", "tracking=none", *FAST_METRICS, home=home, timeout=300)
+    assert "Reading config file" not in proc.stdout + proc.stderr
+    (log,) = (home / "runs").glob("*/scenes/*/render.log")
+    assert "Reading config file" in log.read_text()

@@ -140,13 +140,48 @@ RUNNER = Path(__file__).resolve().with_name("manim_runner.py")
 
 
 def manim_available() -> tuple[bool, str]:
-    """(True, version) when Manim CE imports in this interpreter, else (False, reason)."""
+    """(True, version) when Manim CE imports in this interpreter, else (False, reason).
+
+    The import is quiet: Manim logs "Reading config file: ..." at INFO while it imports, before
+    its own handler exists, so the record reaches the root logger (a run's console, inside the
+    progress bars). Here its logger neither propagates nor prints below WARNING, and what the
+    import writes goes to this module's debug log. A render's own Manim output stays in its
+    render log (the sandboxed runner's stdout and stderr)."""
+    if "manim" in sys.modules:
+        manim = sys.modules["manim"]
+        return True, getattr(manim, "__version__", "?")
+    import contextlib
+    import io
+
+    manim_log = logging.getLogger("manim")
+    caught = _Records()
+    manim_log.addHandler(caught)
+    manim_log.propagate = False
+    out = io.StringIO()
     try:
-        import manim  # noqa: F401
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
+            import manim
     except Exception as exc:  # noqa: BLE001
         return False, (f"manim is not importable ({type(exc).__name__}: {exc}); run "
                        "scripts/setup_manim.sh")
+    finally:
+        manim_log.removeHandler(caught)
+        manim_log.propagate = False
+        manim_log.setLevel(max(manim_log.getEffectiveLevel(), logging.WARNING))
+        for line in [*caught.lines, *out.getvalue().splitlines()]:
+            log.debug("manim import: %s", line)
     return True, getattr(manim, "__version__", "?")
+
+
+class _Records(logging.Handler):
+    """Keeps the messages of the records it is handed."""
+
+    def __init__(self):
+        super().__init__(logging.DEBUG)
+        self.lines: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(record.getMessage())
 
 
 @dataclass

@@ -200,6 +200,11 @@ def main():
     capture = Capture(job)
 
     random.seed(SEED)
+    # Manim's messages while it imports ("Reading config file: ...") go to stderr, which the
+    # host keeps in the render log; nothing of the sandbox reaches the host's terminal.
+    import logging
+    logging.basicConfig(level=logging.INFO, stream=sys.stderr,
+                        format="%(name)s %(levelname)s: %(message)s")
     try:
         import numpy as np
         np.random.seed(SEED)
