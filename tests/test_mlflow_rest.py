@@ -1,6 +1,8 @@
 """A study tracked on a real ``mlflow server`` (sqlite backend, local artifact store, loopback),
-checked only through the server's REST API: the parent run, its children, their params, metrics,
-system tags and artifacts (the per-scene Parquet table, the reports, the study analysis)."""
+checked only through the server's REST API: the parent run, its children, their params, metrics
+(the headline first, no per-scene steps), system tags and artifacts (the per-scene table
+``scenes.json``, the Parquet rows, the reports, the study's comparison table and analysis).
+The family means need normalised scores (a dataset with specs): tests/test_tracking.py."""
 
 from __future__ import annotations
 
@@ -23,6 +25,7 @@ from conftest import REPO, run_cli
 
 pytestmark = pytest.mark.slow
 MODELS = ("static", "flow_extrapolate")
+SCORES = ("psnr", "ssim", "spatiotemporal_iou")  # the last: a component of the headline
 
 
 def _free_port() -> int:
@@ -89,13 +92,15 @@ def server(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def study(server, tmp_path_factory):
-    """The baselines study (two pixel-space baselines, one scene of the tiny fixture dataset)
+    """The baselines study (two pixel-space baselines, two scenes of the tiny fixture dataset)
     tracked on the server; (base URL, the experiment's runs by role, the study folder, the
     finished process)."""
     home = tmp_path_factory.mktemp("home")
     proc = run_cli("-m", "experiment=baselines", f"model={','.join(MODELS)}", "dataset=tiny",
-                   "dataset.limit=1", f"tracking.uri={server}", "tracking.log_videos=true",
-                   "run.progress=false", home=home)
+                   "dataset.limit=2", f"metrics.names=[{','.join(SCORES)}]",
+                   "metrics.spec_track=false", "metrics.variance_norm=false",
+                   f"tracking.uri={server}", "tracking.log_videos=true", "run.progress=false",
+                   home=home)
     [folder] = sorted((home / "studies").glob("baselines-*"))
     exp = _get(server, "/api/2.0/mlflow/experiments/get-by-name", experiment_name="visphy")
     runs = _post(server, "/api/2.0/mlflow/runs/search",
@@ -115,6 +120,13 @@ def _files(base: str, run: dict, path: str = "") -> dict[str, bool]:
     return {f["path"]: f["is_dir"] for f in listing.get("files", [])}
 
 
+def _table(base: str, run: dict, path: str) -> pd.DataFrame:
+    """A table logged with log_table (JSON, pandas' split orientation), listed in the run's
+    ``mlflow.loggedArtifacts`` tag so the UI offers it as a table."""
+    assert {"path": path, "type": "table"} in json.loads(run["tags"]["mlflow.loggedArtifacts"])
+    return pd.read_json(io.BytesIO(_download(base, run, path)), orient="split")
+
+
 def test_one_parent_run_and_a_child_per_job(study):
     _, runs, folder, proc = study
     [parent] = runs["parent"]
@@ -125,53 +137,82 @@ def test_one_parent_run_and_a_child_per_job(study):
     # the command line's model sweep replaced the file's; the file's engine stays
     assert parent["params"]["sweep.model"] == "static,flow_extrapolate"
     assert parent["params"]["sweep.engine"] == "threejs"
-    assert parent["metrics"] == {"n_jobs": 2.0, "n_completed": 2.0, "n_failed": 0.0}
     assert len(runs["child"]) == 2
+    best = max(runs["child"], key=lambda c: c["metrics"]["headline"])
+    assert parent["metrics"] == {"n_jobs": 2.0, "n_completed": 2.0, "n_failed": 0.0,
+                                 "best.headline": best["metrics"]["headline"]}
+    assert parent["tags"]["visphy.best_job"] == best["info"]["run_name"]
     for child in runs["child"]:
         assert child["tags"]["mlflow.parentRunId"] == parent["info"]["run_id"]
         assert child["info"]["status"] == "FINISHED"
     assert parent["info"]["run_id"] in proc.stdout  # the printed link names the parent run
 
 
-def test_children_carry_params_metrics_and_system_tags(study):
-    _, runs, _, _ = study
+def test_children_carry_key_params_headline_metrics_and_system_tags(study):
+    base, runs, _, _ = study
     assert {c["tags"]["visphy.model"] for c in runs["child"]} == set(MODELS)
+    assert any("headline.lo" in c["metrics"] for c in runs["child"])
     for child in runs["child"]:
         tags, params, metrics = child["tags"], child["params"], child["metrics"]
         assert tags["visphy.engine"] == "threejs" and tags["visphy.study"] == "baselines"
         assert tags["visphy.benchmark_version"] == "tiny:visphybench/sub"
+        assert tags["visphy.dataset"] == "tiny"
         commit = tags["mlflow.source.git.commit"]
         assert commit == tags["visphy.git_commit"] and len(commit) == 40
         assert subprocess.run(["git", "-C", str(REPO), "merge-base", "--is-ancestor", commit,
                                "HEAD"]).returncode == 0  # this checkout's commit (or HEAD's past)
         assert tags["visphy.prompt_version"]
         assert tags["mlflow.runName"] == f"model={tags['visphy.model']} engine=threejs"
-        assert params["model.name"] == tags["visphy.model"] and params["dataset.limit"] == "1"
+        # the params that tell runs apart (the swept keys among them); the rest: config.yaml
+        assert params["model.name"] == params["model"] == tags["visphy.model"]
+        assert params["engine"] == params["engine.name"] == "threejs"
+        assert params["dataset.name"] == "tiny" and params["dataset.limit"] == "2"
+        assert params["judge"] == "none" and len(params) < 30
+        assert not [k for k in params if k.startswith(("paths.", "metrics.align", "sandbox."))]
         summary = json.loads(Path(tags["visphy.run_dir"], "summary.json").read_text())
+        head = summary["headline"]
+        assert metrics["headline"] == pytest.approx(head["mean"])
+        assert metrics["headline.n"] == head["n"]
+        if head["ci"]:  # two scenes with a headline (a flow extrapolation leaves one undefined)
+            assert [metrics["headline.lo"], metrics["headline.hi"]] == pytest.approx(head["ci"])
+        else:
+            assert "headline.lo" not in metrics and head["n"] == 1
+        assert not [k for k in metrics if k.startswith("family.")]  # tiny: no specs, no twins
         psnr = summary["metrics"]["psnr"]
         assert metrics["psnr"] == pytest.approx(psnr["mean_model_success"])
-        assert metrics["psnr_n"] == psnr["n_model_success"] == 1
         assert metrics["psnr_with_fallbacks"] == pytest.approx(psnr["mean_with_fallbacks"])
-        assert metrics["psnr_with_fallbacks_n"] == psnr["n_with_fallbacks"]
-        assert metrics["model_success_rate"] == 1.0 and metrics["n_scenes"] == 1.0
+        assert metrics["model_success_rate"] == 1.0 and metrics["n_scenes"] == 2.0
+        assert not [k for k in metrics if k.startswith("scene/") or k.endswith("_n")]
+        history = _get(base, "/api/2.0/mlflow/metrics/get-history",
+                       run_id=child["info"]["run_id"], metric_key="psnr")
+        assert len(history["metrics"]) == 1  # one value, no per-scene steps
 
 
 def test_children_artifacts_hold_the_scene_table_report_and_videos(study):
     base, runs, _, _ = study
     for child in runs["child"]:
         files = _files(base, child)
-        for name in ("results.parquet", "summary.json", "config.yaml", "manifest.json"):
+        for name in ("results.parquet", "summary.json", "config.yaml", "manifest.json",
+                     "scenes.json"):
             assert files.get(name) is False, name
         assert files.get("report") is True and "report/index.html" in _files(base, child,
                                                                               "report")
-        [scene] = _files(base, child, "videos")
-        assert f"{scene}/video.mp4" in _files(base, child, scene)
-        table = pd.read_parquet(io.BytesIO(_download(base, child, "results.parquet")))
-        assert list(table["scene_id"]) == [scene.split("/")[-1]]
-        assert table["score_psnr"].iloc[0] == pytest.approx(child["metrics"]["psnr"])
+        scenes = sorted(path.split("/")[-1] for path in _files(base, child, "videos"))
+        assert len(scenes) == 2
+        assert f"videos/{scenes[0]}/video.mp4" in _files(base, child, f"videos/{scenes[0]}")
+        rows = pd.read_parquet(io.BytesIO(_download(base, child, "results.parquet")))
+        table = _table(base, child, "scenes.json")
+        summary = json.loads(_download(base, child, "summary.json"))
+        # a row per scene; scene, outcome, then a column per score (the headline first)
+        assert sorted(table["scene_id"]) == scenes == sorted(rows["scene_id"])
+        assert list(table.columns) == ["scene_id", "outcome", *summary["metrics"]]
+        assert list(table.columns)[2] == summary["headline"]["metric"]
+        assert set(SCORES) <= set(table.columns) and set(table["outcome"]) == {"ok"}
+        assert table["psnr"].tolist() == pytest.approx(rows["score_psnr"].tolist())
+        assert table["psnr"].mean() == pytest.approx(child["metrics"]["psnr"])
 
 
-def test_the_parent_holds_the_study_analysis_and_report(study):
+def test_the_parent_holds_the_comparison_table_study_analysis_and_report(study):
     base, runs, folder, _ = study
     [parent] = runs["parent"]
     files = _files(base, parent)
@@ -186,3 +227,14 @@ def test_the_parent_holds_the_study_analysis_and_report(study):
     assert summary == json.loads((folder / "study_summary.json").read_text())
     assert {j["mlflow_run_id"] for j in summary["jobs"]} == \
         {c["info"]["run_id"] for c in runs["child"]}
+    # one row per job: its swept values, outcome, run, headline with interval, success rate
+    table = _table(base, parent, "comparison.json")
+    children = {c["info"]["run_id"]: c for c in runs["child"]}
+    assert sorted(table["model"]) == sorted(MODELS) and set(table["engine"]) == {"threejs"}
+    assert set(table["mlflow_run_id"]) == set(children) and set(table["status"]) == {"finished"}
+    for row in table.to_dict("records"):
+        child = children[row["mlflow_run_id"]]
+        assert row["label"] == child["info"]["run_name"]
+        for key in ("headline", "headline.lo", "headline.hi", "model_success_rate", "n_scenes"):
+            assert row[key] == pytest.approx(child["metrics"].get(key, float("nan")),
+                                             nan_ok=True), key
