@@ -52,7 +52,10 @@ def _only_run(home: Path, model: str) -> Path:
 
 @pytest.fixture(scope="module")
 def oracle_run(home) -> Path:
-    run_cli("model=oracle", "dataset.limit=2", "tracking=none", "run.progress=false", home=home)
+    # the headline's components too (the plots show the headline and the tracked bodies)
+    run_cli("model=oracle", "dataset.limit=2", "tracking=none", "run.progress=false",
+            "metrics.names=[psnr,ssim,spatiotemporal_iou,weighted_spatial_iou,track_pos_err]",
+            "metrics.spec_track=false", "metrics.variance_norm=false", home=home)
     return _only_run(home, "oracle")
 
 
@@ -173,6 +176,106 @@ def test_run_report_leaderboard_first_counts_match_results_one_section_per_scene
     assert (tmp_path / f"{oracle_run.name}.png").stat().st_size > 20_000
 
 
+def _plots(page: Opened) -> dict:
+    """What the report's plots show, read from their SVG elements' data attributes."""
+    return page.eval("""() => {
+        const d = (el, k) => el.getAttribute('data-' + k);
+        const scenes = {};
+        for (const s of document.querySelectorAll('section.scene')) {
+            const curve = s.querySelector('figure.psnr-curve');
+            scenes[s.id.slice(6)] = {
+                frames: curve ? Number(d(curve, 'frames')) : null,
+                series: curve ? Array.from(curve.querySelectorAll('g.series')).map(
+                    g => [d(g, 'series'), d(g, 'values').split(',').map(Number),
+                          g.querySelectorAll('circle').length]) : [],
+                tracks: Array.from(s.querySelectorAll('figure.track-overlay g.track')).map(
+                    g => [d(g, 'body'), d(g, 'clip'), Number(d(g, 'found')),
+                          Array.from(g.querySelectorAll('polyline.path')).map(
+                              p => p.getAttribute('points').split(' ').map(
+                                  xy => xy.split(',').map(Number)))]),
+                overlayImage: !!s.querySelector('figure.track-overlay svg image'),
+                missing: Array.from(s.querySelectorAll('.plot-missing'))
+                    .map(p => p.textContent)};
+        }
+        return {
+            headline: Array.from(document.querySelectorAll('g.headline-row')).map(
+                g => [d(g, 'view'), Number(d(g, 'mean')), d(g, 'lo'), d(g, 'hi'),
+                      Number(d(g, 'n'))]),
+            scale: (document.querySelector('figure.family-bars') || {}).dataset?.scale,
+            bars: Array.from(document.querySelectorAll('figure.family-bars g.bar')).map(
+                g => [d(g, 'metric'), d(g, 'family'), d(g, 'value'), Number(d(g, 'n'))]),
+            runMissing: Array.from(document.querySelectorAll('#run-plots .plot-missing'))
+                .map(p => p.textContent),
+            scenes};
+    }""")
+
+
+def test_run_report_plots_headline_family_bars_curve_and_track_overlay(
+        oracle_run, hostile_run, browser, home):
+    summary = json.loads((oracle_run / "summary.json").read_text())
+    page = Opened(browser, write_run_report(oracle_run))
+    shown = _plots(page)
+    page.close()   # no request left the report folder, no CSP violation
+    head = summary["headline"]
+    assert shown["headline"] == [
+        ["all scored scenes", head["mean"], repr(head["ci"][0]), repr(head["ci"][1]), head["n"]],
+        ["model successes", head["mean_model_success"], repr(head["ci_model_success"][0]),
+         repr(head["ci_model_success"][1]), head["n_model_success"]]]
+    # one bar per plain-pairing metric but the headline, grouped by its declared family, n as
+    # in the summary; without normalised scores a bar is the mean's place in the metric's
+    # range, the best end longest (an error without an upper bound has no bar)
+    assert shown["scale"] == "range"
+    bars = {m: (fam, val, count) for m, fam, val, count in shown["bars"]}
+    assert set(bars) == {"psnr", "ssim", "spatiotemporal_iou", "weighted_spatial_iou",
+                         "track_pos_err"}
+    psnr = summary["metrics"]["psnr"]
+    assert bars["psnr"] == ("pixel", repr(psnr["mean_model_success"] / 100.0),
+                            psnr["n_model_success"])
+    assert bars["track_pos_err"] == ("physics", "", summary["metrics"]["track_pos_err"]
+                                     ["n_model_success"])
+    data_root = next((home / "data").glob("visphybench-*"))
+    for row in _rows(oracle_run).itertuples():
+        scene = shown["scenes"][row.scene_id]
+        clip = decode_video(data_root / "videos" / f"{row.scene_id}.mp4")[0]
+        frames, height = len(clip), clip.shape[1]
+        # the curve: one point per frame of the clips, for the generated and the still clip
+        assert scene["frames"] == frames and scene["missing"] == []
+        assert [(name, len(values), marks) for name, values, marks in scene["series"]] == [
+            ("still clip (first frame held)", frames, frames), ("generated", frames, frames)]
+        generated = np.array(scene["series"][1][1])
+        assert np.nanmean(generated[np.isfinite(generated)]) > 35   # the oracle: near-exact
+        # the overlay: each body the track metrics tracked, in both clips, over key frame 1
+        details = json.loads((oracle_run / "scenes" / row.scene_id / "metric_details.json")
+                             .read_text())
+        tracked = details["tracks"]["tracked"]
+        assert [(b, c) for b, c, _, _ in scene["tracks"]] == [
+            (b, c) for b in tracked for c in ("ground truth", "generated")]
+        assert scene["overlayImage"]
+        for _, _, found, paths in scene["tracks"]:
+            assert 0 < found <= frames and sum(len(p) for p in paths) == found
+        # the red ball's drawn path is its simulated trajectory (px, y up, frame by frame)
+        poses = np.load(data_root / "trajectories" / f"{row.scene_id}.npz")
+        ids = [str(i) for i in poses["body_ids"]]
+        if "red_ball" in tracked and "red_ball" in ids:
+            truth = np.array(sum(next(p for b, c, _, p in scene["tracks"]
+                                      if b == "red_ball" and c == "ground truth"), []))
+            if len(truth) == frames:
+                x, y = poses["frame_poses"][:, ids.index("red_ball"), :2].T
+                assert np.abs(truth - np.stack([x, height - y], 1)).max() < 2.0
+    # a run without a headline or normalised scores, and with a failed scene on its fallback
+    page = Opened(browser, write_run_report(hostile_run))
+    shown = _plots(page)
+    page.close()
+    assert shown["headline"] == [] and len(shown["runMissing"]) == 1
+    assert shown["runMissing"][0].startswith("no headline plot: the run has no headline score")
+    assert shown["scale"] == "range" and {m for m, _, _, _ in shown["bars"]} == {"psnr", "ssim"}
+    failed = shown["scenes"][SCENES[1]]
+    (still, _, _), (name, fallback, _) = [s for s in failed["series"]]
+    assert name == "generated (fallback clip)"
+    # the fallback clip is the first key frame held: its curve is the still clip's
+    assert np.allclose(fallback[1:], failed["series"][0][1][1:], atol=1.5)
+
+
 def test_one_control_plays_scrubs_and_loops_every_clip_of_a_scene(hostile_run, browser):
     page = Opened(browser, hostile_run / "report" / "index.html")
     group = "document.querySelector('section.scene .sync')"
@@ -275,17 +378,26 @@ def test_an_interrupted_run_without_its_dataset_still_renders(oracle_run, browse
     assert "recomputed from results.jsonl" in page.eval("document.querySelector('header')"
                                                         ".textContent")
     psnr = json.loads(first)["score_psnr"]
-    board = page.eval("document.querySelector('#leaderboard tbody tr').textContent")
-    assert board.startswith(f"psnr↑{psnr:.4g} (n=1)")
+    board = page.eval("Array.from(document.querySelectorAll('#leaderboard tbody tr'))"
+                      ".map(tr => tr.textContent)")
+    assert any(row.startswith(f"psnr↑{psnr:.4g} (n=1)") for row in board)
     sections = page.eval("Array.from(document.querySelectorAll('section.scene'))"
                          ".map(s => [s.id, s.dataset.outcome, s.textContent])")
     assert [s[:2] for s in sections] == [[f"scene-{SCENES[0]}", "success"],
                                          [f"scene-{SCENES[1]}", "not_run"]]
     assert all("ground truth not found: no videos/" in s[2] for s in sections)
+    # no clip to compare with: the plots say why, and nothing is drawn
+    missing = _plots(page)["scenes"]
+    assert [m["missing"] for m in missing.values()] == [
+        [f"no plots: {why}"] for why in page.eval(
+            "Array.from(document.querySelectorAll('section.scene > p.note.warn'))"
+            ".map(p => p.textContent)")]
+    assert all(m["frames"] is None and m["tracks"] == [] for m in missing.values())
     page.close()
 
 
 def test_rewriting_a_report_copies_nothing_again(oracle_run, monkeypatch):
+    from visphy_core.report import frame_data
     from visphy_core.report import media as report_media
 
     index = write_run_report(oracle_run)
@@ -296,6 +408,8 @@ def test_rewriting_a_report_copies_nothing_again(oracle_run, monkeypatch):
     placed = []  # the second write neither copies nor transcodes a clip or an image
     monkeypatch.setattr(report_media.shutil, "copyfile", lambda *a, **k: placed.append(a))
     monkeypatch.setattr(report_media, "encode_for_browser", lambda *a, **k: placed.append(a))
+    # nor decodes the clips again for the plots (media/.plots.json)
+    monkeypatch.setattr(frame_data, "compute", lambda *a, **k: placed.append(a))
     assert write_run_report(oracle_run) == index
     assert placed == []
     assert index.read_text() == before

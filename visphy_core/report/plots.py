@@ -118,7 +118,7 @@ def _bar_rows(summary: dict) -> tuple[str, list[tuple[str, list[tuple]]]]:
     metrics = summary.get("metrics") or {}
     info = summary.get("metric_info") or {}
     headline = (summary.get("headline") or {}).get("metric")
-    names = [c for c in metrics if group_of(c) == "visphy" and c != headline]
+    names = [c for c in metrics if group_of(c) in ("visphy", "judge") and c != headline]
     normed = any((metrics.get(f"norm.{c}") or {}).get("mean_model_success") is not None
                  for c in names)
     scale = "normalised" if normed else "range"
