@@ -51,3 +51,37 @@ def test_the_installed_visphy_command_is_the_same_cli():
         __import__("sys").executable).with_name("visphy"))
     proc = subprocess.run([exe, "--help"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and "usage: visphy [COMMAND] [ARGS]" in proc.stdout
+
+
+def test_version_is_visphys_not_hydras(capsys):
+    from importlib.metadata import version
+
+    assert main(["--version"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"visphy {version('visphy')} (Hydra ")
+
+
+@pytest.mark.parametrize("command", [c for c in COMMANDS if c != "run"])
+def test_every_command_answers_help_with_its_own_usage(capsys, command):
+    """``visphy COMMAND --help`` prints that command's usage, named as typed (``visphy
+    render``, not ``python -m visphy_core render``), and does nothing else: ``setup --help``
+    installs nothing, ``metrics --help`` lists no metric."""
+    with pytest.raises(SystemExit) as exit_:
+        main([command, "--help"])
+    assert exit_.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"usage: visphy {command} [-h]"), out[:300]
+    assert "python -m" not in out and "ready in" not in out and "┏" not in out
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["plugins", "extra"], "unrecognized arguments: extra"),
+    (["score"], "the following arguments are required: run_dir\n"),
+    (["render", "--engine", "svg"], "the following arguments are required: reply\n"),
+])
+def test_a_commands_bad_arguments_are_its_usage_and_one_error(capsys, argv, expected):
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"usage: visphy {argv[0]} ") and expected in err

@@ -15,7 +15,7 @@ def cmd_analyse(argv: list[str]) -> int:
     from visphy_core.analysis.study import STUDIES
 
     parser = argparse.ArgumentParser(
-        prog="python -m visphy_core analyse",
+        prog="visphy analyse",
         description="Leaderboard, paired bootstrap CIs, Spearman matrices, judge agreement, "
                     "breakdowns and figures from finished runs (CSV, Markdown, LaTeX, PNG, SVG).")
     parser.add_argument("paths", nargs="+", metavar="PATH",

@@ -42,7 +42,7 @@ LABEL_HEIGHT = 18
 def _parser() -> argparse.ArgumentParser:
     home = os.environ.get("VISPHY_HOME", "visphy-out")
     p = argparse.ArgumentParser(
-        prog="python -m visphy_core intervene",
+        prog="visphy intervene",
         description="Change physical parameters of a scene's spec (the ground truth's or a run's "
                     "S), re-simulate it and render original | intervened side by side.",
         epilog="parameters (SI units): " + "; ".join(
@@ -64,7 +64,7 @@ def _parser() -> argparse.ArgumentParser:
                         "visphybench for any generated scene)")
     p.add_argument("-o", "--out", default=None,
                    help=f"output folder (default: {home}/interventions/<scene>_<time>)")
-    p.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. run.cache=false")
+    p.add_argument("overrides", nargs="*", default=[], help="Hydra overrides, e.g. run.cache=false")
     return p
 
 

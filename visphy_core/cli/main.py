@@ -14,7 +14,7 @@ Commands:
   ground-truth   a dataset's normalisation anchors and twin renders ahead of any run, into
                  paths.ground_truth_dir: ground-truth [--workers N] [dataset=… engine=… …]
   normalise      resample a foreign video to a reference clip: normalise IN --like REF -o OUT
-  render         extract, render and score one reply: render REPLY --engine E --scene ID
+  render         extract, render and score one reply: render REPLY --engine E [--scene ID]
   intervene      change physical parameters, re-simulate, render side by side:
                  intervene --scene ID (--gt | --run RUN_DIR) --set gravity=-20 [--set ...]
   rate           model-blind human rating page on localhost: rate PATH... --rater ID
@@ -128,7 +128,25 @@ def report(exc: BaseException) -> int:
     return 2
 
 
+def no_options(name: str, description: str, argv: list[str]) -> None:
+    """The argument check of a command that takes none: ``--help`` prints its line and exits;
+    anything else is argparse's one-line error (exit status 2) instead of being ignored."""
+    argparse.ArgumentParser(prog=f"visphy {name}", description=description).parse_args(argv)
+
+
+def visphy_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("visphy")
+    except PackageNotFoundError:
+        return "(not installed)"
+
+
 def cmd_plugins(argv: list[str]) -> int:
+    no_options("plugins", "List the installed plugins (entry points of the 'visphy' group): "
+               "the distribution each comes from, what it registers and the hooks it "
+               "implements.", argv)
     from rich.console import Console
     from rich.table import Table
 
@@ -147,6 +165,9 @@ def cmd_plugins(argv: list[str]) -> int:
 
 
 def cmd_setup(argv: list[str]) -> int:
+    no_options("setup", "Install the vendored JavaScript libraries the browser engines and "
+               "the 3D physics need (npm ci of the pinned lock file into the asset cache; "
+               "needs node and npm).", argv)
     from visphy_core.infra.js_assets import install_assets
 
     path = install_assets()
@@ -163,7 +184,7 @@ def cmd_build_dataset(argv: list[str]) -> int:
 
     home = os.environ.get("VISPHY_HOME", "visphy-out")
     parser = argparse.ArgumentParser(
-        prog="python -m visphy_core build-dataset",
+        prog="visphy build-dataset",
         description="Generate a dataset that is built, not downloaded (VisPhyBench by default: "
                     "simulate every scene, render the requested split).")
     parser.add_argument("--source", default="generated",
@@ -198,7 +219,7 @@ def cmd_normalise(argv: list[str]) -> int:
     )
 
     parser = argparse.ArgumentParser(
-        prog="python -m visphy_core normalise",
+        prog="visphy normalise",
         description="Resample any video to a reference clip's fps, frame count and size by its "
                     "own timestamps (frame k = the frame on screen at k / fps; aspect kept, "
                     "padded with white). A video that already matches is copied unchanged.")
@@ -228,6 +249,9 @@ def cmd_normalise(argv: list[str]) -> int:
 def cmd_metrics(argv: list[str]) -> int:
     """Every registered metric: direction, family, kind, range, and whether it runs here (the
     reasons a metric cannot, with how to fix them, follow the table, each once)."""
+    no_options("metrics", "List the installed metrics: direction (higher or lower is "
+               "better), family, kind, range, and whether each runs here (with what to install "
+               "or download where it does not).", argv)
     from rich.console import Console
     from rich.table import Table
 
@@ -334,7 +358,8 @@ def usage() -> str:
               "dataset=mini` is `visphy run ...`.",
               "`visphy run --help` lists the config groups and their options; "
               "`visphy COMMAND --help` a command's own options.",
-              "`--traceback` (or VISPHY_TRACEBACK=1) shows full tracebacks."]
+              "`--traceback` (or VISPHY_TRACEBACK=1) shows full tracebacks; "
+              "`visphy --version` the version."]
     return "\n".join(lines)
 
 
@@ -395,6 +420,12 @@ def main(argv: list[str] | None = None) -> int:
         if argv:
             print(usage())
             return 0
+    if argv and argv[0] in ("--version", "-V"):  # visphy's, not Hydra's
+        import hydra
+
+        print(f"visphy {visphy_version()} (Hydra {hydra.__version__}, Python "
+              f"{sys.version.split()[0]})")
+        return 0
     if argv and argv[0] == "run" and any(a in ("--help", "-h") for a in argv[1:]):
         print(run_usage())
         return 0

@@ -15,7 +15,7 @@ from visphy_core.infra.errors import UserError
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="python -m visphy_core merge",
+        prog="visphy merge",
         description="Merge the run directories of one run's shards (dataset.shard=0/n … n-1/n, "
                     "same config otherwise, each finished) into one run directory: rows in the "
                     "unsharded order, summary recomputed over every scene, scene folders "

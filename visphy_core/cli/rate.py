@@ -17,7 +17,7 @@ from pathlib import Path
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="python -m visphy_core rate",
+        prog="visphy rate",
         description="Rate generated clips against the ground truth, 1-5, on a local page that "
                     "hides which model and engine made each clip.")
     p.add_argument("paths", nargs="+", metavar="PATH",

@@ -17,7 +17,7 @@ from visphy_core.infra.errors import UserError
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m visphy_core report",
+        prog="visphy report",
         description="Write an HTML report that opens from disk: one run directory gives a run "
                     "report, several give a study report (leaderboard, then links to each "
                     "run's report).")

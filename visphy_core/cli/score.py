@@ -10,7 +10,7 @@ from pathlib import Path
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="python -m visphy_core score",
+        prog="visphy score",
         description="Score a finished (or interrupted) run again: other metrics, judges, "
                     "reference descriptions, tracking. No model call, no render; scores "
                     "already computed come from the cache. The results go to a new run "
@@ -19,7 +19,7 @@ def _parser() -> argparse.ArgumentParser:
         epilog="examples: score RUN metrics.names=[psnr,ssim,flow_epe_dis] · "
                "score RUN judge=gemini · score RUN +judge=gpt_frames · score RUN metrics=full")
     p.add_argument("run_dir", help="the run directory (under <VISPHY_HOME>/runs/)")
-    p.add_argument("overrides", nargs="*",
+    p.add_argument("overrides", nargs="*", default=[],
                    help="Hydra overrides of what scoring reads: metrics=…, metrics.*, judge=…, "
                         "+judge=…, judge.<key>.*, reference.*, tracking=…, tracking.*, "
                         "paths.data_dir, paths.cache_dir, run.progress, run.cache")

@@ -56,7 +56,8 @@ def _parser() -> argparse.ArgumentParser:
                    help=f"without --scene: WIDTHxHEIGHT (default {DEFAULT_SIZE})")
     p.add_argument("--dim", choices=("2d", "3d"), default="2d",
                    help="without --scene: a 2D or 3D program (default 2d)")
-    p.add_argument("overrides", nargs="*", help="more Hydra overrides, e.g. engine.timeout_s=20")
+    p.add_argument("overrides", nargs="*", default=[],
+                   help="more Hydra overrides, e.g. engine.timeout_s=20")
     return p
 
 
