@@ -85,3 +85,15 @@ def test_a_commands_bad_arguments_are_its_usage_and_one_error(capsys, argv, expe
     assert exit_.value.code == 2
     err = capsys.readouterr().err
     assert err.startswith(f"usage: visphy {argv[0]} ") and expected in err
+
+
+@pytest.mark.parametrize("content, expected", [
+    (None, "normalise: video not found: "), (b"not a video\n", "normalise: cannot decode video")])
+def test_normalise_of_a_missing_or_broken_video_is_one_line(tmp_path, capsys, content, expected):
+    video = tmp_path / "in.mp4"
+    if content is not None:
+        video.write_bytes(content)
+    assert main(["normalise", str(video), "--like", str(video), "-o", str(tmp_path / "o.mp4")]) \
+        == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {expected}") and err.count("\n") == 1

@@ -227,8 +227,11 @@ def cmd_normalise(argv: list[str]) -> int:
     parser.add_argument("--like", required=True, help="the reference clip to match")
     parser.add_argument("-o", "--output", required=True)
     args = parser.parse_args(argv)
-    frames, times, info = decode_video_timed(Path(args.video))
-    _, target = decode_video(Path(args.like))
+    try:  # a missing or undecodable file is the user's input: one line
+        frames, times, info = decode_video_timed(Path(args.video))
+        _, target = decode_video(Path(args.like))
+    except (FileNotFoundError, ValueError) as exc:
+        raise UserError(f"normalise: {one_line(exc)}") from None
     source = (f"{args.video}: {info.n_frames} frames {info.width}x{info.height} "
               f"@ {info.fps:g} fps")
     if clip_matches(info, target):
