@@ -187,3 +187,29 @@ def test_psnr_curve_marks_each_frame_and_says_when_frames_are_identical(values, 
     assert html.count('<circle') == 4 and "generated (fallback clip)" in html
     assert (note in html) if note else "identical frames" not in html
     assert "sizes differ" in psnr_curve({"psnr_error": "frame sizes differ (…)"}, [1], False)
+
+
+def test_frame_data_finds_a_shaded_3d_body_by_its_chromaticity(tmp_path):
+    """3D: a Lambert-shaded red sphere on a grey floor under a pale sky is found by the angle
+    of its colour, whatever its brightness; the grey floor never counts as the body."""
+    h, w = 96, 128
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    centres = [(40.0 + 10 * k, 48.0) for k in range(4)]
+    frames = []
+    for cx, cy in centres:
+        f = np.zeros((h, w, 3), np.uint8)
+        f[:] = (200, 210, 220)                            # sky
+        f[60:] = (128, 128, 128)                          # floor
+        inside = (xx - cx) ** 2 + (yy - cy) ** 2 <= 100
+        shade = np.clip(1.1 - ((xx - cx + 4) ** 2 + (yy - cy + 4) ** 2) / 250, 0.35, 1.0)
+        for ch, v in enumerate((220, 40, 30)):
+            f[..., ch] = np.where(inside, (v * shade).astype(np.uint8), f[..., ch])
+        frames.append(f)
+    clip = encode_video(np.stack(frames), tmp_path / "c.mp4", fps=5.0, lossless=True)
+    spec = {"dim": "3d", "render": {"background_rgb": [200, 210, 220]},
+            "world": {"floor": {"color_rgb": [128, 128, 128]}},
+            "bodies": [{"id": "ball", "dynamic": True, "color_rgb": [220, 40, 30]}]}
+    data = compute(clip, clip, spec, None)
+    assert data["tracks"]["ids"] == ["ball"]
+    assert np.allclose(data["tracks"]["truth"][0], centres, atol=1.5)
+    assert data["psnr"] == [None] * 4                     # a clip against itself

@@ -1,9 +1,10 @@
 """HTML reports of runs and studies: self-contained folders that open from disk (``file://``).
 
-* `write_run_report`: one run — header, leaderboard, success and failure counts, then every
-  scene with its ground-truth and generated clips under one play/scrub control, the key frames,
-  the model's analysis, program and spec S beside the ground truth's, scores, judge verdicts,
-  failure class and logs.
+* `write_run_report`: one run — header, leaderboard with its plots (the headline with its
+  interval, per-family bars), success and failure counts, then every scene with its
+  ground-truth and generated clips under one play/scrub control, the key frames, its per-frame
+  PSNR curve and track overlay (inline SVG), the model's analysis, program and spec S beside the
+  ground truth's, scores, judge verdicts, failure class and logs.
 * `write_study_report`: several runs — the leaderboard first, then the analysis' tables and
   figures, then links to each run's report.
 

@@ -10,9 +10,9 @@ already shows and cached beside its media (``media/.plots.json``, keyed like
   set of pixels nearest to its spec colour among every colour of the scene (2D: RGB distance
   within `FLAT_MAX_DIST`; 3D: chromaticity, the angle between RGB vectors, within
   `SHADED_MAX_DEG`; colours quantised to 5 bits a channel), on a grid of every
-  ``min(h, w) // 256``-th pixel. This is a quick colour
-  look-up for a picture, not the track metrics' tracker (which also follows paler or recoloured
-  bodies): a body drawn in another colour is "not found" here, and the report says so.
+  ``min(h, w) // 256``-th pixel. This is a quick colour look-up for a picture, not the track
+  metrics' tracker (which also follows paler or recoloured bodies): a body drawn in another
+  colour is "not found" here, and the report says so.
 
 Both clips are decoded once, frame by frame side by side (memory: a few frames), up to
 `MAX_FRAMES` frames; the result is a small JSON dictionary, or a reason why there is none.

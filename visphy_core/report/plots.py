@@ -3,13 +3,13 @@
 * `headline_plot`: the headline score with its 95% bootstrap interval, over every scored scene
   and over the model's successes, on the headline's own scale (0 = a still clip, 1 = the ground
   truth);
-* `family_bars`: every metric of the plain pairing, grouped by family, as bars on one scale
-  where longer is better: the variance-normalised score where the run has it (0 = the still
-  clip, 1 = the ground truth's twin), else the mean's place in the metric's declared range
-  (metrics without a bounded range are listed without a bar);
-* `scene_plots`: per scene, the per-frame PSNR curve against the ground truth (with the still
-  clip's for scale) and the tracked bodies' paths in both clips over the first key frame
-  (`visphy_core.report.frame_data`).
+* `family_bars`: every metric of the plain pairing (and each judge), grouped by family, as bars
+  on one scale where longer is better: the variance-normalised score where the run has it
+  (0 = the still clip, 1 = the ground truth's twin), else the mean's place in the metric's
+  declared range (metrics without a bounded range are listed without a bar);
+* per scene (`visphy_core.report.scene_plots`): the per-frame PSNR curve against the ground
+  truth (with the still clip's for scale) and the tracked bodies' paths in both clips over the
+  first key frame (`visphy_core.report.frame_data`).
 
 A plot that cannot be drawn is one line saying why, never an empty or broken element. Every
 plotted number is also in the element's ``data-*`` attributes (what the tests read).
