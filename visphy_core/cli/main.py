@@ -337,7 +337,7 @@ COMMANDS: dict[str, tuple[Callable[[list[str]], int], str]] = {
     "report": (cmd_report, "the HTML report of a run, or of several runs as a study"),
     "analyse": (cmd_analyse, "tables and figures from finished runs (leaderboard, CIs, ...)"),
     "merge": (cmd_merge, "one run from the shards of a sharded run (dataset.shard=i/n)"),
-    "render": (cmd_render, "extract, render and score one model reply for one scene"),
+    "render": (cmd_render, "render one model reply, and score it against a scene (--scene)"),
     "intervene": (cmd_intervene, "change physical parameters, re-simulate, render side by side"),
     "rate": (cmd_rate, "the model-blind human rating page on localhost"),
     "build-dataset": (cmd_build_dataset, "generate VisPhyBench (or another built dataset)"),
