@@ -18,6 +18,7 @@ import argparse
 import datetime as dt
 import json
 import os
+import sys
 from pathlib import Path
 
 from visphy_core.execute.render_program import (
@@ -100,7 +101,10 @@ def render_reply(argv: list[str]) -> int:
     for judge in judges:
         judge[1].check_ready()
     cache = Cache(Path(cfg.paths.cache_dir).resolve(), enabled=bool(cfg.run.cache))
-    scenes = load_dataset(cfg.dataset, Path(cfg.paths.data_dir).resolve(), progress=False)
+    # a generated dataset builds only this scene (its catalogue too, the first time): a
+    # terminal sees that progress, transient
+    scenes = load_dataset(cfg.dataset, Path(cfg.paths.data_dir).resolve(),
+                          progress=sys.stdout.isatty())
     if len(scenes) != 1:
         raise UserError(f"--scene {args.scene} selects {len(scenes)} scenes of dataset "
                         f"{args.dataset}; name exactly one")
