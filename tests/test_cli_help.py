@@ -97,3 +97,30 @@ def test_normalise_of_a_missing_or_broken_video_is_one_line(tmp_path, capsys, co
         == 2
     err = capsys.readouterr().err
     assert err.startswith(f"error: {expected}") and err.count("\n") == 1
+
+
+class _Terminal(__import__("io").StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_plugins_and_metrics_fit_a_narrow_terminal(monkeypatch):
+    """On an 80-column terminal the tables wrap their cells to fit it (a fixed 160 columns
+    would be wrapped by the terminal into an unreadable grid)."""
+    from importlib.metadata import entry_points
+
+    monkeypatch.setenv("COLUMNS", "80")
+    for command in ("plugins", "metrics"):
+        out = _Terminal()
+        monkeypatch.setattr("sys.stdout", out)
+        assert main([command]) == 0
+        lines = __import__("re").sub(r"\x1b\[[0-9;]*m", "", out.getvalue()).splitlines()
+        rows = [line for line in lines if line[:1] in "┏┃┡│└"]  # the table (notes wrap freely)
+        assert rows and max(len(row) for row in rows) <= 80
+        assert "…" not in "".join(rows).replace("0…", "").replace("1…", "")  # ranges: "0…1"
+    names = {ep.name for ep in entry_points(group="visphy")}
+    out = _Terminal()
+    monkeypatch.setattr("sys.stdout", out)
+    main(["plugins"])
+    text = out.getvalue()
+    assert all(name in text for name in names)

@@ -143,6 +143,11 @@ def visphy_version() -> str:
         return "(not installed)"
 
 
+def _table_width() -> int | None:
+    """A terminal's own width (cells wrap to fit it); 160 columns for a pipe or a file."""
+    return None if sys.stdout.isatty() else 160
+
+
 def cmd_plugins(argv: list[str]) -> int:
     no_options("plugins", "List the installed plugins (entry points of the 'visphy' group): "
                "the distribution each comes from, what it registers and the hooks it "
@@ -154,13 +159,13 @@ def cmd_plugins(argv: list[str]) -> int:
 
     table = Table(title="visphy plugins")
     for col in ("plugin", "distribution", "registers", "hooks"):
-        table.add_column(col)
+        table.add_column(col, overflow="fold", no_wrap=col == "plugin")
     for info in describe_plugins():
         regs = "; ".join(f"{kind}: {', '.join(sorted(names))}"
                          for kind, names in sorted(info.registers.items()))
         table.add_row(info.name, f"{info.distribution} {info.version}", regs or "—",
                       ", ".join(h.removeprefix("visphy_") for h in info.hooks))
-    Console(width=160).print(table)
+    Console(width=_table_width()).print(table)
     return 0
 
 
@@ -263,7 +268,7 @@ def cmd_metrics(argv: list[str]) -> int:
     registry = get_registry()
     table = Table(title="visphy metrics")
     for col in ("metric", "dir", "family", "kind", "range", "here"):
-        table.add_column(col, no_wrap=col == "metric")
+        table.add_column(col, no_wrap=col == "metric", overflow="fold")
     reasons: dict[str, list[str]] = {}
     for name in sorted(registry.metrics, key=lambda n: (registry.get("metrics", n).family, n)):
         d = registry.get("metrics", name).describe()
@@ -274,7 +279,7 @@ def cmd_metrics(argv: list[str]) -> int:
         here = "available" if why is None else f"unavailable [{list(reasons).index(why) + 1}]"
         table.add_row(name, "↑" if d["direction"] == "higher" else "↓", d["family"], d["kind"],
                       f"{lo:g}…{hi:g}", here)
-    console = Console(width=160)
+    console = Console(width=_table_width())
     console.print(table)
     for i, (why, names) in enumerate(reasons.items(), 1):
         console.print(f"[{i}] {', '.join(names)}: {why}", soft_wrap=True)
