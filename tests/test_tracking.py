@@ -3,6 +3,7 @@ tests/test_mlflow_rest.py checks a real server)."""
 
 from __future__ import annotations
 
+import enum
 import json
 
 import pytest
@@ -62,16 +63,21 @@ def test_headline_metrics_and_the_per_metric_means():
     assert "headline" not in headline_metrics({"headline": None, "metrics": {}})
 
 
+class Style(enum.Enum):
+    exact = "exact"
+
+
 def test_params_are_the_keys_that_tell_runs_apart():
     cfg = OmegaConf.create({
         "model": {"name": "gpt5", "model_id": "gpt-5", "price": {"input_usd_per_mtok": 1.0},
-                  "max_output_tokens": 32768},
+                  "max_output_tokens": 32768, "style": Style.exact},
         "engine": {"name": "blender", "disk_mb": 512, "denoise": True},
         "dataset": {"name": "visphybench", "split": "test", "limit": None},
         "prompt": {"frames": [1, 10], "forecast_only": False},
         "run": {"seed": 0, "retry": False}, "judge": {"gemini": {"name": "gemini"}}})
     params = run_params(cfg, swept=["run.retry", "model", "hydra/launcher"])
-    assert params == {"model.name": "gpt5", "model.model_id": "gpt-5", "engine.name": "blender",
+    assert params == {"model.name": "gpt5", "model.model_id": "gpt-5", "model.style": "exact",
+                      "engine.name": "blender",
                       "dataset.name": "visphybench", "dataset.split": "test",
                       "prompt.frames": "1,10", "prompt.forecast_only": False, "run.seed": 0,
                       "run.retry": False, "model": "gpt5", "judge": "gemini"}

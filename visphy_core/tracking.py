@@ -39,6 +39,7 @@ import os
 import shlex
 import subprocess
 import time
+from enum import Enum
 from pathlib import Path
 from typing import Any
 
@@ -329,6 +330,8 @@ def run_params(cfg, swept=()) -> dict[str, Any]:
             value = ",".join(str(v) for v in value)
         elif OmegaConf.is_dict(value):
             value = value.get("name")
+        if isinstance(value, Enum):  # a structured config's choice: its name, as written
+            value = value.name
         if value is not None:
             out[key] = value
     out["judge"] = ",".join(sorted(OmegaConf.select(cfg, "judge", default=None) or {})) or "none"
