@@ -86,11 +86,12 @@ def test_params_are_the_keys_that_tell_runs_apart():
 
 def test_the_scene_table_has_a_row_per_scene_and_a_column_per_score():
     rows = [SceneResult("a", "2d", None, model_success=True, system_success=True, attempts=1,
-                        scores={"psnr": 30.0, "ssim": 0.9}),
+                        scores={"psnr": 30.0, "ssim": 0.9, "norm.psnr": 0.5}),
             SceneResult("b", "2d", None, system_success=True, fallback=True, attempts=2,
                         failure_class="render_error", scores={"psnr": 20.0})]
-    table = scene_table(rows, ["psnr", "ssim"])
-    assert list(table.columns) == ["scene_id", "outcome", "psnr", "ssim"]
+    table = scene_table(rows, ["psnr", "ssim", "norm.psnr"])
+    # no dot in a column's name: MLflow's table view would read it as a nested field
+    assert list(table.columns) == ["scene_id", "outcome", "psnr", "ssim", "norm_psnr"]
     assert list(table["outcome"]) == ["ok", "fallback (render_error)"]
     assert table["psnr"].tolist() == [30.0, 20.0]
     assert table["ssim"].isna().tolist() == [False, True]  # undefined: an empty cell

@@ -18,10 +18,11 @@ A run logs, at its end:
   table artifact ``scenes.json``;
 * params: only those that tell runs apart (`KEY_PARAMS`, the swept keys of a study); the whole
   resolved config is the artifact ``config.yaml``;
-* artifacts: ``scenes.json`` (`MlflowClient.log_table`: one row per scene, a column per score,
-  shown as a table by the UI), the run's files (config, manifest, summary, the per-scene table
-  as Parquet and JSONL, the call ledger), the HTML report under ``report/`` when one was
-  written, the clips under ``videos/`` with ``tracking.log_videos=true``.
+* artifacts: ``scenes.json`` (`MlflowClient.log_table`: one row per scene, a column per score
+  named as the score with ``_`` for ``.``, shown as a table by the UI), the run's files
+  (config, manifest, summary, the per-scene table as Parquet and JSONL, the call ledger), the
+  HTML report under ``report/`` when one was written, the clips under ``videos/`` with
+  ``tracking.log_videos=true``.
 
 System tags: ``visphy.run_dir``, ``visphy.model``, ``visphy.engine``, ``visphy.dataset``,
 ``visphy.prompt_version``, ``visphy.benchmark_version``, ``visphy.study``,
@@ -212,8 +213,8 @@ def end_study_run(parent: dict[str, str], status: str, metrics: dict[str, float]
                   artifacts: list[tuple[Path, str | None]], tags: dict[str, str],
                   table: list[dict] | None = None) -> None:
     """Log the study's metrics, its comparison table (``table``, one row per job, as
-    ``comparison.json``) and outputs (files or folders, each with its artifact path) to the
-    parent run and close it with MLflow status ``status``."""
+    ``comparison.json``, `table_column` names) and outputs (files or folders, each with its
+    artifact path) to the parent run and close it with MLflow status ``status``."""
     from mlflow.tracking import MlflowClient
 
     client = MlflowClient(tracking_uri=parent["tracking_uri"])
@@ -224,7 +225,7 @@ def end_study_run(parent: dict[str, str], status: str, metrics: dict[str, float]
     if table:
         import pandas as pd
 
-        client.log_table(run_id, pd.DataFrame(table), STUDY_TABLE)
+        client.log_table(run_id, pd.DataFrame(table).rename(columns=table_column), STUDY_TABLE)
     for path, artifact_path in artifacts:
         if path.is_dir():
             client.log_artifacts(run_id, str(path), artifact_path)
@@ -420,14 +421,22 @@ def outcome(result) -> str:
     return f"{'fallback' if result.fallback else 'failed'} ({result.failure_class})"
 
 
+def table_column(name: str) -> str:
+    """A column name of a logged table: dots become underscores (``psnr.aligned`` →
+    ``psnr_aligned``, ``family.pixel`` → ``family_pixel``): MLflow's table view reads a dot as
+    a nested field and shows such a column empty."""
+    return name.replace(".", "_")
+
+
 def scene_table(results: list, columns: list[str]):
     """The per-scene table: ``scene_id``, ``outcome``, then a column per score (in the
-    summary's order, the headline first); an undefined score is empty."""
+    summary's order, the headline first; `table_column` names); an undefined score is
+    empty."""
     import pandas as pd
 
     rows = [{"scene_id": r.scene_id, "outcome": outcome(r),
-             **{c: r.scores.get(c) for c in columns}} for r in results]
-    return pd.DataFrame(rows, columns=["scene_id", "outcome", *columns])
+             **{table_column(c): r.scores.get(c) for c in columns}} for r in results]
+    return pd.DataFrame(rows, columns=["scene_id", "outcome", *map(table_column, columns)])
 
 
 def run_report(run_dir: Path) -> Path | None:
