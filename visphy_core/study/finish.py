@@ -155,12 +155,17 @@ def finish_study(sweep_dir: Path, *, ended_early: bool = False) -> dict[str, Any
                                                 "run_status", "mlflow_run_id", "error")}
                         for j in jobs],
                **outputs}
-    records.write_json(sweep_dir / "study_summary.json", summary)
     parent = study.get("parent")
+    rows: list[dict[str, Any]] = []
+    if parent:
+        try:
+            rows = comparison_rows(jobs, study.get("sweep"))
+        except Exception as exc:  # noqa: BLE001 - the parent run is closed all the same
+            summary["problems"].append(f"comparison table failed: {type(exc).__name__}: {exc}")
+    records.write_json(sweep_dir / "study_summary.json", summary)
     if parent:
         from visphy_core.tracking import end_study_run
 
-        rows = comparison_rows(jobs, study.get("sweep"))
         best = _best(rows)
         end_study_run(parent, status,
                       metrics={"n_jobs": len(jobs), "n_completed": len(run_dirs),
