@@ -282,3 +282,14 @@ def test_details_say_how_each_body_was_found(scenes):
         found = det["generated_frames"][body]
         assert found["association"] == n and found["palette"] == found["not_found"] == 0
         assert 0 < found["colour_cost_median"] < 1.5
+
+
+def test_components_with_no_interior_sample():
+    """Two distinct colours in a row of samples, none joined to four neighbours: no interior
+    sample to split on (a thin or tiny body), which once failed on numpy's integer bincount of
+    nothing instead of leaving the components as they are."""
+    lab = np.array([[60.0, 40, 20], [60, 40, 21], [60, -40, -20], [60, -40, -21]])
+    unit = lab / np.linalg.norm(lab, axis=1, keepdims=True)
+    src, dst = np.array([0, 1, 2]), np.array([1, 2, 3])
+    n_comp, comp = A._components(4, src, dst, lab, unit)
+    assert n_comp == 2 and comp[0] == comp[1] and comp[2] == comp[3] and comp[1] != comp[2]

@@ -228,8 +228,9 @@ def _components(n: int, src: np.ndarray, dst: np.ndarray, lab: np.ndarray, unit:
         degree = (np.bincount(src[joined], minlength=n)
                   + np.bincount(dst[joined], minlength=n))
         inner = bright & (degree == 4)  # interior samples: no blurred edges, no fringes
+        # float even when no sample is interior (numpy's bincount of nothing is int64)
         mean = np.stack([np.bincount(comp[inner], weights=unit[inner, j], minlength=n_comp)
-                         for j in range(3)], axis=1)
+                         for j in range(3)], axis=1).astype(np.float64)
         mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-9)
         off = inner & ((unit * mean[comp]).sum(1) < math.cos(math.radians(SPLIT_ANGLE_DEG)))
         n_off = np.bincount(comp[off], minlength=n_comp)
