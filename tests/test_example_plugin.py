@@ -174,6 +174,12 @@ def test_dataset_lists_its_scenes_and_checks_the_ids(example_registry, squares):
         dataset.check(OmegaConf.create({"dataset": {"scenes": ["nope"]}}))
 
 
+def test_dataset_returns_only_the_scenes_named(example_registry, tmp_path):
+    dataset = example_registry[1].get("datasets", "example_squares")()
+    scenes = dataset.load(OmegaConf.create({"scenes": ["task20001_000"]}), tmp_path)
+    assert [s.scene_id for s in scenes] == ["task20001_000"]
+
+
 def test_physics_steps_a_free_fall(example_registry):
     physics = example_registry[1].get("physics", "example_euler")()
     spec = {"world": {"engine": "example_euler", "units": {"px_per_m": 6.0}, "dt_s": 1 / 60,

@@ -2,8 +2,9 @@
 
 ``dataset=tiny dataset.source=example_squares`` selects it (any ``dataset`` entry will do:
 ``source`` names the plugin). `load` returns one `Scene` per clip: its id, its ground-truth
-video, its detection context and its clip contract. The core applies ``dataset.scenes``,
-``dataset.limit`` and ``dataset.shard`` to what `load` returns.
+video, its detection context and its clip contract, for the scenes ``dataset.scenes`` names (all
+of them when it is empty). The core then checks that every named id was returned and applies
+``dataset.limit`` and ``dataset.shard``.
 """
 
 from __future__ import annotations
@@ -46,8 +47,11 @@ class SquaresDataset(Dataset):
     def load(self, cfg, data_dir: Path, progress: bool = True) -> list[Scene]:
         root = Path(data_dir) / self.name
         root.mkdir(parents=True, exist_ok=True)
+        wanted = set(cfg.get("scenes") or SCENE_IDS)  # the plugin selects dataset.scenes
         scenes = []
         for i, sid in enumerate(SCENE_IDS):
+            if sid not in wanted:
+                continue
             video, detection = root / f"{sid}.mp4", root / f"{sid}_detection.json"
             if not video.is_file():
                 encode_video(clip(i), video, FPS)
