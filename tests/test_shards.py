@@ -68,3 +68,27 @@ def test_the_cli_reports_a_bad_shard_in_one_line(tmp_path):
     assert proc.returncode == 2
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
     assert lines == ["error: dataset.shard=2/2: shard indices are 0-based, 0/2 … 1/2"]
+
+
+def test_dataset_scenes_selects_even_when_the_plugin_returns_every_scene(tmp_path, monkeypatch):
+    """``dataset.scenes`` is applied by the core: a third-party dataset plugin that returns all
+    its scenes still runs only the ones named."""
+    import copy
+
+    from visphy_core.api.registry import get_registry
+    from visphy_plugins.datasets.tiny import TinyDataset
+
+    class EveryScene(TinyDataset):
+        def load(self, cfg, data_dir, progress=True):
+            everything = copy.deepcopy(cfg)
+            everything.scenes = None
+            return super().load(everything, data_dir, progress)
+
+    monkeypatch.setitem(get_registry().datasets, "every_scene",
+                        (EveryScene, *get_registry().datasets["tiny"][1:]))
+    cfg = compose(["dataset=tiny"])
+    all_ids = [s.scene_id for s in load_dataset(cfg.dataset, tmp_path, progress=False)]
+    cfg = compose(["dataset=tiny", f"dataset.scenes=[{all_ids[1]}]"])
+    cfg.dataset.source = "every_scene"
+    assert [s.scene_id for s in load_dataset(cfg.dataset, tmp_path, progress=False)] == \
+        [all_ids[1]]

@@ -32,6 +32,8 @@ def load_dataset(cfg, data_dir: Path, progress: bool = True) -> list[Scene]:
         missing = sorted(set(cfg.scenes) - {s.scene_id for s in scenes})
         if missing:
             raise ValueError(f"dataset {cfg.name!r} has no scene(s) {', '.join(missing)}")
+        wanted = set(cfg.scenes)  # here too: a plugin need not select them itself
+        scenes = [s for s in scenes if s.scene_id in wanted]
     if cfg.limit is not None:
         scenes = scenes[: int(cfg.limit)]
     shard = parse_shard(cfg.get("shard"))
