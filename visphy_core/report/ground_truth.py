@@ -67,16 +67,30 @@ def _resolve(run: RunData, value: object) -> list[Path]:
     return out + [Path.cwd() / path]
 
 
-def search_roots(run: RunData) -> list[Path]:
-    roots: list[Path] = []
+def search_candidates(run: RunData) -> list[Path]:
+    """Every folder the config names for its data (``dataset.root``, ``$VISPHYBENCH_ROOT`` for
+    the original layout, ``paths.data_dir``), whether it exists or not."""
     candidates = _resolve(run, run.cfg("dataset.root"))
     if str(run.cfg("dataset.source", "")) == "original" and os.environ.get("VISPHYBENCH_ROOT"):
         candidates.append(Path(os.environ["VISPHYBENCH_ROOT"]))
-    candidates += _resolve(run, run.cfg("paths.data_dir"))
-    for path in candidates:
+    return candidates + _resolve(run, run.cfg("paths.data_dir"))
+
+
+def search_roots(run: RunData) -> list[Path]:
+    """The `search_candidates` that exist, each once."""
+    roots: list[Path] = []
+    for path in search_candidates(run):
         if path.is_dir() and path.resolve() not in [r.resolve() for r in roots]:
             roots.append(path)
     return roots
+
+
+def _searched(run: RunData) -> str:
+    """Where the search looked, for a scene not found: every named folder, a missing one
+    marked as such."""
+    named = list(dict.fromkeys(search_candidates(run)))
+    return ", ".join(str(p) if p.is_dir() else f"{p} (missing)" for p in named) \
+        or "nowhere (the config names no data folder)"
 
 
 def _dataset_folders(root: Path) -> list[Path]:
@@ -123,7 +137,7 @@ def locate_ground_truth(run: RunData, scene_ids: list[str]) -> dict[str, GroundT
             for f in folders}
     ranked = sorted((f for f in folders if hits[f]),
                     key=lambda f: (len(hits[f]), *_preference(f, run, primary)), reverse=True)
-    where = ", ".join(str(r) for r in roots) or "nowhere (the config names no data folder)"
+    where = _searched(run)
     out: dict[str, GroundTruth] = {}
     for sid in scene_ids:
         folder = next((f for f in ranked if sid in hits[f]), None)
