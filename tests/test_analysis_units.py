@@ -29,7 +29,8 @@ from visphy_core.results.row import SceneResult
 
 NAN = math.nan
 DIRECTIONS = {"psnr": "higher", "flow_epe_dis": "lower", "param_gravity_err": "lower",
-              "param_speed_err": "lower", "judge_a": "higher", "judge_b": "higher"}
+              "param_speed_err": "lower", "judge_a": "higher", "judge_b": "higher",
+              "physics_score": "higher"}
 
 
 def make_run(tmp: Path | None, name: str, rows: list[dict], *, model: str = "m",
@@ -521,3 +522,15 @@ def test_analyse_warns_beside_small_sample_numbers_in_every_output(tmp_path):
     buf = io.StringIO()
     print_study(many, tmp_path / "out12", console=Console(file=buf, width=200))
     assert "⚠" not in buf.getvalue()
+
+
+def test_the_default_columns_start_with_the_runs_headline_score():
+    """The analysis' default metrics start with the headline score each run's summary names
+    (the number the report and MLflow show first), then the fixed list, then the judges."""
+    from visphy_core.analysis.columns import headline_columns
+
+    run = make_run(None, "r", scenes({"psnr": [20.0, 22.0], "physics_score": [0.4, 0.6],
+                                      "judge_a": [5.0, 6.0]}))
+    assert headline_columns([run]) == ["psnr", "judge_a"]  # no headline named: not guessed
+    run.summary["headline"] = {"metric": "physics_score", "mean": 0.5}
+    assert headline_columns([run]) == ["physics_score", "psnr", "judge_a"]

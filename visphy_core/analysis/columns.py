@@ -77,8 +77,13 @@ def unavailable_reason(runs: list["RunData"], column: str) -> str | None:
 
 
 def headline_columns(runs: list["RunData"]) -> list[str]:
-    """The default metric subset: `HEADLINE` metrics with values, then every judge column."""
-    cols = [c for c in HEADLINE if has_values(runs, c)]
+    """The default metric subset: the runs' headline score (``summary.json``'s
+    ``headline.metric``, ``physics_score`` by default) first, then the `HEADLINE` metrics with
+    values, then every judge column."""
+    scores = dict.fromkeys(str((run.summary.get("headline") or {}).get("metric") or "")
+                           for run in runs)
+    cols = [c for c in scores if c and c not in HEADLINE and has_values(runs, c)]
+    cols += [c for c in HEADLINE if has_values(runs, c)]
     judges = [c for c in score_columns(runs) if c.startswith("judge_") and has_values(runs, c)]
     return cols + judges
 
