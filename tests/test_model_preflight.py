@@ -68,6 +68,18 @@ def test_a_missing_model_id_is_one_line_before_any_scene(tmp_path, no_key):
     assert not (home / "runs").exists()
 
 
+def test_the_http_clients_request_lines_stay_out_of_the_output(tmp_path, no_key):
+    """httpx logs every request at INFO ("HTTP Request: GET .../models ..."), google-genai its
+    "AFC is enabled" line; under Hydra's stdout logging they would interleave with the progress
+    bars and the one error line, one per call of a 209-scene run."""
+    with ListingServer() as server:
+        proc = run_cli("model=openai_compat", f"model.base_url={server.url}/v1",
+                       "dataset=tiny", "tracking=none", home=tmp_path / "home", check=False)
+        _error_line(proc)
+        assert server.count(lambda r: r.path.endswith("/models")) == 1  # the request was made
+    assert "HTTP Request" not in proc.stdout + proc.stderr, proc.stdout[-2000:]
+
+
 def test_a_model_id_the_server_does_not_serve_is_one_line(tmp_path, no_key):
     home = tmp_path / "home"
     with ListingServer() as server:

@@ -371,6 +371,23 @@ def usage() -> str:
     return "\n".join(lines)
 
 
+#: third-party loggers whose INFO lines are per call (httpx's "HTTP Request: POST ...",
+#: google-genai's "AFC is enabled ...", the SDKs' retry notes): under Hydra's stdout logging
+#: (root at INFO) they would interleave with the progress bars, one per model or judge call.
+#: httpx2/httpcore2 are the names the HTTP stack goes by where the SDKs ship the renamed fork.
+CHATTY_LOGGERS = ("httpx", "httpx2", "httpcore", "httpcore2", "google_genai", "openai",
+                  "anthropic")
+
+
+def quiet_chatty_loggers() -> None:
+    """Keep the HTTP clients' and SDKs' per-call INFO lines out of a run's output (warnings
+    and errors still show)."""
+    import logging
+
+    for name in CHATTY_LOGGERS:
+        logging.getLogger(name).setLevel(logging.WARNING)
+
+
 def run_hydra(argv: list[str]) -> int:
     import hydra
     from hydra.core.global_hydra import GlobalHydra
@@ -378,6 +395,7 @@ def run_hydra(argv: list[str]) -> int:
     from visphy_core.api.registry import get_registry
 
     show_traceback = _traceback_wanted()
+    quiet_chatty_loggers()  # the pre-flight below already calls servers
     try:
         get_registry()  # plugins store their structured configs before Hydra composes
         if not any(a in HYDRA_FLAGS or a.startswith("--info") for a in argv):
@@ -392,6 +410,7 @@ def run_hydra(argv: list[str]) -> int:
     def _main(cfg) -> dict:
         from visphy_core.execute.run import run_experiment
 
+        quiet_chatty_loggers()  # again in the job: a launcher may run it in another process
         try:
             check_inputs(cfg)
             return run_experiment(cfg)  # a study's job record reads the run dir from it
