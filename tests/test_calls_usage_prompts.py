@@ -597,6 +597,26 @@ class TestUsageLedger:
         ledger.release(t4)                     # releasing twice is harmless
         assert ledger.reserve() > t4           # spent 0.6 -> allowed
 
+    def test_before_the_first_paid_call_a_call_counts_at_its_bound(self):
+        """Nothing paid yet: calls in flight count at ``first_call_usd``, so the first batch
+        cannot overshoot a small cap; the first paid call's cost then takes over."""
+        ledger = UsageLedger(cap_usd=0.05, first_call_usd=0.02)
+        tickets = [ledger.reserve(), ledger.reserve(), ledger.reserve()]  # 0, 0.02, 0.04
+        with pytest.raises(CostCapReached):
+            ledger.reserve()                                    # 0.06 >= 0.05
+        ledger.record(_rec(cost=0.001), ticket=tickets[0])     # paid: 0.001 a call
+        assert ledger.reserve() > tickets[-1]                  # 0.001 + 0.04 + 0.001 < 0.05
+
+    def test_a_call_cost_bound_from_the_model_config(self):
+        from visphy_core.calls.usage import PROMPT_TOKENS_BOUND, call_cost_bound
+
+        cfg = {"price": {"input_usd_per_mtok": 2.0, "output_usd_per_mtok": 10.0},
+               "max_output_tokens": 1000}
+        assert call_cost_bound(cfg) == pytest.approx((PROMPT_TOKENS_BOUND * 2 + 1000 * 10) / 1e6)
+        assert call_cost_bound({"price": None, "max_output_tokens": 1000}) == 0.0
+        assert call_cost_bound({"price": {"usd_per_second": 0.4}}) == 0.0
+        assert call_cost_bound(None) == 0.0
+
     def test_cache_hits_do_not_count_against_the_cap(self):
         ledger = UsageLedger(cap_usd=1.0)
         ledger.record(_rec(cost=5.0, cached=True))

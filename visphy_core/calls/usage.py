@@ -11,8 +11,11 @@ without a price has cost ``None`` and a cost cap refuses to run it.
 
 The cap (``run.cost_cap_usd``) is checked before each new call: once spent money plus the
 expected cost of the calls in flight reaches it, no new call starts (`CostCapReached`); calls
-already sent finish and are recorded. A resumed run reads its ledger back, so the cap covers the
-whole run, not one process.
+already sent finish and are recorded. A call in flight is expected to cost the mean of the calls
+paid so far; before the first is paid, `first_call_usd` (`call_cost_bound`: the model's price
+for a prompt of `PROMPT_TOKENS_BOUND` tokens and a reply as long as its ``max_output_tokens``),
+so the first calls of a run cannot all start at once and overshoot a small cap. A resumed run
+reads its ledger back, so the cap covers the whole run, not one process.
 """
 
 from __future__ import annotations
@@ -89,15 +92,35 @@ def _empty_totals() -> dict[str, Any]:
             **{f: 0 for f in TOKEN_FIELDS}}
 
 
-class UsageLedger:
-    """Thread-safe ledger of calls, written through to ``path`` when given."""
+#: input tokens assumed for one call before any is paid: the prompt text, the object list and
+#: two key frames come to about 2,500 (4,500 for Gemini 3's image tokens)
+PROMPT_TOKENS_BOUND = 5000
 
-    def __init__(self, path: Path | None = None, cap_usd: float | None = None):
+
+def call_cost_bound(model_cfg: Mapping[str, Any] | None) -> float:
+    """USD one call of this model may cost at most, by its config: `PROMPT_TOKENS_BOUND` input
+    tokens and a reply of ``max_output_tokens`` (0 when the model has no token price)."""
+    if not model_cfg:
+        return 0.0
+    price = Price.from_cfg(model_cfg.get("price"))
+    if price is None:
+        return 0.0
+    out = int(model_cfg.get("max_output_tokens") or 0)
+    return price.cost({"input_tokens": PROMPT_TOKENS_BOUND, "output_tokens": out})
+
+
+class UsageLedger:
+    """Thread-safe ledger of calls, written through to ``path`` when given. ``first_call_usd``:
+    what a call in flight is expected to cost before any call has been paid."""
+
+    def __init__(self, path: Path | None = None, cap_usd: float | None = None,
+                 first_call_usd: float = 0.0):
         self.path = path
         self.cap_usd = cap_usd
+        self.first_call_usd = float(first_call_usd)
         self._lock = threading.Lock()
         self._records: list[CallRecord] = []
-        self._in_flight: dict[int, float] = {}
+        self._in_flight: set[int] = set()  # tickets of calls sent and not yet recorded
         self._next = 0
         self.stopped_by_cap = False
         if path is not None and path.is_file():
@@ -118,29 +141,31 @@ class UsageLedger:
 
     def _expected_call_cost(self) -> float:
         paid = [r.cost_usd for r in self._records if not r.cached and r.cost_usd]
-        return sum(paid) / len(paid) if paid else 0.0
+        return sum(paid) / len(paid) if paid else self.first_call_usd
 
     def reserve(self) -> int:
         """Before a new call: a ticket, or `CostCapReached` when the cap forbids the call."""
         with self._lock:
             if self.cap_usd is not None:
-                committed = self.spent_usd + sum(self._in_flight.values())
+                # each call in flight at today's expectation: the first paid call re-prices
+                # the ones sent before it
+                committed = self.spent_usd + len(self._in_flight) * self._expected_call_cost()
                 if committed >= self.cap_usd:
                     self.stopped_by_cap = True
                     raise CostCapReached(self.cap_usd, self.spent_usd)
             self._next += 1
-            self._in_flight[self._next] = self._expected_call_cost()
+            self._in_flight.add(self._next)
             return self._next
 
     def release(self, ticket: int) -> None:
         with self._lock:
-            self._in_flight.pop(ticket, None)
+            self._in_flight.discard(ticket)
 
     # ------------------------------------------------------------------ recording
     def record(self, rec: CallRecord, ticket: int | None = None) -> None:
         with self._lock:
             if ticket is not None:
-                self._in_flight.pop(ticket, None)
+                self._in_flight.discard(ticket)
             self._records.append(rec)
             if self.path is not None:
                 with open(self.path, "a") as fh:

@@ -38,7 +38,7 @@ from visphy_core.calls.generation import ModelCaller, get_service
 from visphy_core.calls.judging import JudgeCaller
 from visphy_core.calls.prompts.build import PromptSettings
 from visphy_core.calls.references import ReferenceWriter
-from visphy_core.calls.usage import CostCapReached, UsageLedger
+from visphy_core.calls.usage import CostCapReached, UsageLedger, call_cost_bound
 from visphy_core.execute.console import print_summary, print_where_to_look, stage_progress
 from visphy_core.execute.datasets import load_dataset
 from visphy_core.execute.pipeline import PipelineSettings, SceneServices, first_call, process_scene
@@ -379,7 +379,8 @@ def run_experiment(cfg: DictConfig) -> dict:
         lock = RunLock(run_dir)
         lock.acquire()
         restored = []
-    ledger = UsageLedger(run_dir / "calls.jsonl", cap_usd=cfg.run.get("cost_cap_usd"))
+    ledger = UsageLedger(run_dir / "calls.jsonl", cap_usd=cfg.run.get("cost_cap_usd"),
+                         first_call_usd=call_cost_bound(cfg.model))
     settings = PipelineSettings(prompt=PromptSettings.from_cfg(cfg.prompt), retry=cfg.run.retry,
                                 fallback=cfg.run.fallback, timeout_s=cfg.engine.timeout_s,
                                 seed=cfg.run.seed)
