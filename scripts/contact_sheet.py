@@ -1,7 +1,8 @@
 """The README's contact sheet: key frames 1 and 10 (2D) / frames 1 and 38 (3D) of generated
 scenes of the ``test`` split, labelled, in one PNG.
 
-    .venv/bin/python scripts/contact_sheet.py [--data-dir visphy-out/data] [--out docs/contact_sheet.png]
+    .venv/bin/python scripts/contact_sheet.py [--data-dir visphy-out/data]
+        [--out docs/img/contact_sheet.png]
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from pathlib import Path
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--data-dir", default="visphy-out/data")
-    parser.add_argument("--out", default="docs/contact_sheet.png")
+    parser.add_argument("--out", default="docs/img/contact_sheet.png")
     parser.add_argument("--n2d", type=int, default=8)
     parser.add_argument("--n3d", type=int, default=4)
     args = parser.parse_args()

@@ -80,8 +80,9 @@ def test_default_config_values():
     assert cfg.model.name == "oracle" and cfg.engine.name == "threejs"
     assert cfg.dataset.name == "mini"
     names = list(cfg.metrics.names)  # the offline suite (conf/metrics/default.yaml)
-    assert names[:2] == ["psnr", "ssim"] and {"st_lpips", "flow_epe_dis", "track_pos_err",
-                                               "param_gravity_err", "bertscore_minilm"} <= set(names)
+    assert names[:2] == ["psnr", "ssim"]
+    assert {"st_lpips", "flow_epe_dis", "track_pos_err", "param_gravity_err",
+            "bertscore_minilm"} <= set(names)
     assert cfg.metrics.spec_track is True and cfg.metrics.weights_dir is None
     assert list(cfg.prompt.frames) == [1, 10] and cfg.prompt.timed is False
 
@@ -90,7 +91,8 @@ def test_default_config_values():
     ("engine=threejz", "engine=threejz is not an option of 'engine'; valid: "),
     ("model=orcle", "model=orcle is not an option of 'model'; valid: "),
     ("engine.timout_s=3", "unknown key 'engine.timout_s'; valid keys of 'engine': name, timeout_s"),
-    ("run.retyr=false", "unknown key 'run.retyr'; valid keys of 'run': cache, cost_cap_usd, fallback"),
+    ("run.retyr=false",
+     "unknown key 'run.retyr'; valid keys of 'run': cache, cost_cap_usd, fallback"),
     ("bogus=1", "unknown key 'bogus'; valid top-level keys: dataset"),
     ("engine=threejs,threejz", "engine=threejz is not an option"),
 ])

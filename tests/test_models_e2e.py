@@ -320,7 +320,8 @@ def test_two_judges_from_the_command_line_score_every_scene(tmp_path):
     assert summary["usage"]["judge"]["calls"] == 4
     (run_dir,) = list((home / "runs").iterdir())
     rows = [json.loads(x) for x in (run_dir / "results.jsonl").read_text().splitlines()]
-    assert [(r["score_judge_gemini"], r["score_judge_gpt_frames"]) for r in rows] == [(8, 6), (8, 6)]
+    verdicts = [(r["score_judge_gemini"], r["score_judge_gpt_frames"]) for r in rows]
+    assert verdicts == [(8, 6), (8, 6)]
     with sqlite3.connect(home / "mlflow.db") as con:
         metrics = dict(con.execute("select key, value from latest_metrics").fetchall())
         tags = dict(con.execute("select key, value from tags").fetchall())

@@ -658,7 +658,8 @@ def make_clips(truth: Truth, kinds: Iterable[str] = (RIGHT, WRONG, STATIC, FLOW)
 
 
 def twin_clip(truth: Truth) -> np.ndarray:
-    """The ground truth's twin (`visphy_core.scoring.normalisation.twin_spec`) drawn like the truth."""
+    """The ground truth's twin (`visphy_core.scoring.normalisation.twin_spec`), drawn like the
+    truth."""
     from visphy_core.api.scoring import twin_spec
 
     return truth.rollout(twin_spec(truth.spec))
