@@ -142,3 +142,25 @@ def test_a_remote_endpoint_still_needs_its_key(no_key):
     ("https://8.8.8.8/v1", False)])
 def test_which_endpoints_are_local(url, local):
     assert is_local(url) is local
+
+
+def test_an_api_judge_has_the_same_pre_flight(tmp_path, monkeypatch):
+    """A judge on an OpenAI-compatible server (DashScope's ``qwen_vl``, or a local one) is asked
+    the same way before any scene: an id the server does not serve is one line, naming the
+    judge; a local server needs no key and the run goes on."""
+    monkeypatch.delenv("DASHSCOPE_API_KEY", raising=False)
+    monkeypatch.setenv("VISPHY_ENV_FILE", "/nonexistent/.env")
+    with ListingServer() as server:
+        proc = run_cli("model=static", "judge=qwen_vl", f"judge.qwen_vl.base_url={server.url}/v1",
+                       "dataset=tiny", "dataset.limit=1", "tracking=none",
+                       home=tmp_path / "home", check=False)
+        line = _error_line(proc)
+        assert "judge=qwen_vl" in line and "qwen3-vl-plus" in line and SERVED[0] in line
+        assert chat_calls(server) == 0
+        run_cli("model=static", "judge=qwen_vl", f"judge.qwen_vl.base_url={server.url}/v1",
+                f"judge.qwen_vl.model_id={SERVED[0]}", "dataset=tiny", "dataset.limit=1",
+                "tracking=none", home=tmp_path / "home")
+        assert chat_calls(server) == 1  # the one verdict, sent with no key
+        (call,) = [r for r in server.requests if r.path.endswith("/chat/completions")]
+        assert call.headers.get("authorization", call.headers.get("Authorization")) == \
+            "Bearer none"

@@ -25,6 +25,7 @@ from visphy_core.api.config_schema import JudgeConfig
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.judge import Judge, JudgeInput, Verdict, parse_verdict, uniform_indices
 from visphy_core.api.media import decode_video, png_bytes
+from visphy_plugins.models.preflight import LocalKeyCaller, is_local, preflight
 from visphy_plugins.providers.base import ApiCaller, Part
 from visphy_plugins.providers.config import ApiSettings
 
@@ -58,8 +59,10 @@ class ApiJudge(Judge):
     def __init__(self, cfg: Any):
         super().__init__(cfg)
         self.name = str(cfg.name)
-        self.api = ApiCaller(cfg, f"judge={self.name}")
-        self.needs_key = self.api.key_env
+        # an OpenAI-compatible server on this machine or network (vLLM, Ollama, llama.cpp)
+        local = str(cfg.get("provider") or "openai") == "openai" and is_local(cfg.get("base_url"))
+        self.api = (LocalKeyCaller if local else ApiCaller)(cfg, f"judge={self.name}")
+        self.needs_key = None if local else self.api.key_env
         self.input_kind = str(cfg.get("input") or "video")
         self.frames = int(cfg.get("frames") or 8)
 
@@ -73,7 +76,9 @@ class ApiJudge(Judge):
                 else f"uniform:{self.frames} frames per clip")
 
     def check_ready(self) -> None:
-        self.api.check_ready()
+        """The models' pre-flight: the key, the model id, and an OpenAI-compatible server's
+        model list (`visphy_plugins.models.preflight`)."""
+        preflight(self.cfg, f"judge={self.name}", self.api)
 
     def identity(self) -> str:
         """Name, class version, generation settings, input kind, frames (frame judges only) and
