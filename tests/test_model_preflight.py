@@ -1,4 +1,4 @@
-"""The pre-flight of an API model (`visphy_plugins.models.preflight`): an OpenAI-compatible
+"""The pre-flight of an API model (`visphy_plugins.providers.preflight`): an OpenAI-compatible
 server that is not there, or does not serve ``model.model_id``, is one line and exit status 2
 before any scene; a local server needs no key. Against a fake OpenAI-compatible server on
 loopback that lists its models (``GET /v1/models``) as vLLM, Ollama and llama.cpp do."""
@@ -14,7 +14,7 @@ from visphy_core.api.errors import UserError
 from visphy_core.api.model import ModelRequest, OutputContract
 from visphy_core.api.registry import get_registry
 from visphy_core.config.check import compose
-from visphy_plugins.models.preflight import is_local
+from visphy_plugins.providers.preflight import is_local
 from visphy_plugins.testing.fake_openai import FakeOpenAIServer
 from visphy_plugins.testing.fake_server import Recorded
 

@@ -14,7 +14,7 @@ from visphy_core.api.errors import ConfigError
 from visphy_core.api.registry import build_registry, get_plugin_manager, get_registry
 from visphy_core.config.check import compose
 from visphy_plugins.models.api import api_model_names
-from visphy_plugins.models.preflight import CheckedApiModel
+from visphy_plugins.providers.preflight import CheckedApiModel
 from visphy_plugins.providers.base import ApiModel
 
 #: the API models the shipped configs declare, in registration (file-name) order

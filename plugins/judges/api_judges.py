@@ -25,7 +25,7 @@ from visphy_core.api.config_schema import JudgeConfig
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.judge import Judge, JudgeInput, Verdict, parse_verdict, uniform_indices
 from visphy_core.api.media import decode_video, png_bytes
-from visphy_plugins.models.preflight import LocalKeyCaller, is_local, preflight
+from visphy_plugins.providers.preflight import LocalKeyCaller, is_local, preflight
 from visphy_plugins.providers.base import ApiCaller, Part
 from visphy_plugins.providers.config import ApiSettings
 
@@ -77,7 +77,7 @@ class ApiJudge(Judge):
 
     def check_ready(self) -> None:
         """The models' pre-flight: the key, the model id, and an OpenAI-compatible server's
-        model list (`visphy_plugins.models.preflight`)."""
+        model list (`visphy_plugins.providers.preflight`)."""
         preflight(self.cfg, f"judge={self.name}", self.api)
 
     def identity(self) -> str:

@@ -9,7 +9,7 @@ must name a provider adapter (`Provider`: ``openai``, ``anthropic``, ``gemini``;
 and ``qwen3vlplus`` (DashScope, OpenAI-compatible); the other model configs (oracle, replay,
 baselines, video models) use other schemas and are registered by their own plugins.
 
-One adapter class serves them all (`visphy_plugins.models.preflight.CheckedApiModel`: the
+One adapter class serves them all (`visphy_plugins.providers.preflight.CheckedApiModel`: the
 provider-neutral `visphy_plugins.providers.base.ApiModel` with a pre-flight before any work, and
 no key demanded by a local endpoint); the provider,
 model id, key variable, generation settings and prices come from the YAML file. The files are
@@ -27,7 +27,7 @@ import yaml
 
 from visphy_core.api.errors import ConfigError
 from visphy_core.api.hookspecs import hookimpl
-from visphy_plugins.models.preflight import CheckedApiModel
+from visphy_plugins.providers.preflight import CheckedApiModel
 from visphy_plugins.providers.config import ApiModelConfig, Provider
 
 CONFIG_PACKAGE = "visphy_conf"  # the model configs are its ``model/*.yaml`` resources

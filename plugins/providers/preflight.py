@@ -1,4 +1,4 @@
-"""The pre-flight of an API model: what `check_ready` asks before any scene is loaded.
+"""The pre-flight of an API model or judge: what `check_ready` asks before any scene is loaded.
 
 Every API model: ``model.model_id`` is set, and the key variable is set (`require_key`; the
 provider's own SDK default endpoint, i.e. OpenAI, Anthropic, Google, is not contacted: a wrong key
