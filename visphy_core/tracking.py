@@ -414,13 +414,6 @@ def summary_metrics(summary: dict, clip: tuple[float, float] = (-1.0, 1.0)
     return out
 
 
-def outcome(result) -> str:
-    """A scene's outcome in a word or two (as the console's per-scene table says it)."""
-    if result.model_success:
-        return "ok" if result.attempts == 1 else "repaired"
-    return f"{'fallback' if result.fallback else 'failed'} ({result.failure_class})"
-
-
 def table_column(name: str) -> str:
     """A column name of a logged table: dots become underscores (``psnr.aligned`` →
     ``psnr_aligned``, ``family.pixel`` → ``family_pixel``): MLflow's table view reads a dot as
@@ -434,7 +427,7 @@ def scene_table(results: list, columns: list[str]):
     empty."""
     import pandas as pd
 
-    rows = [{"scene_id": r.scene_id, "outcome": outcome(r),
+    rows = [{"scene_id": r.scene_id, "outcome": r.outcome,
              **{table_column(c): r.scores.get(c) for c in columns}} for r in results]
     return pd.DataFrame(rows, columns=["scene_id", "outcome", *map(table_column, columns)])
 

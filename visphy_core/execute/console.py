@@ -243,12 +243,9 @@ def print_summary(summary: dict, results: list, calls_heading: str | None = None
         table.add_column(f"{name} {arrow}", justify="right", overflow="fold")
     table.add_column("render", justify="right", overflow="fold")
     for r in results:
-        status = ("ok" if r.model_success and r.attempts == 1 else
-                  "repaired" if r.model_success else
-                  f"fallback ({r.failure_class})" if r.fallback else f"failed ({r.failure_class})")
         render = "cached" if r.render_cached else (
             f"{r.render_wall_s:.2f}s" if r.render_wall_s is not None else "—")
-        table.add_row(r.scene_id, status, *[_fmt(r.scores.get(n)) for n in metric_names], render)
+        table.add_row(r.scene_id, r.outcome, *[_fmt(r.scores.get(n)) for n in metric_names], render)
     console.print(table)
     if head.get("metric"):
         ci = head.get("ci")

@@ -64,6 +64,14 @@ class SceneResult:
         (``infra_error``: our side failed; ``data_error``: a bad input of the scene)."""
         return self.failure_class not in NOT_EVALUABLE
 
+    @property
+    def outcome(self) -> str:
+        """The outcome in a word or two, as the console's table and MLflow's scene table say
+        it: ``ok``, ``repaired``, ``fallback (<class>)`` or ``failed (<class>)``."""
+        if self.model_success:
+            return "ok" if self.attempts == 1 else "repaired"
+        return f"{'fallback' if self.fallback else 'failed'} ({self.failure_class})"
+
     def row(self) -> dict:
         d = asdict(self)
         scores = d.pop("scores")
