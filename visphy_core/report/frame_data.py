@@ -22,12 +22,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from itertools import zip_longest
 from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
+
+from visphy_core.report.media import av_errors, file_stamp, read_index, write_index
 
 #: Bumped when what is computed changes: older cache entries are recomputed.
 VERSION = 1
@@ -43,10 +44,7 @@ MIN_SAMPLES = 4
 
 
 def _stamp(path: Path | None) -> str:
-    if path is None or not path.is_file():
-        return "-"
-    st = path.stat()
-    return f"{path.resolve()}:{st.st_size}:{st.st_mtime_ns}"
+    return file_stamp(path) if path is not None and path.is_file() else "-"
 
 
 def _rgb(value: Any) -> tuple[int, int, int] | None:
@@ -162,8 +160,6 @@ def _psnr(a: np.ndarray, b: np.ndarray) -> float | None:
 def compute(truth: Path, generated: Path, spec: Any, details: Any) -> dict:
     """The per-frame data of one scene (see the module docstring); ``tracks`` holds a reason
     string instead of centroids when the bodies cannot be located."""
-    from visphy_core.report.media import av_errors
-
     pal = palette(spec, details)
     locate = Locator(pal[0], pal[2], pal[3]) if not isinstance(pal, str) else None
     psnr: list[float | None] = []
@@ -218,11 +214,7 @@ class FrameData:
 
     def __init__(self, report_dir: Path):
         self.path = Path(report_dir) / "media" / CACHE
-        try:
-            self.entries: dict[str, dict] = (json.loads(self.path.read_text())
-                                             if self.path.is_file() else {})
-        except ValueError:
-            self.entries = {}
+        self.entries: dict[str, dict] = read_index(self.path)
         self.used: dict[str, dict] = {}
 
     def get(self, key: str, truth: Path, generated: Path, spec_path: Path | None,
@@ -238,12 +230,5 @@ class FrameData:
 
     def close(self) -> None:
         """Save the entries this report used (others are dropped)."""
-        text = json.dumps(self.used, sort_keys=True, separators=(",", ":"))
-        if not self.used and not self.path.is_file():
-            return
-        if self.path.is_file() and self.path.read_text() == text:
-            return
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_name(f".{CACHE}.{os.getpid()}.tmp")
-        tmp.write_text(text)
-        os.replace(tmp, self.path)
+        if self.used or self.path.is_file():
+            write_index(self.path, json.dumps(self.used, sort_keys=True, separators=(",", ":")))

@@ -30,6 +30,32 @@ BROWSER_H264 = {"crf": "18", "preset": "veryfast", "tune": "animation", "threads
 SOURCES = ".sources.json"
 
 
+def file_stamp(path: Path) -> str:
+    """What a cached entry made from ``path`` was made from: its resolved path, size and
+    modification time."""
+    st = path.stat()
+    return f"{path.resolve()}:{st.st_size}:{st.st_mtime_ns}"
+
+
+def read_index(path: Path) -> dict:
+    """A report folder's JSON index (``media/.sources.json``, ``media/.plots.json``); empty when
+    absent or unreadable."""
+    try:
+        return json.loads(path.read_text()) if path.is_file() else {}
+    except ValueError:
+        return {}
+
+
+def write_index(path: Path, text: str) -> None:
+    """Replace the index at ``path`` with ``text`` atomically, unless it already says that."""
+    if path.is_file() and path.read_text() == text:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
 @dataclass
 class Placed:
     """A file of the report folder: ``rel`` is its path from the report's ``index.html``."""
@@ -110,11 +136,7 @@ class MediaStore:
     def __init__(self, report_dir: Path):
         self.report_dir = Path(report_dir)
         self.media = self.report_dir / "media"
-        index = self.media / SOURCES
-        try:
-            self.sources: dict[str, dict] = json.loads(index.read_text()) if index.is_file() else {}
-        except ValueError:
-            self.sources = {}
+        self.sources: dict[str, dict] = read_index(self.media / SOURCES)
         self.used: set[str] = set()
         self._decoded: tuple[Path, np.ndarray, float] | None = None
 
@@ -127,11 +149,6 @@ class MediaStore:
             frames, info = decode_video(path)
             self._decoded = (path, frames, info.fps)
         return self._decoded[1], self._decoded[2]
-
-    @staticmethod
-    def _stamp(src: Path) -> str:
-        st = src.stat()
-        return f"{src.resolve()}:{st.st_size}:{st.st_mtime_ns}"
 
     def _fresh(self, rel: str, stamp: str) -> dict | None:
         entry = self.sources.get(rel)
@@ -148,7 +165,7 @@ class MediaStore:
         """Copy (or transcode) clip ``src`` to ``rel``."""
         if src is None or not src.is_file():
             return Placed(None, error=f"no file {src}" if src else "no clip")
-        stamp = self._stamp(src)
+        stamp = file_stamp(src)
         entry = self._fresh(rel, stamp)
         if entry is not None:
             self.used.add(rel)
@@ -175,7 +192,7 @@ class MediaStore:
         """Copy image ``src`` to ``rel``."""
         if not src.is_file():
             return Placed(None, error=f"no file {src}")
-        stamp = self._stamp(src)
+        stamp = file_stamp(src)
         if self._fresh(rel, stamp) is None:
             (self.report_dir / rel).parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(src, self.report_dir / rel)
@@ -188,7 +205,7 @@ class MediaStore:
         keeps no image of)."""
         if not video.is_file():
             return Placed(None, error=f"no file {video}")
-        stamp = f"{self._stamp(video)}#frame{index}"
+        stamp = f"{file_stamp(video)}#frame{index}"
         if self._fresh(rel, stamp) is None:
             from PIL import Image
 
@@ -214,11 +231,5 @@ class MediaStore:
                 except OSError:
                     pass
                 del self.sources[rel]
-        index = self.media / SOURCES
-        text = json.dumps(self.sources, indent=1, sort_keys=True)
-        if (self.sources or self.media.is_dir()) and not (
-                index.is_file() and index.read_text() == text):
-            self.media.mkdir(parents=True, exist_ok=True)
-            tmp = self.media / f".{SOURCES}.{os.getpid()}.tmp"
-            tmp.write_text(text)
-            os.replace(tmp, index)
+        if self.sources or self.media.is_dir():
+            write_index(self.media / SOURCES, json.dumps(self.sources, indent=1, sort_keys=True))
