@@ -36,6 +36,7 @@ from pathlib import Path
 import pytest
 
 from conftest import FAST_METRICS, REPO, SUBCOMMANDS
+from visphy_plugins.testing.serve import MODELS, start_servers
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -48,15 +49,10 @@ DATASETS = {"visphybench": "mini", "visphybench_test": "mini", "mini": "mini"}
 #: placeholders a README command may hold -> what stands for them here
 PLACEHOLDERS = ("<run directory>", "<run>", "<run_dir>")
 #: API model -> (fake server, URL suffix, key variable); video models have their own fakes
-API_MODELS = {"gpt5": ("openai", "/v1", "OPENAI_API_KEY"),
-              "gpt41": ("openai", "/v1", "OPENAI_API_KEY"),
-              "qwen3vlplus": ("openai", "/compatible-mode/v1", "DASHSCOPE_API_KEY"),
-              "openai_compat": ("openai", "/v1", None),
-              "claude": ("anthropic", "", "ANTHROPIC_API_KEY"),
-              "gemini3pro": ("gemini", "", "GEMINI_API_KEY"),
-              "gemini25pro": ("gemini", "", "GEMINI_API_KEY"),
-              "veo": ("veo", "", "GEMINI_API_KEY"),
-              "sora": ("sora", "/v1", "OPENAI_API_KEY")}
+#: (the fake-provider launcher's table, plus a local server that needs no key and the two video
+#: models)
+API_MODELS = {**MODELS, "openai_compat": ("openai", "/v1", None),
+              "veo": ("veo", "", "GEMINI_API_KEY"), "sora": ("sora", "/v1", "OPENAI_API_KEY")}
 
 
 def readme_commands(text: str) -> list[str]:
@@ -258,20 +254,14 @@ def run_readme_command(cmd: str, home: Home) -> str:
 
 @pytest.fixture(scope="module")
 def servers():
-    from visphy_plugins.testing.fake_anthropic import FakeAnthropicServer
-    from visphy_plugins.testing.fake_gemini import FakeGeminiServer
-    from visphy_plugins.testing.fake_openai import FakeOpenAIServer
     from visphy_plugins.testing.fake_sora import FakeSoraServer
     from visphy_plugins.testing.fake_veo import FakeVeoServer
-    from visphy_plugins.testing.serve import answer
 
-    started = {"openai": FakeOpenAIServer(default=answer),
-               "anthropic": FakeAnthropicServer(default=answer),
-               "gemini": FakeGeminiServer(default=answer),
-               "veo": FakeVeoServer(polls_before_done=0),
-               "sora": FakeSoraServer(polls_before_done=0)}
-    for server in started.values():
+    started = start_servers()  # OpenAI, Anthropic, Gemini: as `testing.serve` runs them
+    for name, server in (("veo", FakeVeoServer(polls_before_done=0)),
+                         ("sora", FakeSoraServer(polls_before_done=0))):
         server.start()
+        started[name] = server
     yield started
     for server in started.values():
         server.stop()
