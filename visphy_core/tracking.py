@@ -40,13 +40,17 @@ import os
 import shlex
 import subprocess
 import time
+from contextlib import nullcontext
+from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 from omegaconf import OmegaConf
 
 from visphy_core.api.hookspecs import hookimpl
+from visphy_core.infra.locks import exclusive, lock_path
 from visphy_core.results.columns import NORM_PREFIX
 
 log = logging.getLogger("visphy.tracking")
@@ -94,21 +98,90 @@ def tracking_uris(cfg, root: Path) -> tuple[str, str | None]:
     return uri, artifacts
 
 
+def sqlite_file(uri: str) -> Path | None:
+    """The database file of a ``sqlite:///`` tracking URI (None for a server or another
+    database)."""
+    if not uri.startswith("sqlite:///"):
+        return None
+    path = uri[len("sqlite:///"):]
+    return Path(path if path.startswith("/") else f"./{path}")
+
+
+#: File systems on which SQLite's write-ahead log is unsafe (no shared memory across hosts).
+NETWORK_FS = ("nfs", "nfs4", "cifs", "smb3", "smbfs", "fuse.sshfs", "9p", "afs", "lustre",
+              "gpfs", "beegfs", "ceph", "glusterfs")
+
+
+def file_system_type(path: Path) -> str:
+    """The type of the file system holding ``path`` (``/proc/mounts``; "" when unknown)."""
+    try:
+        mounts = Path("/proc/mounts").read_text().splitlines()
+    except OSError:
+        return ""
+    target, best, kind = str(path.resolve()), -1, ""
+    for line in mounts:
+        fields = line.split()
+        if len(fields) < 3:
+            continue
+        point = fields[1].replace("\\040", " ")
+        if (target == point or target.startswith(point.rstrip("/") + "/")) \
+                and len(point) > best:
+            best, kind = len(point), fields[2]
+    return kind
+
+
+def _prepare_sqlite(db: Path) -> None:
+    """Once the schema exists: the write-ahead log (readers never block the writer; set in
+    the file, so once is enough), except on a network file system where it is unsafe."""
+    import sqlite3
+
+    if file_system_type(db.parent).lower() in NETWORK_FS:
+        return
+    with sqlite3.connect(db, timeout=30) as conn:
+        if conn.execute("PRAGMA journal_mode").fetchone()[0].lower() != "wal":
+            conn.execute("PRAGMA journal_mode=WAL")
+
+
 def open_store(cfg, root: Path):
     """(MlflowClient, tracking URI, experiment id) of ``tracking.experiment``, created on first
-    use with the configured artifact root."""
+    use with the configured artifact root.
+
+    Any number of processes may open one sqlite store at once: its schema is created (MLflow
+    runs its migrations on first use) and the experiment looked up or created under an
+    exclusive lock on ``mlflow.db.lock`` beside the file (`visphy_core.infra.locks`), so two
+    processes never migrate the same file at once; the file is then switched to SQLite's
+    write-ahead log, and MLflow's own sessions wait for a busy database rather than fail. A
+    tracking server serialises its writers itself."""
     os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
     from mlflow.tracking import MlflowClient
 
     logging.getLogger("alembic").setLevel(logging.WARNING)
     logging.getLogger("mlflow").setLevel(logging.WARNING)
     uri, artifacts = tracking_uris(cfg, root)
-    client = MlflowClient(tracking_uri=uri)
-    name = cfg.tracking.experiment
-    exp = client.get_experiment_by_name(name)
-    exp_id = exp.experiment_id if exp else client.create_experiment(
-        name, artifact_location=artifacts)
+    db = sqlite_file(uri)
+    guard = exclusive(lock_path(db), f"the MLflow store {db}") if db else nullcontext()
+    with guard:
+        client = MlflowClient(tracking_uri=uri)
+        name = cfg.tracking.experiment
+        exp = client.get_experiment_by_name(name)  # the store (and its schema) is made here
+        if db is not None:
+            _prepare_sqlite(db)
+        exp_id = exp.experiment_id if exp else _create_experiment(client, name, artifacts)
     return client, uri, exp_id
+
+
+def _create_experiment(client, name: str, artifacts: str | None) -> str:
+    """Create the experiment; when another process (through a tracking server) created it
+    first, use theirs."""
+    from mlflow.exceptions import MlflowException
+
+    try:
+        return client.create_experiment(name, artifact_location=artifacts)
+    except MlflowException:
+        exp = client.get_experiment_by_name(name)
+        if exp is None:
+            raise
+        return exp.experiment_id
 
 
 def flatten(d: Any, prefix: str = "") -> dict[str, Any]:
@@ -292,8 +365,19 @@ def _enabled(run) -> bool:
 
 @hookimpl
 def visphy_run_start(run):
+    """Open the run's MLflow run. A store that fails (locked, damaged, unreachable) is one
+    warning and a note for the end of the run: the run itself goes on untracked."""
     if not _enabled(run):
         return
+    try:
+        _start(run)
+    except Exception as exc:  # noqa: BLE001 - tracking is a record of the run, not the run
+        _ACTIVE.pop(id(run), None)
+        run.extra["tracking_failed"] = _problem(run, exc)
+        log.warning("%s", run.extra["tracking_failed"])
+
+
+def _start(run) -> None:
     client, uri, exp_id = open_store(run.cfg, run.root)
     tags, run_name = _run_tags(run), run_display_name(run.cfg)
     study = _study_parent(uri)
@@ -304,9 +388,9 @@ def visphy_run_start(run):
                      "visphy.job": str(job.get("num", ""))})
         run_name = job.get("label") or run_name
     mlrun = client.create_run(exp_id, run_name=run_name, tags=tags)
+    _ACTIVE[id(run)] = (client, mlrun.info.run_id)
     log_params(client, mlrun.info.run_id,
                run_params(run.cfg, study[1].get("sweep", ()) if study else ()))
-    _ACTIVE[id(run)] = (client, mlrun.info.run_id)
     previous = (run.extra.get("resumed_from") or {}).get("mlflow") or {}
     if previous.get("run_id"):  # the killed process's run: resumed here, so no longer RUNNING
         client.set_tag(mlrun.info.run_id, "visphy.resumed_from", previous["run_id"])
@@ -318,6 +402,31 @@ def visphy_run_start(run):
                         previous["run_id"], exc)
     run.extra["mlflow"] = {"tracking_uri": uri, "run_id": mlrun.info.run_id,
                            "experiment_id": exp_id}
+
+
+def _problem(run, exc: BaseException) -> str:
+    """One line: which store failed and why, and how to log the finished run later."""
+    try:
+        uri = tracking_uris(run.cfg, run.root)[0]
+    except Exception:  # noqa: BLE001 - a config without the tracking group
+        uri = "the tracking store"
+    text = " ".join(f"{type(exc).__name__}: {exc}".split())
+    cut = text.find(" [SQL:")  # SQLAlchemy appends the statement and a help link
+    text = text[:cut] if cut > 0 else text
+    if len(text) > 240:
+        text = text[:239] + "…"
+    db = sqlite_file(uri)
+    damaged = any(w in text.lower() for w in ("not a database", "malformed", "file is encrypted",
+                                               "no such table", "can't locate revision"))
+    fix = (f"the store file is damaged: move it aside (mv {shlex.quote(str(db))} "
+           f"{shlex.quote(str(db))}.damaged), then " if db is not None and damaged else "")
+    return (f"MLflow tracking failed ({uri}: {text}); the run's results are complete: "
+            f"{fix}log it with: {track_command(run.run_dir)}")
+
+
+def track_command(run_dir: Path) -> str:
+    """The command that logs a finished run directory to MLflow (`log_finished_run`)."""
+    return f"visphy track {shlex.quote(str(run_dir))}"
 
 
 def run_params(cfg, swept=()) -> dict[str, Any]:
@@ -466,10 +575,29 @@ def _log_run_files(client, run_id: str, run, summary: dict) -> None:
 
 @hookimpl
 def visphy_run_end(run, summary):
+    """Log the run's metrics and files and close its MLflow run. A failure here (or at the
+    start) is recorded as ``summary["tracking_failed"]`` (one line, printed at the end of the
+    run) and the MLflow run, if one was opened, is marked FAILED: the run's own files are
+    already written and the run ends as it would have."""
     active = _ACTIVE.pop(id(run), None)
+    if run.extra.get("tracking_failed"):
+        summary["tracking_failed"] = run.extra["tracking_failed"]
     if active is None:
         return
     client, run_id = active
+    try:
+        _end(client, run_id, run, summary)
+    except Exception as exc:  # noqa: BLE001 - tracking is a record of the run, not the run
+        summary["tracking_failed"] = _problem(run, exc)
+        summary.pop("mlflow", None)
+        log.warning("%s", summary["tracking_failed"])
+        try:
+            client.set_terminated(run_id, status="FAILED")
+        except Exception:  # noqa: BLE001 - the store that just failed may fail again
+            pass
+
+
+def _end(client, run_id: str, run, summary: dict) -> None:
     log_metrics(client, run_id, summary_metrics(summary, headline_clip(run.cfg)))
     if summary.get("prompt_versions"):
         client.set_tag(run_id, "visphy.prompt_version", ",".join(summary["prompt_versions"]))
@@ -477,3 +605,50 @@ def visphy_run_end(run, summary):
     status = _MLFLOW_STATUS.get(summary.get("status", "finished"), "FAILED")
     client.set_terminated(run_id, status=status)
     summary["mlflow"] = dict(run.extra["mlflow"], status=status)
+
+
+# ------------------------------------------------------------------------------ later
+
+
+@dataclass
+class FinishedRun:
+    """A finished run directory in the shape the hooks read (`RunContext`'s fields that
+    tracking uses), for logging it after the fact."""
+
+    cfg: Any
+    run_dir: Path
+    root: Path
+    model_name: str
+    engine_name: str
+    results: list
+    scenes: list
+    extra: dict = field(default_factory=dict)
+
+
+def log_finished_run(data, uri: str | None = None, experiment: str | None = None) -> dict:
+    """Log a finished run directory (``data``: `visphy_core.results.load.RunData`) to MLflow as
+    its run would have at its end: the same tags, params, metrics, tables and files, in the
+    store its config names (or ``uri`` / ``experiment``). Returns the summary's ``mlflow``
+    entry (tracking URI, run id, experiment id, status). Raises whatever the store raises."""
+    cfg = OmegaConf.create(data.config)
+    OmegaConf.set_struct(cfg, False)
+    cfg.tracking = OmegaConf.merge(
+        {"backend": "mlflow", "uri": None, "artifact_root": None, "experiment": "visphy",
+         "log_videos": False}, cfg.get("tracking") or {},
+        {k: v for k, v in (("uri", uri), ("experiment", experiment)) if v})
+    cfg.tracking.backend = "mlflow"
+    root = Path(OmegaConf.select(cfg, "paths.root", default=None) or data.run_dir.parents[1])
+    run = FinishedRun(cfg=cfg, run_dir=data.run_dir, root=root, model_name=data.model,
+                      engine_name=data.engine, results=data.results,
+                      scenes=[SimpleNamespace(dataset=d)
+                              for d in data.manifest.get("datasets") or []])
+    summary = dict(data.summary)
+    _start(run)
+    client, run_id = _ACTIVE.pop(id(run))
+    client.set_tag(run_id, "visphy.logged_later", "true")
+    try:
+        _end(client, run_id, run, summary)
+    except BaseException:
+        client.set_terminated(run_id, status="FAILED")
+        raise
+    return summary["mlflow"]

@@ -26,6 +26,8 @@ Commands:
                  report RUN_DIR RUN_DIR... [-o OUT] [--title T] (a study)
   merge          one run from its shards (dataset.shard=i/n), one MLflow parent run:
                  merge SHARD_RUN_DIR... -o MERGED_RUN_DIR [--partial]
+  track          log finished runs to MLflow after the fact (a run whose tracking failed):
+                 track RUN_DIR... [--uri URI] [--experiment NAME] [--again]
 Anything else is a Hydra run: ``python -m visphy_core engine=threejs model=oracle dataset=mini``.
 
 Bad input (a config value, a missing dataset, a plugin that does not load, Chromium missing) is
@@ -328,6 +330,12 @@ def cmd_merge(argv: list[str]) -> int:
     return merge(argv)
 
 
+def cmd_track(argv: list[str]) -> int:
+    from visphy_core.cli.track import cmd_track as track
+
+    return track(argv)
+
+
 def cmd_ground_truth(argv: list[str]) -> int:
     from visphy_core.cli.ground_truth import cmd_ground_truth as ground_truth
 
@@ -342,6 +350,7 @@ COMMANDS: dict[str, tuple[Callable[[list[str]], int], str]] = {
     "report": (cmd_report, "the HTML report of a run, or of several runs as a study"),
     "analyse": (cmd_analyse, "tables and figures from finished runs (leaderboard, CIs, ...)"),
     "merge": (cmd_merge, "one run from the shards of a sharded run (dataset.shard=i/n)"),
+    "track": (cmd_track, "log finished runs to MLflow after the fact (tracking that failed)"),
     "render": (cmd_render, "render one model reply, and score it against a scene (--scene)"),
     "intervene": (cmd_intervene, "change physical parameters, re-simulate, render side by side"),
     "rate": (cmd_rate, "the model-blind human rating page on localhost"),

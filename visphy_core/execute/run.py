@@ -143,6 +143,7 @@ def _manifest(ctx: RunContext) -> dict:
         "plugins": {p.name: {"distribution": p.distribution, "version": p.version}
                     for p in describe_plugins(pm)},
         "scenes": [s.scene_id for s in ctx.scenes],
+        "datasets": sorted({s.dataset for s in ctx.scenes if s.dataset}),
         "metrics": [m.describe() for m in ctx.metrics],
         "model": ctx.extra.get("model"),
         "judges": ctx.judges,
@@ -660,6 +661,8 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
         print_summary(summary, ctx.results)
         print_where_to_look(write_report(run_dir), (summary.get("mlflow") or {}).get(
             "tracking_uri"))
+    if summary.get("tracking_failed"):
+        print(summary["tracking_failed"], file=sys.stderr)
     if status == COST_CAP:
         print(f"stopped: {summary['cost_cap']['message']}", file=sys.stderr)
     elif status != FINISHED:
