@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -225,3 +227,64 @@ def test_a_resumed_run_closes_the_killed_mlflow_run(tmp_path, mini_root, script)
     assert sorted(statuses.values()) == ["FINISHED", "KILLED"]
     ((new, old),) = tags.items()
     assert statuses[new] == "FINISHED" and statuses[old] == "KILLED"
+
+
+def _private_tmpfs_run(home: Path, script: dict, runs: Path, size: str, args: list[str],
+                       keep: Path) -> subprocess.CompletedProcess:
+    """The run with ``paths.runs_dir`` on a tmpfs of ``size`` in a private mount namespace
+    (``unshare -m``: the mount is gone with the process); the run folders are copied to
+    ``keep`` before it goes."""
+    cli = " ".join(map(shlex.quote, [sys.executable, str(REPO / "tests" / "scripted_cli.py"),
+                                     *args, f"paths.runs_dir={runs}"]))
+    shell = (f"mount -t tmpfs -o size={size} tmpfs {runs} || exit 99; "
+             f"{cli}; rc=$?; cp -a {runs}/. {keep}/; exit $rc")
+    return subprocess.run(["unshare", "-m", "sh", "-c", shell], cwd=REPO,
+                          env=_env(home, script), capture_output=True, text=True, timeout=600)
+
+
+def _blocks(path: Path) -> int:
+    return sum(p.lstat().st_blocks * 512 for p in [path, *path.rglob("*")])
+
+
+def _room_for_1_5_scenes(reference) -> int:
+    """KB for the run's first files, its first scene and half its second, as the uninterrupted
+    run wrote them: the disk fills in the middle of the second scene."""
+    run_dir = Path(reference[2]["run_dir"])
+    scenes = sorted((run_dir / "scenes").iterdir())
+    first = sum(_blocks(run_dir / name) for name in ("config.yaml", "manifest.json"))
+    return (first + _blocks(scenes[0]) + _blocks(scenes[1]) // 2 + 8192) // 1024
+
+
+def test_a_full_disk_is_one_line_and_the_rerun_resumes(tmp_path, mini_root, script, reference):
+    """The runs folder on a file system that fills in the second scene: the run stops at a scene boundary with one
+    ``error: disk full writing <path> (... free there, about ... needed)`` line and exit status
+    74, its rows kept and its manifest not finished; with space again, the same command resumes
+    to the uninterrupted run's rows, no model call repeated."""
+    if shutil.which("unshare") is None or os.geteuid() != 0:
+        pytest.skip("needs root and util-linux unshare to mount a small tmpfs privately")
+    ref_rows, ref_calls, _ = reference
+    home = _fresh_home(tmp_path, mini_root)
+    runs, keep = home / "runs", tmp_path / "kept"
+    runs.mkdir()
+    keep.mkdir()
+    full = _private_tmpfs_run(home, script, runs, f"{_room_for_1_5_scenes(reference)}k", PACED,
+                              keep)
+    assert full.returncode == 74, (full.returncode, full.stderr[-3000:])
+    errors = [ln for ln in full.stderr.splitlines() if ln.startswith("error:")]
+    assert len(errors) == 1 and "Traceback" not in full.stderr, full.stderr[-3000:]
+    assert errors[0].startswith("error: disk full writing ") and " needed" in errors[0]
+    assert "rerun the same command to resume" in errors[0]
+    (run_dir,) = keep.iterdir()
+    assert json.loads((run_dir / "manifest.json").read_text())["status"] != "finished"
+    kept = [json.loads(ln) for ln in (run_dir / "results.jsonl").read_text().splitlines()
+            if ln.endswith("}")]
+    assert len(kept) < 4
+
+    shutil.copytree(keep, runs, dirs_exist_ok=True)  # space again: the same command
+    done = subprocess.run([sys.executable, str(REPO / "tests" / "scripted_cli.py"), *PACED],
+                          cwd=REPO, env=_env(home, script), capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "resuming" in done.stderr
+    assert _comparable(_the_run(home)) == ref_rows
+    assert len(_calls(home)) == len(ref_calls)

@@ -511,8 +511,8 @@ def summary_metrics(summary: dict, clip: tuple[float, float] = (-1.0, 1.0)
         if own and m.get("mean_with_fallbacks") is not None:
             out[f"{name}_with_fallbacks"] = m["mean_with_fallbacks"]
     for stage, totals in (summary.get("usage") or {}).items():
-        for field in USAGE_FIELDS:
-            out[f"usage.{stage}.{field}"] = float(totals.get(field) or 0)
+        for name in USAGE_FIELDS:
+            out[f"usage.{stage}.{name}"] = float(totals.get(name) or 0)
     for key, judge in (summary.get("judges") or {}).items():
         out[f"judge.{key}.n_valid"] = float(judge["n_valid"])
         out[f"judge.{key}.n_invalid"] = float(judge["n_invalid"])

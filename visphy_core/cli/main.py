@@ -31,7 +31,8 @@ Commands:
 Anything else is a Hydra run: ``python -m visphy_core engine=threejs model=oracle dataset=mini``.
 
 Bad input (a config value, a missing dataset, a plugin that does not load, Chromium missing) is
-reported as one line, ``error: ...`` on stderr, exit status 2. ``--traceback`` (or
+reported as one line, ``error: ...`` on stderr, exit status 2; a fault of the machine (a full
+disk, a read-only or forbidden folder) likewise, exit status 74. ``--traceback`` (or
 ``VISPHY_TRACEBACK=1``) shows the full traceback instead, for debugging.
 """
 
@@ -51,7 +52,7 @@ from visphy_core.cli.help import (
     unknown_command,
 )
 from visphy_core.config.check import check_inputs, check_overrides
-from visphy_core.infra.errors import UserError
+from visphy_core.infra.errors import HostFault, UserError, describe_host_fault, host_fault
 
 #: A ValueError / FileNotFoundError raised below these (a dataset plugin loading or building its
 #: data) is about the user's dataset, not a bug.
@@ -107,11 +108,14 @@ def _in_dataset_loading(tb: TracebackType | None) -> bool:
 
 
 def is_user_error(exc: BaseException) -> bool:
-    """Whether ``exc`` is the user's input rather than a bug: a `UserError` (config errors
-    included), a plugin that fails to load, Chromium or the browser libraries missing, or a
+    """Whether ``exc`` is the user's input or machine rather than a bug: a `UserError` (config
+    errors included), a plugin that fails to load, Chromium or the browser libraries missing,
+    a fault of the machine (`host_fault`: a full disk, a read-only or forbidden folder), or a
     ValueError / FileNotFoundError raised by dataset loading (a missing root, unknown scene
     ids, an empty selection, a malformed index file)."""
     if isinstance(exc, UserError) or isinstance(exc, _external_user_errors()):
+        return True
+    if host_fault(exc) is not None:
         return True
     tb = exc.__traceback__
     if isinstance(exc, (FileNotFoundError, NotADirectoryError)) and _in_dataset_loading(tb):
@@ -126,8 +130,15 @@ def one_line(exc: BaseException) -> str:
 
 
 def report(exc: BaseException) -> int:
+    """Print ``exc`` as one ``error:`` line; its exit status (2, or the error's own
+    ``exit_code``: 74 for a fault of the machine)."""
+    fault = None if isinstance(exc, UserError) else host_fault(exc)
+    if fault is not None:
+        print(f"error: {describe_host_fault(fault)}; then rerun the same command",
+              file=sys.stderr)
+        return HostFault.exit_code
     print(f"error: {one_line(exc)}", file=sys.stderr)
-    return 2
+    return int(getattr(exc, "exit_code", 2))
 
 
 def no_options(name: str, description: str, argv: list[str]) -> None:

@@ -46,7 +46,7 @@ from visphy_core.calls.prompts.build import (
 from visphy_core.calls.references import ReferenceWriter
 from visphy_core.calls.usage import CostCapReached
 from visphy_core.infra.cache import Cache, CorruptEntry, content_key, read_json
-from visphy_core.infra.errors import SceneDataError, UserError, one_line
+from visphy_core.infra.errors import SceneDataError, UserError, host_fault, one_line
 from visphy_core.infra.events import StageEvents
 from visphy_core.infra.secrets import redact, redact_obj
 from visphy_core.infra.video import decode_video, encode_video, frame_digest, load_clip_for
@@ -98,6 +98,8 @@ def _safe_render(engine: Engine, program: Program, contract: RenderContract) -> 
     try:
         return engine.render(program, contract)
     except Exception as exc:  # noqa: BLE001 - engines must not abort the run
+        if host_fault(exc) is not None:  # the machine's fault: it stops the run (resumable)
+            raise
         return RenderResult(frames=None, failure=FailureClass.INFRA_ERROR,
                             error=one_line(f"{type(exc).__name__}: {exc}")[:2000])
 
@@ -377,9 +379,11 @@ def process_scene(scene: Scene, services: SceneServices, scene_dir: Path) -> Sce
 
     Never raises for a fault of this scene: a bad input of the scene is a ``data_error`` row
     (checked before the model is called), any other exception an ``infra_error`` row with the
-    exception type and message. Raises `CostCapReached` (the run stops before this scene; it is
-    redone on resume) and `ProviderRejectedKey` (every scene would fail). `BaseException`s that
-    are not `Exception`s (an interrupted run, Ctrl-C) propagate.
+    exception type and message. A fault of the machine (`host_fault`: a full disk, a read-only
+    or forbidden folder) is raised: it is no scene's, and the run stops, resumable. Raises
+    `CostCapReached` (the run stops before this scene; it is redone on resume) and
+    `ProviderRejectedKey` (every scene would fail). `BaseException`s that are not
+    `Exception`s (an interrupted run, Ctrl-C) propagate.
     """
     columns = score_columns_of(services.scoring())
     result = SceneResult(scene_id=scene.scene_id, dim=scene.dim, difficulty=scene.difficulty,
@@ -396,6 +400,8 @@ def process_scene(scene: Scene, services: SceneServices, scene_dir: Path) -> Sce
     except SceneDataError as exc:
         mark_not_evaluable(result, FailureClass.DATA_ERROR, str(exc))
     except Exception as exc:  # noqa: BLE001 - one scene's fault never aborts the run
+        if host_fault(exc) is not None:  # but a full disk is every scene's: the run stops
+            raise
         mark_not_evaluable(result, FailureClass.INFRA_ERROR, f"{type(exc).__name__}: {exc}")
     try:
         write_scores(scene_dir, result)
@@ -403,6 +409,8 @@ def process_scene(scene: Scene, services: SceneServices, scene_dir: Path) -> Sce
             {"fps": scene.clip.fps, "n_frames": scene.clip.n_frames, "width": scene.clip.width,
              "height": scene.clip.height, "frame_digests": result.frame_digests}, indent=1))
     except OSError as exc:
+        if host_fault(exc) is not None:
+            raise
         if result.failure_class is None or result.evaluable:
             mark_not_evaluable(result, FailureClass.INFRA_ERROR, f"{type(exc).__name__}: {exc}")
     return result

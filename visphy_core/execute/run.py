@@ -16,6 +16,7 @@ signal number (130 / 143).
 from __future__ import annotations
 
 import datetime as dt
+import errno
 import json
 import logging
 import os
@@ -50,7 +51,7 @@ from visphy_core.execute.scheduler import (
     work_order,
 )
 from visphy_core.infra.cache import Cache
-from visphy_core.infra.errors import ConfigError
+from visphy_core.infra.errors import ConfigError, HostFault, describe_host_fault, host_fault
 from visphy_core.infra.files import atomic_write
 from visphy_core.infra.heap import release_free_memory
 from visphy_core.infra.secrets import install_log_redaction, public_yaml
@@ -511,10 +512,15 @@ def _write_row(rows, result: SceneResult, ctx: RunContext) -> None:
     """Append the scene's row to results.jsonl (flushed, fsynced) and to the run's results.
     The row on disk and the row in memory go together: a signal between them would leave a
     summary that misses a row results.jsonl holds."""
+    line = jsonl_line(result)
     with _deferred_signals() as held:
-        rows.write(jsonl_line(result))
-        rows.flush()
-        os.fsync(rows.fileno())
+        try:
+            rows.write(line)
+            rows.flush()
+            os.fsync(rows.fileno())
+        except OSError as exc:  # what a "disk full" line names (infra/errors.py)
+            exc.visphy_path, exc.visphy_needed = rows.name, len(line.encode())
+            raise
         ctx.results.append(result)
     if held:
         raise RunInterrupted(held[0])
@@ -550,6 +556,52 @@ def _let_scenes_stop(scheduler: SceneScheduler) -> None:
         left = scheduler.join(STOP_WAIT_S)
         if left:
             log.warning("%d scene thread(s) still running after %.0f s", left, STOP_WAIT_S)
+
+
+class _ClosingWrites:
+    """The run's closing writes: a fault of the machine (a full disk) in one is recorded and
+    the others are still tried (the rows in results.jsonl are already safe); any other error
+    is raised."""
+
+    def __init__(self, faults: list[OSError]):
+        self.faults = faults
+
+    def do(self, write, *args, **kwargs) -> None:
+        try:
+            write(*args, **kwargs)
+        except OSError as exc:
+            fault = host_fault(exc)
+            if fault is None:
+                raise
+            self.faults.append(fault)
+
+
+def _tree_bytes(path: Path) -> int:
+    total = 0
+    for folder, _, names in os.walk(path):
+        for name in names:
+            try:
+                total += os.lstat(os.path.join(folder, name)).st_size
+            except OSError:
+                continue
+    return total
+
+
+def _host_fault_line(fault: OSError, run_dir: Path, results: list[SceneResult],
+                     scenes: list[Scene]) -> str:
+    """One line: the machine's refusal (`describe_host_fault`), what is kept, what the rest
+    of the run needs, and how to go on."""
+    left = len(scenes) - len(results)
+    need = ""
+    if results and left and fault.errno in (errno.ENOSPC, errno.EDQUOT):
+        per_scene = sum(_tree_bytes(run_dir / "scenes" / r.scene_id) for r in results) \
+            / len(results)
+        need = (f"; the {left} scene(s) left need about "
+                f"{max(per_scene * left, 1) / 2**20:.1f} MB in the run directory, plus the "
+                "cache's share")
+    what = "free some space" if fault.errno in (errno.ENOSPC, errno.EDQUOT) else "fix that"
+    return (f"{describe_host_fault(fault)}; {len(results)}/{len(scenes)} scenes kept in "
+            f"{run_dir}{need}: {what}, then rerun the same command to resume")
 
 
 def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledger) -> dict:
@@ -625,7 +677,9 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
             _let_scenes_stop(scheduler)
         order = {s.scene_id: i for i, s in enumerate(scenes)}
         ctx.results.sort(key=lambda r: order.get(r.scene_id, len(order)))
-        write_results(run_dir, ctx.results, jsonl=False)  # the lines were written as it went
+        faults: list[OSError] = [f for f in [host_fault(raised)] if f is not None]
+        closing = _ClosingWrites(faults)
+        closing.do(write_results, run_dir, ctx.results, jsonl=False)  # lines written as it went
         summary = summarise(ctx.results, metrics, cache, judge_keys, ledger,
                             services.protocol, services.headline)
         summary.update({"status": status, "run_dir": str(run_dir), "model": cfg.model.name,
@@ -647,16 +701,21 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
             summary["interrupted_by"] = signal.Signals(raised.signum).name
         elif status == FAILED:
             summary["error"] = f"{type(raised).__name__}: {raised}"
-        write_json(run_dir / "summary.json", summary)
+        closing.do(write_json, run_dir / "summary.json", summary)
+        if faults and status == FINISHED:  # the run's files are not all written: not finished
+            status = summary["status"] = FAILED
         manifest.update(status=status, ended=dt.datetime.now().isoformat(timespec="seconds"))
-        write_json(run_dir / "manifest.json", manifest)
+        closing.do(write_json, run_dir / "manifest.json", manifest)
         try:
             pm.hook.visphy_run_end(run=ctx, summary=summary)
         except Exception as exc:  # noqa: BLE001
-            if raised is None:
+            if raised is None and not faults:
                 raise
             log.warning("visphy_run_end failed while closing a %s run: %s", status, exc)
-        write_json(run_dir / "summary.json", summary)
+        closing.do(write_json, run_dir / "summary.json", summary)
+    if faults:
+        raise HostFault(_host_fault_line(faults[0], run_dir, ctx.results, scenes)) \
+            from (raised if raised is not None else faults[0])
     if status in (FINISHED, COST_CAP):
         print_summary(summary, ctx.results)
         print_where_to_look(write_report(run_dir), (summary.get("mlflow") or {}).get(

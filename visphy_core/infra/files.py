@@ -293,11 +293,13 @@ def atomic_write(path: str | Path, data: bytes | str, root: str | Path | None = 
         finally:
             os.close(fd)
         os.replace(tmp, name, src_dir_fd=dfd, dst_dir_fd=dfd)
-    except BaseException:
+    except BaseException as exc:
         try:
             os.unlink(tmp, dir_fd=dfd)
         except OSError:
             pass
+        if isinstance(exc, OSError):  # what a "disk full" line names (infra/errors.py)
+            exc.visphy_path, exc.visphy_needed = str(path), len(payload)
         raise
     finally:
         os.close(dfd)
