@@ -150,8 +150,8 @@ def open_store(cfg, root: Path):
     runs its migrations on first use) and the experiment looked up or created under an
     exclusive lock on ``mlflow.db.lock`` beside the file (`visphy_core.infra.locks`), so two
     processes never migrate the same file at once; the file is then switched to SQLite's
-    write-ahead log, and MLflow's own sessions wait for a busy database rather than fail. A
-    tracking server serialises its writers itself."""
+    write-ahead log (readers never wait for the writer). Every write of a run goes through
+    `store_lock` too. A tracking server serialises its writers itself."""
     os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
     from mlflow.tracking import MlflowClient
 
@@ -159,8 +159,7 @@ def open_store(cfg, root: Path):
     logging.getLogger("mlflow").setLevel(logging.WARNING)
     uri, artifacts = tracking_uris(cfg, root)
     db = sqlite_file(uri)
-    guard = exclusive(lock_path(db), f"the MLflow store {db}") if db else nullcontext()
-    with guard:
+    with store_lock(uri):
         client = MlflowClient(tracking_uri=uri)
         name = cfg.tracking.experiment
         exp = client.get_experiment_by_name(name)  # the store (and its schema) is made here
@@ -168,6 +167,15 @@ def open_store(cfg, root: Path):
             _prepare_sqlite(db)
         exp_id = exp.experiment_id if exp else _create_experiment(client, name, artifacts)
     return client, uri, exp_id
+
+
+def store_lock(uri: str):
+    """Exclusive use of a sqlite tracking store across processes (a no-op for a server). Each
+    process writes a run's records under it in one go: SQLite lets one writer in at a time,
+    and a transaction that read before another process wrote fails at once ("database is
+    locked") whatever the busy timeout, so writers take turns here instead."""
+    db = sqlite_file(uri)
+    return exclusive(lock_path(db), f"the MLflow store {db}") if db else nullcontext()
 
 
 def _create_experiment(client, name: str, artifacts: str | None) -> str:
@@ -261,11 +269,12 @@ def start_study_run(cfg, study: str, run_name: str, tags: dict[str, str],
                     params: dict[str, Any]) -> dict[str, str]:
     """Open a study's parent run; returns what its jobs need to become its children."""
     root = Path(cfg.paths.root).resolve()
-    client, uri, exp_id = open_store(cfg, root)
-    mlrun = client.create_run(exp_id, run_name=run_name,
-                              tags={"visphy.study": study, "visphy.role": "study", **tags,
-                                    **source_tags()})
-    log_params(client, mlrun.info.run_id, params)
+    with store_lock(tracking_uris(cfg, root)[0]):
+        client, uri, exp_id = open_store(cfg, root)
+        mlrun = client.create_run(exp_id, run_name=run_name,
+                                  tags={"visphy.study": study, "visphy.role": "study", **tags,
+                                        **source_tags()})
+        log_params(client, mlrun.info.run_id, params)
     return {"tracking_uri": uri, "run_id": mlrun.info.run_id, "experiment_id": exp_id,
             "experiment": str(cfg.tracking.experiment)}
 
@@ -290,21 +299,23 @@ def end_study_run(parent: dict[str, str], status: str, metrics: dict[str, float]
     artifact path) to the parent run and close it with MLflow status ``status``."""
     from mlflow.tracking import MlflowClient
 
-    client = MlflowClient(tracking_uri=parent["tracking_uri"])
-    run_id = parent["run_id"]
-    log_metrics(client, run_id, metrics)
-    for key, value in tags.items():
-        client.set_tag(run_id, key, value)
-    if table:
-        import pandas as pd
+    with store_lock(parent["tracking_uri"]):
+        client = MlflowClient(tracking_uri=parent["tracking_uri"])
+        run_id = parent["run_id"]
+        log_metrics(client, run_id, metrics)
+        for key, value in tags.items():
+            client.set_tag(run_id, key, value)
+        if table:
+            import pandas as pd
 
-        client.log_table(run_id, pd.DataFrame(table).rename(columns=table_column), STUDY_TABLE)
-    for path, artifact_path in artifacts:
-        if path.is_dir():
-            client.log_artifacts(run_id, str(path), artifact_path)
-        elif path.is_file():
-            client.log_artifact(run_id, str(path), artifact_path)
-    client.set_terminated(run_id, status=status)
+            client.log_table(run_id, pd.DataFrame(table).rename(columns=table_column),
+                             STUDY_TABLE)
+        for path, artifact_path in artifacts:
+            if path.is_dir():
+                client.log_artifacts(run_id, str(path), artifact_path)
+            elif path.is_file():
+                client.log_artifact(run_id, str(path), artifact_path)
+        client.set_terminated(run_id, status=status)
 
 
 def _study_parent(uri: str) -> tuple[dict, dict] | None:
@@ -378,6 +389,11 @@ def visphy_run_start(run):
 
 
 def _start(run) -> None:
+    with store_lock(tracking_uris(run.cfg, run.root)[0]):
+        _start_locked(run)
+
+
+def _start_locked(run) -> None:
     client, uri, exp_id = open_store(run.cfg, run.root)
     tags, run_name = _run_tags(run), run_display_name(run.cfg)
     study = _study_parent(uri)
@@ -557,7 +573,7 @@ def run_report(run_dir: Path) -> Path | None:
         return None
 
 
-def _log_run_files(client, run_id: str, run, summary: dict) -> None:
+def _log_run_files(client, run_id: str, run, summary: dict, report: Path | None) -> None:
     if run.results:
         client.log_table(run_id, scene_table(run.results, list(summary.get("metrics") or {})),
                          SCENE_TABLE)
@@ -565,7 +581,6 @@ def _log_run_files(client, run_id: str, run, summary: dict) -> None:
         path = run.run_dir / name
         if path.is_file():
             client.log_artifact(run_id, str(path))
-    report = run_report(run.run_dir)
     if report is not None:
         client.log_artifacts(run_id, str(report), "report")
     if run.cfg.tracking.get("log_videos"):
@@ -598,10 +613,16 @@ def visphy_run_end(run, summary):
 
 
 def _end(client, run_id: str, run, summary: dict) -> None:
+    report = run_report(run.run_dir)  # written before the store is locked: no store access
+    with store_lock(run.extra["mlflow"]["tracking_uri"]):
+        _end_locked(client, run_id, run, summary, report)
+
+
+def _end_locked(client, run_id: str, run, summary: dict, report: Path | None) -> None:
     log_metrics(client, run_id, summary_metrics(summary, headline_clip(run.cfg)))
     if summary.get("prompt_versions"):
         client.set_tag(run_id, "visphy.prompt_version", ",".join(summary["prompt_versions"]))
-    _log_run_files(client, run_id, run, summary)
+    _log_run_files(client, run_id, run, summary, report)
     status = _MLFLOW_STATUS.get(summary.get("status", "finished"), "FAILED")
     client.set_terminated(run_id, status=status)
     summary["mlflow"] = dict(run.extra["mlflow"], status=status)

@@ -303,6 +303,13 @@ def adopt_shard_runs(merged: dict, shards: list[Shard]) -> list[str]:
     """Make each shard's MLflow run (in the merged run's store) a child of the merged run; if
     they were all children of one run (a study's), the merged run becomes its child instead.
     Returns the shard run ids linked; a shard tracked elsewhere is named in a warning."""
+    from visphy_core.tracking import store_lock
+
+    with store_lock(merged["tracking_uri"]):
+        return _adopt_shard_runs(merged, shards)
+
+
+def _adopt_shard_runs(merged: dict, shards: list[Shard]) -> list[str]:
     from mlflow.tracking import MlflowClient
 
     client = MlflowClient(tracking_uri=merged["tracking_uri"])

@@ -32,23 +32,44 @@ def lock_path(guarded: str | Path) -> Path:
     return guarded / ".lock" if guarded.is_dir() else guarded.with_name(f"{guarded.name}.lock")
 
 
+#: Locks this process holds: path → (thread lock, depth). A lock is re-entrant within the
+#: process (a function holding it may call another that takes it) and held by one thread at a
+#: time; across processes it is the ``flock``.
+_HELD: dict[str, list] = {}
+_HELD_GUARD = threading.Lock()
+
+
 @contextmanager
 def exclusive(path: str | Path, what: str = "") -> Iterator[None]:
     """Hold an exclusive ``flock`` on ``path`` (created, with its folder, when missing) for the
     ``with`` block. Blocks until the lock is free; after `SAY_AFTER_S` seconds of waiting it
     prints one line naming ``what`` (default: the lock file) so a waiting command never looks
-    hung."""
+    hung. Re-entrant within a process."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-    try:
-        _acquire(fd, what or str(path))
+    key = os.path.abspath(path)
+    with _HELD_GUARD:
+        entry = _HELD.setdefault(key, [threading.RLock(), 0, None])
+    with entry[0]:
+        if entry[1] == 0:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            try:
+                _acquire(fd, what or str(path))
+            except BaseException:
+                os.close(fd)
+                raise
+            entry[2] = fd
+        entry[1] += 1
         try:
             yield
         finally:
-            fcntl.flock(fd, fcntl.LOCK_UN)
-    finally:
-        os.close(fd)
+            entry[1] -= 1
+            if entry[1] == 0:
+                fd, entry[2] = entry[2], None
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_UN)
+                finally:
+                    os.close(fd)
 
 
 def _acquire(fd: int, what: str) -> None:
