@@ -19,6 +19,7 @@ from visphy_core.results.layout import (
     SUMMARY,
     is_finished_run,
     is_run_dir,
+    run_status,
 )
 from visphy_core.results.load import load_run
 from visphy_core.results.row import SceneResult
@@ -42,9 +43,13 @@ def test_what_makes_a_folder_a_run(tmp_path):
     assert is_run_dir(hydra) and not is_finished_run(hydra)
     killed = tmp_path / "killed"
     killed.mkdir()
-    (killed / MANIFEST).write_text("{}")
+    (killed / MANIFEST).write_text('{"status": "running"}')
     assert is_run_dir(killed) and not is_finished_run(killed)
-    (killed / SUMMARY).write_text("{}")
+    for status in ("interrupted", "failed", "cost_cap"):  # closed, with a summary, incomplete
+        (killed / MANIFEST).write_text(json.dumps({"status": status}))
+        (killed / SUMMARY).write_text(json.dumps({"status": status}))
+        assert not is_finished_run(killed) and run_status(killed) == status
+    (killed / MANIFEST).write_text('{"status": "finished"}')
     assert is_finished_run(killed)
 
 
@@ -95,3 +100,22 @@ def test_a_killed_run_is_read_with_a_recomputed_summary(tmp_path):
         load_run(run, finished=True)
     with pytest.raises(UserError, match="not a visphy run directory"):
         load_run(tmp_path)
+
+
+def test_analyse_leaves_out_unfinished_runs_and_says_so(tmp_path, capsys):
+    from visphy_core.analysis.load import find_runs
+
+    for name, status in (("done", "finished"), ("stopped", "interrupted"),
+                         ("capped", "cost_cap")):
+        run_dir = tmp_path / "runs" / name
+        run_dir.mkdir(parents=True)
+        (run_dir / MANIFEST).write_text(json.dumps({"status": status}))
+        (run_dir / SUMMARY).write_text(json.dumps({"status": status}))
+    assert find_runs(tmp_path / "runs") == [(tmp_path / "runs" / "done").resolve()]
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith("left out 2 unfinished run(s) under ")
+    assert "capped (cost_cap), stopped (interrupted)" in line
+    with pytest.raises(UserError, match="the run is interrupted, not finished: rerun its"):
+        find_runs(tmp_path / "runs" / "stopped")
+    with pytest.raises(UserError, match="the run is interrupted, not finished"):
+        load_run(tmp_path / "runs" / "stopped", finished=True)

@@ -18,7 +18,14 @@ from typing import Any, Iterable
 from visphy_core.analysis.human import read_ratings
 from visphy_core.infra.errors import UserError
 from visphy_core.results import load as results_load
-from visphy_core.results.layout import RATINGS, SUMMARY, is_finished_run, is_run_dir
+from visphy_core.results.layout import (
+    MANIFEST,
+    RATINGS,
+    SUMMARY,
+    is_finished_run,
+    is_run_dir,
+    run_status,
+)
 from visphy_core.results.load import RunData
 
 #: Config keys that never tell two configurations apart (where files go, how the run is tracked
@@ -48,17 +55,33 @@ def find_runs(*paths: str | Path) -> list[Path]:
         if is_finished_run(path):
             found[path.resolve()] = None
             continue
+        if is_run_dir(path):
+            raise UserError(f"{path}: the run is {run_status(path)}, not finished: rerun its "
+                            "command to finish it (it resumes where it stopped)")
         under = sorted(p.parent for p in path.rglob(SUMMARY) if is_finished_run(p.parent))
         under += _study_runs(path)
-        if not under and is_run_dir(path):
-            raise UserError(f"{path}: the run did not finish (no {SUMMARY}): rerun its command "
-                            "to finish it (it resumes where it stopped)")
+        _say_unfinished(path)
         if not under:
             raise UserError(f"{path}: no finished run directory here (a finished run holds "
-                            f"{SUMMARY}); point at a run or a folder of runs")
+                            f"{SUMMARY} and the status finished); point at a run or a folder "
+                            "of runs")
         for p in under:
             found[p.resolve()] = None
     return list(found)
+
+
+def _say_unfinished(folder: Path) -> None:
+    """One line on stderr naming the run directories under ``folder`` left out because they
+    did not finish (interrupted, failed, stopped by the cost cap, killed or still running)."""
+    import sys
+
+    left = sorted({m.parent for name in (MANIFEST, SUMMARY) for m in folder.rglob(name)
+                   if is_run_dir(m.parent) and not is_finished_run(m.parent)})
+    if left:
+        named = ", ".join(f"{p.name} ({run_status(p)})" for p in left[:5])
+        more = f" and {len(left) - 5} more" if len(left) > 5 else ""
+        print(f"left out {len(left)} unfinished run(s) under {folder}: {named}{more} (rerun a "
+              "run's command to finish it)", file=sys.stderr)
 
 
 def _study_runs(folder: Path) -> list[Path]:

@@ -49,6 +49,27 @@ def is_run_dir(path: str | Path) -> bool:
     return (path / CONFIG).is_file() and (path / SCENES).is_dir()
 
 
+#: The one status of a complete run: every selected scene has its row, and the run's files
+#: are all written. Every other status (``running``: still going or killed, ``interrupted``,
+#: ``failed``, ``cost_cap``) is a run that rerunning its command resumes.
+COMPLETE = "finished"
+
+
+def run_status(path: str | Path) -> str:
+    """A run directory's status: its manifest's, else its summary's, else ``unknown``."""
+    import json
+
+    for name in (MANIFEST, SUMMARY):
+        try:
+            data = json.loads((Path(path) / name).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if isinstance(data, dict) and data.get("status"):
+            return str(data["status"])
+    return "unknown"
+
+
 def is_finished_run(path: str | Path) -> bool:
-    """A run directory that closed: it has its ``summary.json``."""
-    return is_run_dir(path) and (Path(path) / SUMMARY).is_file()
+    """A complete run directory: it has its ``summary.json`` and its status is `COMPLETE`."""
+    return (is_run_dir(path) and (Path(path) / SUMMARY).is_file()
+            and run_status(path) == COMPLETE)

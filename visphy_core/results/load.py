@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 from visphy_core.infra import files
 from visphy_core.infra.errors import UserError
 from visphy_core.results.layout import (
+    COMPLETE,
     CONFIG,
     MANIFEST,
     RESULTS_JSONL,
@@ -152,6 +153,10 @@ def load_run(run_dir: str | Path, *, finished: bool = False) -> RunData:
     if finished and not ((run_dir / RESULTS_JSONL).is_file()
                          or (run_dir / RESULTS_PARQUET).is_file()):
         raise UserError(f"{run_dir}: no {RESULTS_JSONL} or {RESULTS_PARQUET}")
+    status = str(manifest.get("status") or summary.get("status") or "unknown")
+    if finished and status != COMPLETE:
+        raise UserError(f"{run_dir}: the run is {status}, not {COMPLETE}: rerun its command "
+                        "to finish it (it resumes where it stopped)")
     results, skipped = read_results(run_dir)
     order = [str(s) for s in manifest.get("scenes") or []]
     position = {sid: i for i, sid in enumerate(order)}
