@@ -111,6 +111,7 @@ def test_analyse_leaves_out_unfinished_runs_and_says_so(tmp_path, capsys):
         run_dir.mkdir(parents=True)
         (run_dir / MANIFEST).write_text(json.dumps({"status": status}))
         (run_dir / SUMMARY).write_text(json.dumps({"status": status}))
+        (run_dir / RESULTS_JSONL).write_text("")
     assert find_runs(tmp_path / "runs") == [(tmp_path / "runs" / "done").resolve()]
     (line,) = capsys.readouterr().err.splitlines()
     assert line.startswith("left out 2 unfinished run(s) under ")
