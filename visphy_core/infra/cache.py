@@ -9,6 +9,17 @@ Integrity: the ``.complete`` marker of an entry holds the SHA-256 of every paylo
 not match, that misses a file, that predates digests, or whose payload does not parse (see
 `Cache.load`) is reported once as a warning naming its path, deleted and treated as a miss, so the
 stage recomputes it. A corrupt entry is never served.
+
+Sharing: any number of processes may use one cache (runs and studies sharing a home). Readers
+take no lock. Whatever changes the name of an entry — `Cache.put` swapping a new entry in,
+`Cache.drop` taking a bad one out — holds the ``flock`` of its bucket, ``<root>/<kind>/<ab>.lock``
+(beside the ``<ab>`` folder, so the folder holds entries only). A drop re-verifies (and, for
+`Cache.load`, re-parses) under the lock and keeps an entry that passes: a reader whose view
+straddled a concurrent swap never deletes the good entry another process just wrote. One lock per
+bucket, not per entry: at most 256 lock files per kind however large the cache grows (a lock
+file cannot be deleted safely while others may wait on it, so per-entry locks would stay behind,
+one per entry ever dropped), and the lock is held only for renames (payloads are written and
+hashed before it is taken), so unrelated keys of one bucket wait on each other for microseconds.
 """
 
 from __future__ import annotations
@@ -17,13 +28,16 @@ import hashlib
 import json
 import logging
 import os
+import secrets
 import shutil
 import tempfile
 from collections import Counter
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import Any, Callable, TypeVar
 
 from visphy_core.infra import files as files_mod
+from visphy_core.infra.locks import exclusive
 
 log = logging.getLogger("visphy.cache")
 
@@ -106,7 +120,10 @@ class Cache:
                 raise TypeError("files is not an object")
         except (UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
             return f"unreadable marker ({type(exc).__name__})"
-        present = {p.name for p in entry.iterdir() if p.name != MARKER}
+        try:  # a concurrent writer's swap may move the entry away while it is read
+            present = {p.name for p in entry.iterdir() if p.name != MARKER}
+        except OSError as exc:
+            return f"unreadable entry ({exc.strerror or exc})"
         extra = present - set(files)
         if extra:
             return f"unexpected file(s) {', '.join(sorted(extra))}"
@@ -122,20 +139,29 @@ class Cache:
                 return f"digest mismatch in {name}"
         return None
 
-    def drop(self, kind: str, entry: Path, reason: str) -> None:
-        """Report a bad entry once (naming its path), delete it and count it."""
+    def drop(self, kind: str, entry: Path, reason: str) -> bool:
+        """Delete a bad entry, report it once (naming its path) and count it; False when it was
+        kept instead: under the bucket's lock it verifies (a concurrent writer replaced it
+        after the caller judged it, or the caller's reads straddled that writer's swap)."""
+        return self._drop(kind, entry, reason, lambda e: self.verify(e) is None)
+
+    def _drop(self, kind: str, entry: Path, reason: str, good: Callable[[Path], bool]) -> bool:
+        """`drop`, keeping the entry when ``good(entry)`` holds under the lock (where no writer
+        can change it); True when it was dropped, or was gone already."""
+        with self._bucket_lock(entry):
+            if good(entry):
+                return False
+            trash = self._move_aside(entry, "drop")
+        if trash is None:  # gone already: whoever removed it has reported it
+            return True
         if entry not in self._reported:
             self._reported.add(entry)
             message = f"cache entry {entry} is corrupt ({reason}): dropped, recomputing"
             self.warnings.append(message)
             log.warning(message)
         self.dropped[kind] += 1
-        trash = entry.with_name(f".drop.{entry.name}.{os.getpid()}")
-        try:
-            os.replace(entry, trash)
-        except OSError:
-            trash = entry
-        shutil.rmtree(trash, ignore_errors=True)
+        _remove(trash)
+        return True
 
     # ------------------------------------------------------------------ reads
     def get(self, kind: str, key: str) -> Path | None:
@@ -143,10 +169,9 @@ class Cache:
         entry = self.path(kind, key)
         if self.enabled and entry.is_dir():
             reason = self.verify(entry)
-            if reason is None:
+            if reason is None or not self.drop(kind, entry, reason):
                 self.hits[kind] += 1
                 return entry
-            self.drop(kind, entry, reason)
         self.misses[kind] += 1
         return None
 
@@ -154,7 +179,9 @@ class Cache:
         """``parse(entry)`` of a verified entry, or None (a miss).
 
         The one place cached payloads are decoded: any exception ``parse`` raises (a
-        `CorruptEntry`, a decode error, a missing key) drops the entry and makes it a miss.
+        `CorruptEntry`, a decode error, a missing key) drops the entry and makes it a miss —
+        unless, under the bucket's lock, the entry verifies and parses: its first reading met a
+        concurrent writer's swap, and what that reading returns under the lock is served.
         """
         entry = self.get(kind, key)
         if entry is None:
@@ -162,54 +189,85 @@ class Cache:
         try:
             return parse(entry)
         except Exception as exc:  # noqa: BLE001 - anything unparseable is a corrupt entry
-            self.hits[kind] -= 1
-            self.misses[kind] += 1
-            self.drop(kind, entry, f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}")
-            return None
+            reason = f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}"
+        parsed: list[T] = []
+
+        def good(path: Path) -> bool:
+            if self.verify(path) is not None:
+                return False
+            try:
+                parsed.append(parse(path))
+            except Exception:  # noqa: BLE001 - still unparseable: corrupt
+                return False
+            return True
+
+        if not self._drop(kind, entry, reason, good):
+            return parsed[0]
+        self.hits[kind] -= 1
+        self.misses[kind] += 1
+        return None
 
     # ------------------------------------------------------------------ writes
     def put(self, kind: str, key: str, files: dict[str, bytes | str | Path]) -> Path:
         """Store named files atomically with their digests, replacing any existing entry (a
         fresh result always wins: ``run.cache=false`` recomputes and replaces); returns the
-        entry directory."""
+        entry directory. The payload is written and hashed in a temporary folder; only the
+        swap (old entry aside, new one in) holds the bucket's lock, so concurrent writers of
+        one key end with one whole entry, the last one's."""
         entry = self.path(kind, key)
         entry.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{key[:8]}.", dir=entry.parent))
         try:
-            digests = {}
-            for name, content in files.items():
-                if name == MARKER or "/" in name or name.startswith("."):
-                    raise ValueError(f"invalid cache file name {name!r}")
-                target = tmp / name
-                if isinstance(content, Path):
-                    shutil.copyfile(content, target)
-                elif isinstance(content, str):
-                    target.write_bytes(content.encode("utf-8"))
-                else:
-                    target.write_bytes(content)
-                digests[name] = file_digest(target)
-            with open(tmp / MARKER, "w") as fh:
-                json.dump({"format": FORMAT, "files": digests}, fh, sort_keys=True)
-                fh.flush()
-                os.fsync(fh.fileno())
-            if entry.exists():
-                old = entry.with_name(f".old.{entry.name}.{os.getpid()}")
-                shutil.rmtree(old, ignore_errors=True)
+            self._fill(tmp, files)
+            with self._bucket_lock(entry):
+                old = self._move_aside(entry, "old")
                 try:
-                    os.replace(entry, old)
-                except FileNotFoundError:
-                    pass
-                shutil.rmtree(old, ignore_errors=True)
-            try:
-                os.replace(tmp, entry)
-            except OSError:  # a concurrent writer got there first: keep its entry
-                if not (entry / MARKER).is_file():
+                    os.replace(tmp, entry)
+                except BaseException:
+                    if old is not None:  # put the previous entry back
+                        os.replace(old, entry)
                     raise
-                shutil.rmtree(tmp, ignore_errors=True)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
+        _remove(old)
         return entry
+
+    @staticmethod
+    def _fill(tmp: Path, files: dict[str, bytes | str | Path]) -> None:
+        """Write the payload files into ``tmp``, then the marker with their digests."""
+        digests = {}
+        for name, content in files.items():
+            if name == MARKER or "/" in name or name.startswith("."):
+                raise ValueError(f"invalid cache file name {name!r}")
+            target = tmp / name
+            if isinstance(content, Path):
+                shutil.copyfile(content, target)
+            elif isinstance(content, str):
+                target.write_bytes(content.encode("utf-8"))
+            else:
+                target.write_bytes(content)
+            digests[name] = file_digest(target)
+        with open(tmp / MARKER, "w") as fh:
+            json.dump({"format": FORMAT, "files": digests}, fh, sort_keys=True)
+            fh.flush()
+            os.fsync(fh.fileno())
+
+    @staticmethod
+    def _move_aside(entry: Path, why: str) -> Path | None:
+        """Rename whatever is at ``entry`` to an unused hidden name in its bucket, for the
+        caller to delete outside the lock; None when nothing is there. Caller holds the lock."""
+        if not os.path.lexists(entry):
+            return None
+        aside = entry.with_name(f".{why}.{entry.name[:8]}.{os.getpid()}.{secrets.token_hex(6)}")
+        os.replace(entry, aside)
+        return aside
+
+    @staticmethod
+    def _bucket_lock(entry: Path) -> AbstractContextManager[None]:
+        """The lock of ``entry``'s bucket: ``<root>/<kind>/<ab>.lock``."""
+        bucket = entry.parent
+        return exclusive(bucket.with_name(f"{bucket.name}.lock"), f"the cache folder {bucket}")
 
     def stats(self) -> dict[str, dict[str, int]]:
         kinds = sorted(set(self.hits) | set(self.misses) | set(self.dropped))
@@ -218,3 +276,13 @@ class Cache:
             if self.dropped[k]:
                 out[k]["dropped"] = self.dropped[k]
         return out
+
+
+def _remove(path: Path | None) -> None:
+    """Delete a moved-aside entry: a folder's tree, or the file or link planted in its place."""
+    if path is None:
+        return
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)

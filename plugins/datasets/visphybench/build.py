@@ -8,12 +8,28 @@ last: its presence means the scene is complete). ``metadata.jsonl``, ``difficult
 and the datasheet are rewritten after every build; the contact sheet and preview once every
 scene is rendered. Scenes are rendered on demand, so ``split=mini`` renders four scenes, and an
 interrupted build resumes where it stopped. Nothing depends on the clock: builds are byte-identical.
+
+Any number of processes may build into one root at once (runs, studies, ``visphy build-dataset``
+sharing a home). Each once-only step happens under an ``flock`` (`exclusive`) and is checked
+again inside it, so whoever comes next finds it done and only reads:
+
+- ``catalogue.json.lock``: simulating and writing the catalogue (one process simulates);
+- ``meta/<id>.json.lock``: rendering that scene. A lock per scene, not per build: a process that
+  needs four scenes waits only for those four, never for another process's 209-scene build, and
+  two concurrent full builds each skip what the other has finished;
+- ``build_times.json.lock``: the read-modify-write of ``build_times.json``;
+- ``metadata.jsonl.lock``: reading every ``meta/<id>.json`` and writing the indexes from them
+  (``metadata.jsonl``, ``difficulty_table.json``, the datasheet, contact sheet and preview). Each
+  is a deterministic function of the catalogue and the scenes present, written by atomic
+  replace, so no reader sees a torn file; the lock makes the last writer one that saw every
+  scene rendered before it, so a slower process never overwrites a longer index with a shorter.
 """
 
 from __future__ import annotations
 
 import io
 import json
+import logging
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -21,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from visphy_core.api.media import PUBLISHED_CRF, png_bytes
-from visphy_core.api.storage import atomic_write
+from visphy_core.api.storage import atomic_write, exclusive, lock_path
 from visphy_plugins.datasets.visphybench.catalogue import (
     GENERATOR_VERSION,
     Catalogue,
@@ -37,6 +53,10 @@ DATASET_NAME = "visphybench"
 #: What the published clips are (H.264 yuv420p, crf 23); ``lossless`` builds are exact RGB
 #: (for engine conformance: a reference program can then be compared pixel for pixel).
 GT_CRF = PUBLISHED_CRF
+
+log = logging.getLogger("visphy.bench")
+#: Why `_read_catalogue` found no catalogue, besides an unreadable file.
+_MISSING, _STALE = "missing", "stale"
 
 
 def dataset_root(data_dir: Path, seed: int = 0, version: int = GENERATOR_VERSION,
@@ -71,16 +91,50 @@ def _npz_bytes(rollout, dim: str) -> bytes:
 
 def load_or_build_catalogue(root: Path, seed: int, progress: bool = True,
                             workers: int = 2) -> Catalogue:
+    """The catalogue of ``root``, simulated and written once per root: under its lock, and
+    checked again inside it, so of concurrent callers one builds and the others read its file.
+    A ``catalogue.json`` of another builder version or seed is rebuilt (its scenes with it); one
+    that does not parse is named in one warning and rebuilt (it is a deterministic function of
+    the generator, so the scenes already rendered stay valid)."""
     path = root / "catalogue.json"
-    if path.is_file():
-        data = json.loads(path.read_text())
-        if data.get("builder") == BUILDER_VERSION and data.get("seed") == seed:
-            entries = [Entry(spec=s["spec"], digest=s["digest"], attempts=s["attempts"],
-                             rejected=s["rejected"]) for s in data["scenes"]]
-            return Catalogue(seed=seed, entries=entries, rejected=data["rejected"],
-                             splits=data["splits"])
-        for stale in (root / "meta").glob("*.json"):  # built by another builder version
-            stale.unlink()
+    found = _read_catalogue(path, seed)
+    if isinstance(found, Catalogue):
+        return found
+    with exclusive(lock_path(path), f"the benchmark catalogue {path}"):
+        found = _read_catalogue(path, seed)
+        if isinstance(found, Catalogue):  # another process built it while this one waited
+            return found
+        if found == _STALE:
+            for stale in (root / "meta").glob("*.json"):  # built by another builder version
+                stale.unlink()
+        elif found != _MISSING:
+            log.warning("%s is unreadable (%s): rebuilding it from the generator", path, found)
+        return _build_catalogue_file(root, path, seed, progress, workers)
+
+
+def _read_catalogue(path: Path, seed: int) -> Catalogue | str:
+    """The catalogue in ``path``, or why not: `_MISSING`, `_STALE` (another builder version or
+    seed), else what is wrong with the file (truncated, garbage, not a catalogue)."""
+    try:
+        data = json.loads(path.read_bytes())
+    except FileNotFoundError:
+        return _MISSING
+    except (OSError, ValueError) as exc:
+        return f"{type(exc).__name__}: {' '.join(str(exc).split())[:200]}"
+    try:
+        if data.get("builder") != BUILDER_VERSION or data.get("seed") != seed:
+            return _STALE
+        entries = [Entry(spec=s["spec"], digest=s["digest"], attempts=s["attempts"],
+                         rejected=s["rejected"]) for s in data["scenes"]]
+        return Catalogue(seed=seed, entries=entries, rejected=data["rejected"],
+                         splits=data["splits"])
+    except (AttributeError, KeyError, TypeError) as exc:
+        return f"not a catalogue: {type(exc).__name__}: {' '.join(str(exc).split())[:200]}"
+
+
+def _build_catalogue_file(root: Path, path: Path, seed: int, progress: bool,
+                          workers: int) -> Catalogue:
+    """Simulate the catalogue and write it atomically (the caller holds its lock)."""
     start = time.perf_counter()
     catalogue = build_catalogue(seed=seed, workers=workers, progress=progress)
     atomic_write(path, json_bytes({
@@ -93,10 +147,22 @@ def load_or_build_catalogue(root: Path, seed: int, progress: bool = True,
 
 
 def _note_time(root: Path, key: str, seconds: float) -> None:
+    """Record one build time in ``build_times.json``: a read-modify-write, so under its lock
+    (concurrent builds each add their own key, none is lost)."""
     path = root / "build_times.json"
-    times = json.loads(path.read_text()) if path.is_file() else {}
-    times[key] = round(seconds, 2)
-    atomic_write(path, json_bytes(times))
+    with exclusive(lock_path(path), str(path)):
+        times = _read_times(root)
+        times[key] = round(seconds, 2)
+        atomic_write(path, json_bytes(times))
+
+
+def _read_times(root: Path) -> dict:
+    """``build_times.json``; empty when missing or unreadable (it only informs the datasheet)."""
+    try:
+        times = json.loads((root / "build_times.json").read_bytes())
+    except (OSError, ValueError):
+        return {}
+    return times if isinstance(times, dict) else {}
 
 
 # ------------------------------------------------------------------------------ one scene
@@ -201,9 +267,27 @@ def _count(items) -> dict[str, int]:
     return dict(sorted(out.items()))
 
 
-def _write_2d(args: tuple[Entry, str, bool]) -> dict:
+def _meta_path(root: Path, entry: Entry) -> Path:
+    """``meta/<id>.json``: written last, its presence means the scene is complete."""
+    return root / "meta" / f"{entry.spec['scene_id']}.json"
+
+
+def _render_missing(entry: Entry, root: Path, pool=None, lossless: bool = False) -> dict | None:
+    """`write_scene` unless the scene is complete; returns its meta, or None when it was. Under
+    the scene's lock, checked again inside it: of processes rendering one scene at once, one
+    writes it and the others find its meta and skip it."""
+    meta = _meta_path(root, entry)
+    if meta.is_file():
+        return None
+    with exclusive(lock_path(meta), f"scene {entry.spec['scene_id']} of {root}"):
+        if meta.is_file():
+            return None
+        return write_scene(entry, root, pool, lossless=lossless)
+
+
+def _write_2d(args: tuple[Entry, str, bool]) -> dict | None:
     entry, root, lossless = args
-    return write_scene(entry, Path(root), lossless=lossless)
+    return _render_missing(entry, Path(root), lossless=lossless)
 
 
 # ------------------------------------------------------------------------------ whole builds
@@ -223,22 +307,33 @@ def _render(entries: list[Entry], root: Path, progress: bool, workers: int,
                     pass
         else:
             for e in _track(two_d, len(two_d), "rendering 2D scenes", progress):
-                write_scene(e, root, lossless=lossless)
+                _render_missing(e, root, lossless=lossless)
     if three_d:
         from visphy_core.api.sandbox import BrowserPool
 
         with BrowserPool(untrusted=False) as pool:  # visphy's own reference pages
             for e in _track(three_d, len(three_d), "rendering 3D scenes", progress):
-                write_scene(e, root, pool, lossless=lossless)
+                _render_missing(e, root, pool, lossless=lossless)
 
 
 def _built_metas(root: Path, catalogue: Catalogue) -> list[dict]:
     metas = []
     for e in catalogue.entries:
-        path = root / "meta" / f"{e.spec['scene_id']}.json"
+        path = _meta_path(root, e)
         if path.is_file():
             metas.append(json.loads(path.read_text()))
     return metas
+
+
+def _update_indexes(root: Path, catalogue: Catalogue) -> None:
+    """Rewrite the indexes from the scenes present now, under the indexes' lock: the scenes
+    read and the files written are one step, so the last writer has seen every scene that any
+    earlier writer saw."""
+    with exclusive(lock_path(root / "metadata.jsonl"), f"the indexes of {root}"):
+        times = _read_times(root)
+        full_build = (times.get("catalogue_s", 0.0) + times["render_all_s"]
+                      if "render_all_s" in times else None)
+        _write_indexes(root, catalogue, _built_metas(root, catalogue), full_build)
 
 
 def _write_indexes(root: Path, catalogue: Catalogue, metas: list[dict],
@@ -289,17 +384,12 @@ def build_dataset(data_dir: Path, seed: int = 0, split: str | None = None,
                                                      for e in catalogue.entries}) & set(scenes)
     todo = [e for e in catalogue.entries
             if (wanted is None or e.spec["scene_id"] in wanted)
-            and not (root / "meta" / f"{e.spec['scene_id']}.json").is_file()]
+            and not _meta_path(root, e).is_file()]
     if todo:
         _render(todo, root, progress, workers, lossless=lossless)
         if not scenes:  # a few scenes' time is no split's build time
             _note_time(root, f"render_{split or 'all'}_s", time.perf_counter() - start)
-    metas = _built_metas(root, catalogue)
-    times = json.loads((root / "build_times.json").read_text()) if (
-        root / "build_times.json").is_file() else {}
-    full_build = times.get("catalogue_s", 0.0) + times["render_all_s"] \
-        if "render_all_s" in times else None
-    _write_indexes(root, catalogue, metas, full_build)
+    _update_indexes(root, catalogue)
     return root
 
 
