@@ -186,10 +186,36 @@ def test_a_signal_writes_a_partial_summary_and_the_rerun_resumes(
     assert json.loads((run_dir / "manifest.json").read_text())["status"] == "interrupted"
     assert len(pd.read_parquet(run_dir / "results.parquet")) == summary["n_scenes"]
 
-    _run(home, script)
+    # SIGINT: the same command finds the run (run.resume=auto); SIGTERM: named by its path
+    _run(home, script, PACED if sig == signal.SIGINT else [*PACED, f"run.resume={run_dir}"])
     assert _comparable(_the_run(home)) == ref_rows
     assert len(_calls(home)) == len(ref_calls)
     assert json.loads((run_dir / "summary.json").read_text())["status"] == "finished"
+
+
+def test_run_resume_names_the_run_or_refuses_in_one_line(tmp_path):
+    from visphy_core.infra.errors import ConfigError
+    from visphy_core.results.run_dir import RunLock, claim_run_dir
+
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    manifest = run_dir / "manifest.json"
+    for status, chash, match in (("finished", "h", "that run is finished"),
+                                 ("interrupted", "other", "config differs")):
+        manifest.write_text(json.dumps({"status": status, "config_hash": chash}))
+        with pytest.raises(ConfigError, match=match):
+            claim_run_dir(run_dir, "h")
+    manifest.write_text(json.dumps({"status": "interrupted", "config_hash": "h"}))
+    held = RunLock(run_dir)
+    assert held.acquire()
+    with pytest.raises(ConfigError, match="another process is working in it"):
+        claim_run_dir(run_dir, "h")
+    held.release()
+    claimed, lock = claim_run_dir(run_dir, "h")
+    assert claimed == run_dir.resolve()
+    lock.release()
+    with pytest.raises(ConfigError, match="not a run directory"):
+        claim_run_dir(tmp_path / "nowhere", "h")
 
 
 def test_a_finished_run_is_not_resumed(tmp_path, mini_root, script, reference):

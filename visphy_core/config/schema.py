@@ -67,6 +67,10 @@ class RunConfig:
     # Scenes rendered or scored at once (visphy_core.execute.scheduler): auto (the usable cores, as
     # many as the available memory holds) or a whole number ≥ 1. Rows do not depend on it.
     workers: str = "auto"
+    # Which unfinished run this command continues: auto (the newest one with this command's
+    # config that no process holds), never (always a new run directory), or the path of a
+    # run directory (that one: same config, not finished, not in use).
+    resume: str = "auto"
 
 
 class ReferenceSource(StrEnum):

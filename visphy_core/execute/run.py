@@ -64,6 +64,7 @@ from visphy_core.results.run_dir import (
     INTERRUPTED,
     RUNNING,
     RunLock,
+    claim_run_dir,
     config_hash,
     find_resumable,
     new_run_dir,
@@ -361,7 +362,9 @@ def run_experiment(cfg: DictConfig) -> dict:
     engine = registry.get("engines", cfg.engine.name)(cfg.engine)
     metrics = select_metrics(registry, cfg.metrics)
     chash = config_hash(cfg)
-    found = find_resumable(runs_dir, chash)
+    resume = str(cfg.run.get("resume") or "auto")
+    found = (None if resume == "never" else find_resumable(runs_dir, chash)
+             if resume == "auto" else claim_run_dir(Path(resume), chash))
     extra: dict[str, Any] = {"config_hash": chash, "isolation": isolation,
                              "model": model.describe(),
                              "workers": {"workers": workers, "torch_threads": torch_threads}}

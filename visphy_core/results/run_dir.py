@@ -30,13 +30,13 @@ def config_hash(cfg: DictConfig) -> str:
     """Hash of everything that changes a run's rows: the config without where things are written
     (``paths``), without the keys that only change how the run looks or is paced
     (``run.progress``, ``run.cache``, ``run.cost_cap_usd``, ``run.prefetch``,
-    ``run.workers``) and without the
+    ``run.workers``, ``run.resume``) and without the
     transport settings of models and judges (`TRANSPORT_KEYS`: a fake server on another port,
     a longer timeout). Two commands with the same hash produce the same rows."""
     resolved = OmegaConf.to_container(cfg, resolve=True)
     resolved.pop("paths", None)
     run = dict(resolved.pop("run", None) or {})
-    for key in ("progress", "cache", "cost_cap_usd", "prefetch", "workers"):
+    for key in ("progress", "cache", "cost_cap_usd", "prefetch", "workers", "resume"):
         run.pop(key, None)
     resolved["run"] = run
     for node in [resolved.get("model"), *(resolved.get("judge") or {}).values()]:
@@ -111,6 +111,28 @@ def find_resumable(runs_dir: Path, chash: str) -> tuple[Path, RunLock] | None:
         if lock.acquire():
             return run_dir, lock
     return None
+
+
+def claim_run_dir(run_dir: Path, chash: str) -> tuple[Path, RunLock]:
+    """``run.resume=<run_dir>``: that run directory, locked, when it is an unfinished run of
+    this config that no process holds; `ConfigError` (one line) otherwise."""
+    from visphy_core.infra.errors import ConfigError
+
+    run_dir = Path(run_dir).expanduser().resolve()
+    try:
+        manifest = json.loads((run_dir / "manifest.json").read_text())
+    except (OSError, ValueError):
+        raise ConfigError(f"run.resume={run_dir}: not a run directory with a readable "
+                          "manifest.json") from None
+    if not isinstance(manifest, dict) or manifest.get("config_hash") != chash:
+        raise ConfigError(f"run.resume={run_dir}: that run's config differs from this "
+                          "command's; resume it with its own command (its config.yaml)")
+    if manifest.get("status", FINISHED) == FINISHED:
+        raise ConfigError(f"run.resume={run_dir}: that run is finished; nothing to resume")
+    lock = RunLock(run_dir)
+    if not lock.acquire():
+        raise ConfigError(f"run.resume={run_dir}: another process is working in it")
+    return run_dir, lock
 
 
 def read_rows(path: Path, scene_ids: list[str]) -> list[SceneResult]:
