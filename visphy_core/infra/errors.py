@@ -35,7 +35,11 @@ def one_line(text: object) -> str:
 #: What a machine, not a scene or a model, does wrong: a full disk or quota, a read-only file
 #: system, a folder visphy may not write. Every scene after it would fail the same way, so it
 #: stops the run (resumable) instead of becoming a row.
-HOST_FAULT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES})
+HOST_FAULT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES,
+                               errno.EPERM})
+#: Of those, the ones that are the machine's only when a file operation raised them (the
+#: error names a file): a refused namespace or signal is the sandbox's business, not this.
+FILE_ONLY_ERRNOS = frozenset({errno.EACCES, errno.EPERM})
 
 
 class HostFault(UserError):
@@ -51,7 +55,9 @@ def host_fault(exc: BaseException | None) -> OSError | None:
     seen: set[int] = set()
     while exc is not None and id(exc) not in seen:
         seen.add(id(exc))
-        if isinstance(exc, OSError) and exc.errno in HOST_FAULT_ERRNOS:
+        if isinstance(exc, OSError) and exc.errno in HOST_FAULT_ERRNOS and (
+                exc.errno not in FILE_ONLY_ERRNOS
+                or exc.filename or getattr(exc, "visphy_path", None)):
             return exc
         exc = exc.__cause__ or exc.__context__
     return None
