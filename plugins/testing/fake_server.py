@@ -207,14 +207,19 @@ class FakeProviderServer:
     def _send(self, handler: BaseHTTPRequestHandler, code: int, payload: bytes,
               headers: dict[str, str] | None = None, content_type: str = "application/json"
               ) -> None:
-        handler.send_response(code)
-        handler.send_header("content-type", content_type)
-        handler.send_header("content-length", str(len(payload)))
-        for k, v in (headers or {}).items():
-            handler.send_header(k, v)
-        handler.end_headers()
-        handler.wfile.write(payload)
-        handler.wfile.flush()
+        try:
+            handler.send_response(code)
+            handler.send_header("content-type", content_type)
+            handler.send_header("content-length", str(len(payload)))
+            for k, v in (headers or {}).items():
+                handler.send_header(k, v)
+            handler.end_headers()
+            handler.wfile.write(payload)
+            handler.wfile.flush()
+        except ConnectionError:
+            # The client hung up first (a ``delay`` past its timeout): nobody reads this
+            # reply. Without this the server thread's traceback lands on the test's stderr.
+            handler.close_connection = True
 
     def _serve(self, handler: BaseHTTPRequestHandler, req: Recorded) -> None:
         other = None if self.handles(req) else self.other(req)

@@ -59,6 +59,16 @@ class CallError(Exception):
         return f"{self.kind.value}{status}: {' '.join(str(self).split())[:500]}"
 
 
+def kind_of_description(text: str | None) -> CallErrorKind | None:
+    """The kind a `CallError.describe` text starts with (``"rate_limit HTTP 429: ..."``, the
+    ``failure_detail`` of a ``model_error`` row), or None for text in another format."""
+    head = (text or "").split(":", 1)[0].split(" ", 1)[0].strip()
+    try:
+        return CallErrorKind(head)
+    except ValueError:
+        return None
+
+
 def kind_for_status(status: int) -> CallErrorKind:
     """The error kind of an HTTP status code."""
     if status == 429:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 import threading
 import time
+from collections import Counter
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
@@ -22,6 +23,7 @@ from rich.progress import (
 from rich.table import Table
 from rich.text import Text
 
+from visphy_core.calls.retry import RETRYABLE, kind_of_description
 from visphy_core.infra.events import STAGES, StageEvents
 from visphy_core.tracking import mlflow_command
 
@@ -223,7 +225,8 @@ def split_column(name: str) -> tuple[str, str]:
 
 
 def print_summary(summary: dict, results: list, calls_heading: str | None = None) -> None:
-    """Per-scene table, then metric means with their denominators, then failures and cache.
+    """Per-scene table, then metric means with their denominators, then failures and cache;
+    last, on stderr, the `provider_failures_line` when a provider failed some scenes.
     ``calls_heading``: a line before the model/judge call lines (a re-score says they are the
     run's, the original run's calls included). Nothing is cut: see `summary_console`."""
     console = summary_console()
@@ -336,3 +339,37 @@ def print_summary(summary: dict, results: list, calls_heading: str | None = None
         console.print(f"judge {key}: {j['n_valid']} valid verdict(s), {j['n_invalid']} invalid"
                       + (f" {j['invalid']}" if j["invalid"] else ""))
     console.print(f"run directory: {summary['run_dir']}", soft_wrap=True)
+    line = provider_failures_line(summary, results)
+    if line:
+        print(line, file=sys.stderr, flush=True)
+
+
+def provider_failures_line(summary: dict, results: list) -> str | None:
+    """One line for the scenes a provider failed after its retries (``model_error`` rows), by
+    error kind, and what to do: the transient kinds (`RETRYABLE`) may go away on a rerun, which
+    calls the provider again for those scenes only (every reply already received is answered by
+    the cache); a rerun sends the others' requests as they were. ``other``: a detail that names
+    no kind (a model that is no provider API). None when no scene failed so.
+
+    A re-score or a merge (``rescored_from`` / ``merged_from`` in ``summary``) shows the rows of
+    earlier runs: it is the command of the run they come from that retries them."""
+    kinds = Counter((kind_of_description(r.failure_detail) or "other")
+                    for r in results if r.failure_class == "model_error")
+    if not kinds:
+        return None
+    n = sum(kinds.values())
+    named = ", ".join(f"{kind} ×{count}" for kind, count in sorted(kinds.items()))
+    command = ("command of the run these rows come from"
+               if summary.get("rescored_from") or summary.get("merged_from")
+               else "same command")
+    transient = sum(c for k, c in kinds.items() if k in RETRYABLE)
+    advice = []
+    if transient:
+        which = "them" if transient == n else f"the {transient} transient one(s)"
+        advice.append(f"rerun the {command} to retry {which}; replies already received are "
+                      "cached")
+    if transient < n:
+        lasting = ", ".join(k for k in sorted(kinds) if k not in RETRYABLE)
+        advice.append(f"{lasting}: not a transient kind, see each row's failure_detail")
+    return (f"{n} scene{'s' if n != 1 else ''} failed on provider errors ({named}): "
+            + "; ".join(advice))
