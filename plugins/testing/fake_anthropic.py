@@ -5,7 +5,8 @@ The real `anthropic` SDK is pointed at it through ``base_url=server.url`` (the S
 ``anthropic-version`` headers, base64 ``image`` blocks, ``thinking``) and how it reacts to
 Anthropic's reply shapes: ``stop_reason`` values (``end_turn``, ``max_tokens``, ``refusal``),
 an empty ``content`` list, and errors as ``{"type": "error", "error": {"type", "message"}}``
-(the ``error.type`` names the real API uses, 529 ``overloaded_error`` included).
+(the ``error.type`` names the real API uses, 529 ``overloaded_error`` included). It lists its
+models (``GET /v1/models``) and refuses a model it does not serve with 404 ``not_found_error``.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import itertools
 from visphy_plugins.testing.fake_server import FakeProviderServer, Recorded
 
 PATH = "/v1/messages"
+MODELS_PATH = "/v1/models"
 
 #: Anthropic's ``error.type`` for an HTTP status (what the real API puts in the error body).
 ERROR_TYPES = {400: "invalid_request_error", 401: "authentication_error",
@@ -35,9 +37,26 @@ class FakeAnthropicServer(FakeProviderServer):
     """`FakeProviderServer` speaking the Anthropic Messages API."""
 
     name = "anthropic"
+    lists_models = True
 
     def handles(self, req: Recorded) -> bool:
         return req.method == "POST" and req.path == PATH
+
+    def is_listing(self, req: Recorded) -> bool:
+        return req.method == "GET" and req.path.rstrip("/") == MODELS_PATH
+
+    def requested_model(self, req: Recorded) -> str:
+        return model_of(req)
+
+    def models_body(self, ids: tuple[str, ...]) -> dict:
+        data = [{"type": "model", "id": mid, "display_name": mid,
+                 "created_at": "2025-09-29T00:00:00Z"} for mid in ids]
+        return {"data": data, "has_more": False, "first_id": ids[0] if ids else None,
+                "last_id": ids[-1] if ids else None}
+
+    def unknown_model_body(self, req: Recorded, model: str) -> dict:
+        return {"type": "error", "error": {"type": "not_found_error", "message": f"model: {model}"},
+                "request_id": "req_fake404"}
 
     @staticmethod
     def _usage(usage: dict[str, int]) -> dict[str, int]:

@@ -3,7 +3,9 @@
 The real `google-genai` SDK is pointed at it through ``base_url``, so tests see exactly what the
 SDK puts on the wire (path, ``x-goog-api-key`` header, ``inlineData`` parts) and how it reacts to
 Google's reply shapes: ``finishReason`` values, ``promptFeedback.blockReason`` for a blocked
-prompt, and errors as ``{"error": {"code", "message", "status"}}`` with gRPC status names.
+prompt, and errors as ``{"error": {"code", "message", "status"}}`` with gRPC status names. It
+lists its models (``GET /v1beta/models``) and answers 404 ``NOT_FOUND`` to a model it does not
+serve and to an API version other than ``v1beta``/``v1``/``v1alpha``.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import re
 from visphy_plugins.testing.fake_server import Behaviour, FakeProviderServer, Recorded
 
 _PATH = re.compile(r"^/(?P<version>[^/]+)/models/(?P<model>[^/:]+):generateContent$")
+VERSIONS = ("v1beta", "v1", "v1alpha")
 
 #: Google's canonical status name for an HTTP code (what the real API puts in ``error.status``).
 STATUS_NAMES = {400: "INVALID_ARGUMENT", 401: "UNAUTHENTICATED", 403: "PERMISSION_DENIED",
@@ -37,9 +40,33 @@ class FakeGeminiServer(FakeProviderServer):
     """`FakeProviderServer` speaking the Gemini API's ``generateContent``."""
 
     name = "gemini"
+    lists_models = True
 
     def handles(self, req: Recorded) -> bool:
         return req.method == "POST" and _PATH.match(req.path) is not None
+
+    def in_api(self, req: Recorded) -> bool:
+        m = _PATH.match(req.path)
+        return m is not None and m.group("version") in VERSIONS
+
+    def is_listing(self, req: Recorded) -> bool:
+        return req.method == "GET" and req.path.rstrip("/") in {f"/{v}/models" for v in VERSIONS}
+
+    def requested_model(self, req: Recorded) -> str:
+        return model_of(req) or ""
+
+    def models_body(self, ids: tuple[str, ...]) -> dict:
+        return {"models": [{"name": f"models/{mid}", "version": "001", "displayName": mid,
+                            "inputTokenLimit": 1048576, "outputTokenLimit": 65536,
+                            "supportedGenerationMethods": ["generateContent", "countTokens"]}
+                           for mid in ids]}
+
+    def unknown_model_body(self, req: Recorded, model: str) -> dict:
+        m = _PATH.match(req.path)
+        version = m.group("version") if m else "v1beta"
+        return self.error_body(404, f"models/{model} is not found for API version {version}, "
+                               "or is not supported for generateContent. Call ListModels to see "
+                               "the list of available models and their supported methods.")
 
     @staticmethod
     def _usage(usage: dict[str, int]) -> dict[str, int]:

@@ -15,6 +15,14 @@ the SDK sent:
 * ``delay(seconds, then)``: wait, then behave as ``then`` (for client timeouts);
 * ``drop()``: close the connection without an answer.
 
+Like the real services, a fake serves its provider's model list (``GET /v1/models``; Gemini's
+``GET /v1beta/models``) and answers 404, in the provider's error format, to a model id it does not
+serve and to a path outside its API (a wrong base URL): ``models`` names the ids it serves, by
+default every ``model_id`` of that provider in ``conf/model/`` and ``conf/judge/``
+(`known_models`); ``models=None`` serves no list and takes any model id on any path prefix (a
+server that does not list its models). Listings and refusals are kept in ``gated``, apart from
+``requests`` (which holds what reached the script).
+
 The script is consumed in order; when it runs out, ``default`` (a function of the request)
 decides, by default ``ok`` with `default_text`. Use as a context manager::
 
@@ -31,8 +39,12 @@ import threading
 import time
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from typing import Any, Callable
+from functools import lru_cache
+from importlib.resources import files
+from typing import Any, Callable, Iterable
 from urllib.parse import parse_qs, urlsplit
+
+import yaml
 
 
 @dataclass
@@ -106,13 +118,46 @@ class Recorded:
 DEFAULT_USAGE = {"input_tokens": 1200, "output_tokens": 800}
 
 
+@lru_cache(maxsize=None)
+def known_models(provider: str) -> tuple[str, ...]:
+    """Every ``model_id`` the API model configs and the judge configs
+    (``visphy_conf/{model,judge}/*.yaml``) give ``provider`` (``openai`` when a config names
+    no provider), sorted."""
+    ids: set[str] = set()
+    for group in ("model", "judge"):
+        for entry in files("visphy_conf").joinpath(group).iterdir():
+            if not entry.name.endswith(".yaml"):
+                continue
+            data = yaml.safe_load(entry.read_text(encoding="utf-8"))
+            if not isinstance(data, dict) or "model_id" not in data:
+                continue
+            if group == "model" and "schema_api_model" not in (data.get("defaults") or []):
+                continue  # a video model (its own fake) or a baseline
+            model_id = str(data["model_id"])
+            if data.get("provider", "openai") == provider and model_id and "?" not in model_id \
+                    and "$" not in model_id:
+                ids.add(model_id)
+    return tuple(sorted(ids))
+
+
+#: ``models`` default: the provider's `known_models`.
+KNOWN = object()
+
+
 class FakeProviderServer:
     """Base: HTTP plumbing, recording and the script. Subclasses define the wire format."""
 
     #: Header names whose values are the API key (checked by tests: never in URLs or logs).
     name = "fake"
+    #: Whether this wire format lists models and refuses unknown ones (`gate`).
+    lists_models = False
 
-    def __init__(self, default: Callable[[Recorded], Behaviour] | None = None):
+    def __init__(self, default: Callable[[Recorded], Behaviour] | None = None,
+                 models: Iterable[str] | None | object = KNOWN):
+        self.models: tuple[str, ...] | None = (
+            known_models(self.name) if models is KNOWN
+            else None if models is None else tuple(models))  # type: ignore[arg-type]
+        self.gated: list[tuple[Recorded, int]] = []  # model listings and refusals, with status
         self.script: list[Behaviour] = []
         self.default = default or (lambda req: ok(self.default_text(req), dict(DEFAULT_USAGE)))
         self.requests: list[Recorded] = []
@@ -142,6 +187,38 @@ class FakeProviderServer:
 
     def error_body(self, code: int, message: str) -> dict:
         return {"error": {"code": code, "message": message, "type": "fake_error"}}
+
+    def is_listing(self, req: Recorded) -> bool:
+        """Whether ``req`` asks for the model list."""
+        return False
+
+    def in_api(self, req: Recorded) -> bool:
+        """Whether ``req`` is on one of the provider's real paths (``handles`` may be looser)."""
+        return self.handles(req)
+
+    def requested_model(self, req: Recorded) -> str:
+        return ""
+
+    def models_body(self, ids: tuple[str, ...]) -> dict:
+        raise NotImplementedError
+
+    def unknown_model_body(self, req: Recorded, model: str) -> dict:
+        return self.error_body(404, f"model {model!r} not found")
+
+    def gate(self, req: Recorded) -> tuple[int, dict] | None:
+        """The model list, or a 404 for an unknown model or a path outside the API; None lets
+        the request through to the script. Nothing is gated when ``models`` is None."""
+        if self.models is None or not self.lists_models:
+            return None
+        if self.is_listing(req):
+            return 200, self.models_body(self.models)
+        if self.handles(req):
+            if not self.in_api(req):
+                return 404, self.error_body(404, f"Invalid URL ({req.method} {req.path})")
+            model = self.requested_model(req)
+            if model not in self.models:
+                return 404, self.unknown_model_body(req, model)
+        return None
 
     def other(self, req: Recorded) -> tuple[int, dict, dict[str, str]] | None:
         """Requests outside the scripted one (e.g. a video download): (status, body, headers)."""
@@ -222,6 +299,13 @@ class FakeProviderServer:
             handler.close_connection = True
 
     def _serve(self, handler: BaseHTTPRequestHandler, req: Recorded) -> None:
+        gated = self.gate(req)
+        if gated is not None:
+            code, body = gated
+            with self._lock:
+                self.gated.append((req, code))
+            self._send(handler, code, json.dumps(body).encode())
+            return
         other = None if self.handles(req) else self.other(req)
         if other is not None:
             with self._lock:
