@@ -16,21 +16,16 @@ from visphy_core.api.registry import get_registry
 from visphy_core.config.check import compose
 from visphy_plugins.providers.preflight import is_local
 from visphy_plugins.testing.fake_openai import FakeOpenAIServer
-from visphy_plugins.testing.fake_server import Recorded
 
 SERVED = ("Qwen/Qwen2.5-VL-7B-Instruct", "llava:13b")
 
 
 class ListingServer(FakeOpenAIServer):
-    """The fake Chat Completions server plus the model list an OpenAI-compatible server
-    publishes."""
+    """The fake Chat Completions server serving (and listing at ``GET /v1/models``) the models
+    of a local OpenAI-compatible server."""
 
-    def other(self, req: Recorded):
-        if req.method == "GET" and req.path.rstrip("/").endswith("/models"):
-            return 200, {"object": "list", "data": [
-                {"id": mid, "object": "model", "created": 0, "owned_by": "vllm"}
-                for mid in SERVED]}, {}
-        return None
+    def __init__(self, **kwargs):
+        super().__init__(models=SERVED, **kwargs)
 
 
 def chat_calls(server: FakeOpenAIServer) -> int:
@@ -122,7 +117,7 @@ def test_a_good_local_setup_proceeds_without_a_key(no_key):
 
 
 def test_a_server_that_lists_no_models_is_taken_at_its_word(no_key):
-    with FakeOpenAIServer() as server:  # GET /models: 404
+    with FakeOpenAIServer(models=None) as server:  # GET /models: 404
         _model(f"model.base_url={server.url}/v1", "model.model_id=anything").check_ready()
 
 

@@ -87,8 +87,10 @@ def _decode_png(data: bytes) -> np.ndarray:
 
 def _server(name: str):
     cls, suffix, key = PROVIDERS[name]
+    # the fakes serve the configs' model ids; a local server also serves "served-model"
+    extra = {"models": ("served-model",)} if name == "openai_compat" else {}
     server = cls(default=lambda req: ok(reply("html"), {"input_tokens": 1500,
-                                                       "output_tokens": 700}))
+                                                       "output_tokens": 700}), **extra)
     return server, suffix, key
 
 
