@@ -129,6 +129,7 @@ def test_one_more_metric_without_a_model_call_or_a_render(finished, no_chromium)
     assert uri == manifest["tracking"]["mlflow"]["tracking_uri"]
     mlrun = MlflowClient(tracking_uri=uri).get_run(manifest["tracking"]["mlflow"]["run_id"])
     assert mlrun.data.tags["visphy.rescored_from"] == str(run)
+    assert mlrun.info.run_name.endswith(" · re-scored")  # beside the run it re-scores
     assert mlrun.data.metrics[NEW_METRIC] == summary["metrics"][NEW_METRIC]["mean_model_success"]
 
 

@@ -44,6 +44,10 @@ def test_three_runs_at_once_then_a_fourth_on_one_fresh_home(tmp_path, mini_root)
     assert len({first, twin, fourth}) == 3  # a live run is never resumed by its twin
     assert same_rows(first, twin) is None and same_rows(first, fourth) is None
     assert (home / "mlflow.db.lock").is_file()
+    with sqlite3.connect(home / "mlflow.db") as con:  # MLflow 3's UI opens on the runs list
+        kinds = con.execute("select value from experiment_tags where key = "
+                            "'mlflow.experimentKind'").fetchall()
+    assert kinds == [("custom_model_development",)]
 
 
 def _cli(home: Path, *args: str) -> subprocess.CompletedProcess:

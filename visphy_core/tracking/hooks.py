@@ -183,6 +183,8 @@ def _start(run) -> None:
 def _start_locked(run) -> None:
     client, uri, exp_id = open_store(run.cfg, run.root)
     tags, run_name = _run_tags(run), run_display_name(run.cfg)
+    if run.extra.get("rescored_from"):  # `score`: its own run, beside the one it re-scores
+        run_name += " · re-scored"
     study = _study_parent(uri)
     if study is not None:
         job, parent = study

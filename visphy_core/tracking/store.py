@@ -99,7 +99,15 @@ def open_store(cfg, root: Path):
         if db is not None:
             _prepare_sqlite(db)
         exp_id = exp.experiment_id if exp else _create_experiment(client, name, artifacts)
+        if exp is None or EXPERIMENT_KIND not in (exp.tags or {}):
+            client.set_experiment_tag(exp_id, *EXPERIMENT_KIND_TAG)
     return client, uri, exp_id
+
+
+#: MLflow 3's UI opens an experiment on the tab its kind says: visphy's runs are model
+#: development (params, metrics, artifacts), not GenAI traces, so the runs list comes first.
+EXPERIMENT_KIND = "mlflow.experimentKind"
+EXPERIMENT_KIND_TAG = (EXPERIMENT_KIND, "custom_model_development")
 
 
 def store_lock(uri: str):
