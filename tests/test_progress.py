@@ -14,6 +14,8 @@ import sys
 import threading
 from pathlib import Path
 
+import pytest
+
 from rich.console import Console
 
 from conftest import REPO, run_cli
@@ -40,8 +42,8 @@ def test_stage_lines_count_scenes_and_skips():
     assert progress.done["render"] == {"scene_a", "scene_b"} and progress.skipped["render"] == 1
     assert progress.skipped["generate"] == 0
     line = progress.final_line()
-    assert line.startswith("stages: generate 2/2 (") and "render 2/2 (" in line
-    assert "1 skipped" in line.split("render", 1)[1].split("·")[0]
+    assert line.startswith("stages: wall ") and " · summed over scenes: generate 2/2 " in line
+    assert "render 2/2 (1 skipped) " in line
 
 
 def test_an_unstarted_stage_is_not_counted_twice():
@@ -58,8 +60,8 @@ def test_a_run_ends_with_the_stage_line_report_and_mlflow_command(tmp_path):
     proc = run_cli("dataset=tiny", "model=static", home=home)
     stages = [ln for ln in proc.stderr.splitlines() if ln.startswith("stages: ")]
     assert len(stages) == 1, proc.stderr
-    assert re.match(r"stages: generate 3/3 \([\d.]+ s\) · score 3/3 \([\d.]+ s\) · [\d.]+ s in "
-                    r"all$", stages[0]), stages[0]
+    assert re.match(r"stages: wall [\d.]+ s · summed over scenes: generate 3/3 [\d.]+ s, "
+                    r"score 3/3 [\d.]+ s$", stages[0]), stages[0]
     assert "render" not in stages[0]  # a video model renders nothing
     lines = proc.stdout.splitlines()
     (run_dir,) = (home / "runs").iterdir()
@@ -181,33 +183,86 @@ def test_a_running_stage_shows_its_time_advancing():
     assert progress.spent["score"] == 62.5 and progress.spent_now("score") == 62.5
 
 
-def test_the_summary_is_never_cut_when_stdout_is_not_a_terminal(capsys):
-    """A pipe or a log file gets the tables whole: every header and value in full, however many
-    and however long the columns are (rich alone would cut them at 80 columns with "…")."""
-    from visphy_core.execute.console import print_summary
+def _long_summary():
+    """A summary with long scene ids, many metrics under every pairing, a negative zero and a
+    tiny value, as `print_summary` takes it."""
     from visphy_core.results.row import SceneResult
 
     long_names = [f"a_rather_long_metric_name_number_{i}_moving_dis" for i in range(5)]
-    metric = {"unavailable": None, "direction": "lower", "n_model_success": 1,
+    names = ["psnr", "ssim", "track_pos_err", *long_names]
+    metric = {"unavailable": None, "direction": "lower", "n_model_success": 2,
               "mean_model_success": 0.123456, "mean_with_fallbacks": 0.5, "n_with_fallbacks": 2}
-    metrics = {name: dict(metric) for name in long_names}
-    metrics.update({f"{long_names[0]}.aligned": dict(metric), f"paper.{long_names[1]}":
-                    dict(metric), f"spec.{long_names[2]}": dict(metric)})
-    scene_id = "vpb3-s0-2d-t001-v00-with-an-unusually-long-scene-identifier"
-    results = [SceneResult(scene_id=scene_id, dim="2d", difficulty=None, model_success=True,
-                           attempts=1, render_wall_s=1.25,
-                           scores={n: 0.1 + i for i, n in enumerate(long_names)})]
+    metrics = {"physics_score": dict(metric, direction="higher", mean_model_success=-0.0)}
+    for name in names:
+        metrics[name] = dict(metric)
+        metrics[f"{name}.aligned"] = dict(metric)
+        metrics[f"paper.{name}"] = dict(metric)
+        metrics[f"spec.{name}"] = dict(metric)
+        metrics[f"norm.{name}"] = dict(metric, mean_model_success=-6.1)
+    info = {n: {"family": "motion" if "moving" in n else "pixel"} for n in names}
+    ids = [f"vpb3-s0-2d-t00{i}-v00-with-an-unusually-long-scene-identifier-{i}" for i in (1, 2)]
+    scores = {n: 0.1 + i for i, n in enumerate(names)} | {"physics_score": -1e-9,
+                                                          "psnr": 4.701e-05}
+    results = [SceneResult(scene_id=i, dim="2d", difficulty=None, model_success=True,
+                           attempts=1, render_wall_s=1.25, scores=scores) for i in ids]
     summary = {"model": "a_model_with_a_long_name", "engine": "threejs", "dataset": "mini",
-               "n_scenes": 1, "metrics": metrics, "headline": {}, "model_success": 1,
-               "system_success": 1, "fallbacks": 0, "repaired": 0,
-               "cache": {"render": {"hits": 0, "misses": 1}}, "run_dir": "/tmp/" + "x" * 150}
-    print_summary(summary, results)
+               "n_scenes": 2, "metrics": metrics, "metric_info": info,
+               "headline": {"metric": "physics_score", "mean": -0.0, "ci": [-0.0, 0.5], "n": 2},
+               "model_success": 2, "system_success": 2, "fallbacks": 0, "repaired": 0,
+               "cache": {"render": {"hits": 0, "misses": 2}},
+               "stage_seconds": {"render_wall_s": {"total": 2.5}, "scoring_wall_s":
+                                 {"total": 187.7}},
+               "run_dir": "/tmp/run"}
+    return summary, results, ids, long_names
+
+
+@pytest.mark.parametrize("columns", [80, 100])
+def test_the_default_summary_fits_the_terminal(capsys, monkeypatch, columns):
+    """At 80 and 100 columns (and in a log) every line of the default summary fits; scene ids
+    lose only the prefix they share; the headline has its interval; the time line says which
+    seconds are wall time and which are summed over scenes; no negative zero."""
+    from visphy_core.execute.console import print_summary
+
+    monkeypatch.setenv("COLUMNS", str(columns))
+    summary, results, ids, long_names = _long_summary()
+    print_summary(summary, results, wall_s=99.3)
     text = capsys.readouterr().out
-    assert "…" not in text
-    for i, name in enumerate(long_names):
-        assert f"{name} ↓" in text  # a header of both tables, whole on one line
-        assert f"{0.1 + i:.4f}" in text
-    for column in ("aligned", "paper", "spec", "with fallbacks"):
-        assert column in text
-    assert scene_id in text and "0.5000 (n=2)" in text and "1.25s" in text
-    assert f"run directory: /tmp/{'x' * 150}" in text
+    lines = text.splitlines()
+    assert all(len(ln.rstrip()) <= columns for ln in lines), \
+        [ln for ln in lines if len(ln.rstrip()) > columns]
+    assert "…" not in text and "-0.0000" not in text and "-0 " not in text
+    assert "(scene ids without the prefix they share: vpb3-s0-2d-)" in text
+    assert "95% bootstrap interval [0, 0.5]" in text and "4.701e-05" in text
+    assert "time: wall 99.3 s · summed over scenes: render 2.5 s, score 187.7 s" in \
+        " ".join(text.split())
+    assert "run.summary=full" in text and "norm" in text
+    assert "aligned" not in text  # the pairings are in the full summary
+
+
+def test_the_full_summary_explains_its_columns(capsys, monkeypatch):
+    """``run.summary=full``: every metric under every pairing, each column's meaning under the
+    table (norm included); in a log nothing is cut."""
+    from visphy_core.execute.console import print_summary
+
+    monkeypatch.delenv("COLUMNS", raising=False)
+    summary, results, ids, long_names = _long_summary()
+    print_summary(summary, results, mode="full")
+    text = capsys.readouterr().out
+    assert "…" not in text and "-0.0000" not in text
+    for name in long_names:
+        assert f"{name} ↓" in text
+    for view in ("visphy", "aligned", "paper", "spec", "norm"):
+        assert f"  {view}: " in text
+    assert "0 = the first frame held still" in text and "-6.1" in text
+
+
+def test_one_scored_scene_says_why_it_has_no_interval(capsys):
+    from visphy_core.execute.console import print_summary
+
+    summary, results, _, _ = _long_summary()
+    summary["headline"] = {"metric": "physics_score", "mean": 0.25, "ci": None, "n": 1}
+    print_summary(summary, results[:1])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "headline physics_score ↑ 0.25 over 1 scored scene (no interval: a bootstrap " \
+           "needs at least 2 scored scenes)" in text
+    assert "bootstrap interval [" not in text

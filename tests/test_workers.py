@@ -290,7 +290,7 @@ def test_stage_lines_show_how_many_scenes_are_in_each_stage():
             progress.end("score", scene)
             progress.scene_finished(scene)
     assert progress.most_in_flight["score"] == 2 and progress.skipped["render"] == 3
-    assert progress.final_line().startswith("stages: generate 3/3 (0.0 s, 3 skipped) · ")
+    assert " summed over scenes: generate 3/3 (3 skipped) 0.0 s, " in progress.final_line()
 
 
 def test_progress_counts_are_right_under_many_threads():

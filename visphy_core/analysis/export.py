@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from visphy_core.analysis.figures import safe_name
+from visphy_core.infra.numbers import number
 
 MISSING = "—"
 LATEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#",
@@ -43,9 +44,7 @@ def fmt(value) -> str:
         v = float(value)
         if math.isinf(v):
             return "∞" if v > 0 else "-∞"
-        if v.is_integer() and abs(v) < 1e6:
-            return str(int(v))
-        return f"{v:.4g}"
+        return number(v)
     return str(value)
 
 

@@ -31,7 +31,7 @@ from visphy_core.results.load import RunData
 #: Config keys that never tell two configurations apart (where files go, how the run is tracked
 #: and sandboxed, which metrics and judges score it, transport settings).
 IGNORED_PREFIXES = ("paths.", "tracking.", "sandbox.", "metrics.", "judge.", "hydra.",
-                    "run.progress", "run.cache", "run.prefetch", "run.cost_cap_usd",
+                    "run.progress", "run.summary", "run.cache", "run.prefetch", "run.cost_cap_usd",
                     "run.workers", "run.resume")
 IGNORED_SUFFIXES = ("base_url", "api_key_env", "timeout_s", "max_retries", "concurrency",
                     "price.input_usd_per_mtok", "price.output_usd_per_mtok",

@@ -33,6 +33,11 @@ class TrackingBackend(StrEnum):
     none = "none"
 
 
+class SummaryMode(StrEnum):
+    short = "short"
+    full = "full"
+
+
 @dataclass
 class PathsConfig:
     root: str = "visphy-out"
@@ -60,6 +65,9 @@ class RunConfig:
     seed: int = field(default=0, metadata={"min": 0, "max": 2**32 - 1})
     cache: bool = True
     progress: bool = True
+    # The end-of-run summary: short (headline, a few columns per scene, means per family) or
+    # full (every metric under every pairing, with a legend). Changes no row.
+    summary: SummaryMode = SummaryMode.short
     # Stop making new model/judge calls once this much USD is spent (null: no cap).
     cost_cap_usd: Optional[float] = field(default=None, metadata={"min": 0})
     # Model calls started ahead of the scene being rendered (they overlap with rendering).

@@ -24,6 +24,7 @@ import platform
 import signal
 import sys
 import threading
+import time
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -608,6 +609,7 @@ def _host_fault_line(fault: OSError, run_dir: Path, results: list[SceneResult],
 
 
 def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledger) -> dict:
+    started = time.monotonic()  # the summary's wall time
 
     metrics, engine = services.metrics, services.engine
     judge_keys = [k for k, _ in services.judges.judges] if services.judges else []
@@ -720,7 +722,8 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
         raise HostFault(_host_fault_line(faults[0], run_dir, ctx.results, scenes)) \
             from (raised if raised is not None else faults[0])
     if status in (FINISHED, COST_CAP):
-        print_summary(summary, ctx.results)
+        print_summary(summary, ctx.results, mode=str(cfg.run.get("summary", "short")),
+                      wall_s=time.monotonic() - started)
         print_where_to_look(write_report(run_dir), (summary.get("mlflow") or {}).get(
             "tracking_uri"))
     if summary.get("tracking_failed"):

@@ -12,10 +12,11 @@ from __future__ import annotations
 import base64
 import hashlib
 import html
-import math
 from importlib import resources
 from typing import Any, Iterable
 from urllib.parse import quote
+
+from visphy_core.infra.numbers import number
 
 ARROWS = {"higher": "↑", "lower": "↓"}
 
@@ -36,20 +37,9 @@ def url(relative_path: str) -> str:
 
 
 def fmt(value: Any, digits: int = 4) -> str:
-    """A score for people: ``digits`` significant figures; ``—`` for none; NaN/inf spelled."""
-    if value is None:
-        return "—"
-    if isinstance(value, bool):
-        return "yes" if value else "no"
-    if isinstance(value, (int, float)):
-        if isinstance(value, float) and math.isnan(value):
-            return "NaN"
-        if isinstance(value, float) and math.isinf(value):
-            return "∞" if value > 0 else "−∞"
-        if isinstance(value, int):
-            return str(value)
-        return f"{value:.{digits}g}"
-    return str(value)
+    """A score for people, as the console writes it (`visphy_core.infra.numbers.number`):
+    ``digits`` significant figures; ``—`` for none; NaN/inf spelled; no negative zero."""
+    return number(value, digits)
 
 
 def rate(part: int | None, whole: int | None) -> str:

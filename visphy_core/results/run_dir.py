@@ -29,14 +29,14 @@ TRANSPORT_KEYS = ("base_url", "timeout_s", "retries", "concurrency", "api_key_en
 def config_hash(cfg: DictConfig) -> str:
     """Hash of everything that changes a run's rows: the config without where things are written
     (``paths``), without the keys that only change how the run looks or is paced
-    (``run.progress``, ``run.cache``, ``run.cost_cap_usd``, ``run.prefetch``,
+    (``run.progress``, ``run.summary``, ``run.cache``, ``run.cost_cap_usd``, ``run.prefetch``,
     ``run.workers``, ``run.resume``) and without the
     transport settings of models and judges (`TRANSPORT_KEYS`: a fake server on another port,
     a longer timeout). Two commands with the same hash produce the same rows."""
     resolved = OmegaConf.to_container(cfg, resolve=True)
     resolved.pop("paths", None)
     run = dict(resolved.pop("run", None) or {})
-    for key in ("progress", "cache", "cost_cap_usd", "prefetch", "workers", "resume"):
+    for key in ("progress", "summary", "cache", "cost_cap_usd", "prefetch", "workers", "resume"):
         run.pop(key, None)
     resolved["run"] = run
     for node in [resolved.get("model"), *(resolved.get("judge") or {}).values()]:
