@@ -266,3 +266,72 @@ def test_one_scored_scene_says_why_it_has_no_interval(capsys):
     assert "headline physics_score ↑ 0.25 over 1 scored scene (no interval: a bootstrap " \
            "needs at least 2 scored scenes)" in text
     assert "bootstrap interval [" not in text
+
+
+def test_plain_lines_are_paced_per_key_with_a_heartbeat():
+    """In a log: a key's lines at most every `EVERY` seconds (a forced one always shows), and
+    a heartbeat once nothing was written for `QUIET` seconds, not before."""
+    from visphy_core.infra.progress import EVERY, QUIET, PlainLines
+
+    clock, out = FakeClock(), io.StringIO()
+    lines = PlainLines(heartbeat=lambda: "still working", out=out, clock=clock)
+    assert lines.emit("render", "render 1/4")
+    clock.now += EVERY / 2
+    assert not lines.emit("render", "render 2/4")   # too soon for this key
+    assert lines.emit("score", "score 1/4")          # another key has its own pace
+    assert not lines.emit("score", "score 2/4")
+    assert lines.emit("render", "render 4/4 done", force=True)
+    clock.now += EVERY
+    assert lines.tick()                              # the held-back score line, once due
+    clock.now += QUIET - 1
+    assert not lines.tick()
+    clock.now += 1
+    assert lines.tick()
+    assert not lines.tick()                          # the heartbeat also resets the silence
+    assert out.getvalue().splitlines() == ["render 1/4", "score 1/4", "render 4/4 done",
+                                           "score 2/4", "still working"]
+
+
+def test_stage_lines_for_a_log_have_count_rate_and_eta():
+    clock = FakeClock()
+    progress = StageProgress(4, ["render", "score"], live=False, clock=clock, plain=True)
+    out = io.StringIO()
+    progress.lines.out = out
+    progress.begin("render", "a")
+    clock.now += 10
+    progress.end("render", "a")
+    progress.begin("render", "b")
+    line = progress.stage_line("render")
+    assert line.startswith("render 1/4 · 1 in flight · 6/min · ETA 30 s · 10 s elapsed"), line
+    assert "\x1b" not in out.getvalue() and out.getvalue().startswith("render 0/4 · 1 in flight")
+    assert progress.heartbeat_line() == ("still working, 10 s elapsed: render 1/4 (1 in "
+                                         "flight), score 0/4")
+
+
+def test_a_run_in_a_log_reports_progress_while_it_goes(visphy_home):
+    """stdout and stderr pipes: a progress line soon after the stages start and then no
+    silence longer than the heartbeat allows (with slack for a loaded machine), no terminal
+    codes, the closing stage line at the end."""
+    import time
+
+    env = dict(os.environ, VISPHY_HOME=str(visphy_home), PYTHONUNBUFFERED="1")
+    env.pop("COLUMNS", None)
+    from conftest import FAST_METRICS
+
+    proc = subprocess.Popen([sys.executable, "-m", "visphy_core", "model=oracle",
+                             "dataset=mini", "dataset.limit=1", "tracking=none",
+                             *FAST_METRICS], cwd=REPO, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    stamped = []
+    for line in proc.stdout:
+        stamped.append((time.monotonic(), line.rstrip("\n")))
+    assert proc.wait(timeout=600) == 0, "\n".join(ln for _, ln in stamped)[-3000:]
+    text = "\n".join(ln for _, ln in stamped)
+    assert "\x1b[" not in text
+    starts = [t for t, ln in stamped if ln.startswith("1 scene to run · stages ")]
+    ends = [t for t, ln in stamped if ln.startswith("stages: wall ")]
+    assert len(starts) == 1 and len(ends) == 1, text
+    during = [t for t, ln in stamped if starts[0] <= t <= ends[0]]
+    gaps = [b - a for a, b in zip(during, during[1:])]
+    assert max(gaps, default=0) < 20, (gaps, text)
+    assert re.search(r"^(generate|render|score) 1/1 · done", text, re.M), text

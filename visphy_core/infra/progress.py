@@ -69,6 +69,8 @@ class PlainLines:
         self.out = out
         self.every, self.quiet, self.clock = every, quiet, clock
         self._last: dict[str, float] = {}
+        #: a key's latest line held back by the pace, written by `tick` once it is due
+        self._pending: dict[str, str] = {}
         self._last_any = clock()
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -83,16 +85,25 @@ class PlainLines:
         with self._lock:
             now = self.clock()
             if not force and now - self._last.get(key, -math.inf) < self.every:
+                self._pending[key] = text
                 return False
+            self._pending.pop(key, None)
             self._last[key] = self._last_any = now
             self._write(text)
             return True
 
     def tick(self) -> bool:
-        """The heartbeat, when due: ``heartbeat()``'s line if nothing was written for
-        ``quiet`` seconds (None from it: nothing to say, no line)."""
+        """The lines the pace held back, once their key is due; else the heartbeat, when due:
+        ``heartbeat()``'s line if nothing was written for ``quiet`` seconds (None from it:
+        nothing to say, no line)."""
         with self._lock:
             now = self.clock()
+            due = [k for k in self._pending if now - self._last.get(k, -math.inf) >= self.every]
+            for key in due:
+                self._last[key] = self._last_any = now
+                self._write(self._pending.pop(key))
+            if due:
+                return True
             if self.heartbeat is None or now - self._last_any < self.quiet:
                 return False
             text = self.heartbeat()
