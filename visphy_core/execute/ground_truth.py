@@ -39,7 +39,7 @@ class _RenderLane(StageEvents):
 
 
 def prepare(overrides: list[str], workers: int = 2, progress: bool = True) -> int:
-    from rich.progress import Progress
+    from visphy_core.infra.progress import track
 
     from visphy_core.api.engine import RenderContract
     from visphy_core.api.registry import get_registry
@@ -92,11 +92,9 @@ def prepare(overrides: list[str], workers: int = 2, progress: bool = True) -> in
             computed += found.computed
 
     try:
-        with Progress(disable=not progress, transient=True) as bar:
-            task = bar.add_task("ground truth", total=len(scenes))
-            with ThreadPoolExecutor(max_workers=workers) as pool:
-                for _ in pool.map(lambda s: (one(s), bar.advance(task)), scenes):
-                    pass
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            for _ in track(pool.map(one, scenes), len(scenes), "ground truth", progress):
+                pass
     finally:
         engine.close()  # the browser pool and its processes: no survivors
     for scene_id, why in failed:
