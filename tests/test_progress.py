@@ -335,3 +335,19 @@ def test_a_run_in_a_log_reports_progress_while_it_goes(visphy_home):
     gaps = [b - a for a, b in zip(during, during[1:])]
     assert max(gaps, default=0) < 20, (gaps, text)
     assert re.search(r"^(generate|render|score) 1/1 · done", text, re.M), text
+
+
+def test_a_study_says_which_job_starts_and_when_it_should_end(tmp_path):
+    import datetime as dt
+
+    from visphy_core.results import study_records as records
+    from visphy_core.study.callback import count_jobs, study_progress_line
+
+    assert count_jobs({"model": "oracle,static", "engine": "threejs,p5,manim"}) == 6
+    for num, status in enumerate((records.COMPLETED, records.FAILED, records.RUNNING)):
+        records.write_job(tmp_path / str(num), num=num, sweep_dir=str(tmp_path), status=status)
+    study = {"name": "leaderboard", "n_jobs": 6, "started": "2026-01-01T10:00:00"}
+    line = study_progress_line(tmp_path, study, 2, "model=static",
+                               now=dt.datetime(2026, 1, 1, 10, 4, 0))
+    assert line == ("study leaderboard: job 3/6 (model=static) · 1 done, 1 failed · "
+                    "4 min 00 s elapsed · ETA 8 min 00 s")

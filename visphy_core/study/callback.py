@@ -17,6 +17,7 @@ from __future__ import annotations
 import atexit
 import datetime as dt
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -51,6 +52,48 @@ def _multirun(config: DictConfig) -> bool:
     return OmegaConf.select(config, "hydra.mode", default=None) == RunMode.MULTIRUN
 
 
+def count_jobs(sweep: dict[str, str]) -> int | None:
+    """How many jobs the sweep makes (the product of each swept key's number of values), None
+    when a value is not one the parser can count."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    try:
+        parsed = OverridesParser.create().parse_overrides([f"{k}={v}" for k, v in sweep.items()])
+        total = 1
+        for ov in parsed:
+            if ov.is_sweep_override():
+                total *= len(list(ov.sweep_string_iterator()))
+        return total
+    except Exception:  # noqa: BLE001 - a count for a progress line only
+        return None
+
+
+def study_progress_line(sweep_dir: Path, study: dict, num: int, label: str,
+                        now: dt.datetime | None = None) -> str:
+    """``study leaderboard: job 3/6 (model=static) · 2 done, 0 failed · 4 min 10 s elapsed ·
+    ETA 8 min 20 s``: where a sweep is, as a job starts (from the job records on disk)."""
+    from visphy_core.infra.progress import duration
+
+    jobs = records.read_jobs(sweep_dir)
+    done = sum(1 for j in jobs if j.get("status") == records.COMPLETED)
+    failed = sum(1 for j in jobs if j.get("status") == records.FAILED)
+    total = study.get("n_jobs")
+    parts = [f"study {study.get('name', 'multirun')}: job {num + 1}"
+             + (f"/{total}" if total else "") + (f" ({label})" if label else ""),
+             f"{done} done, {failed} failed"]
+    try:
+        elapsed = ((now or dt.datetime.now())
+                   - dt.datetime.fromisoformat(study["started"])).total_seconds()
+    except (KeyError, TypeError, ValueError):
+        elapsed = None
+    if elapsed is not None:
+        parts.append(f"{duration(elapsed)} elapsed")
+        finished = done + failed
+        if total and finished and total > finished:
+            parts.append(f"ETA {duration(elapsed / finished * (total - finished))}")
+    return " · ".join(parts)
+
+
 def _sweep_dir(config: DictConfig) -> Path:
     return Path(str(config.hydra.sweep.dir)).resolve()
 
@@ -79,11 +122,13 @@ class StudyCallback(Callback):
                       "visphy.dataset": str(OmegaConf.select(config, "dataset.name"))},
                 params={"study": study, "overrides": " ".join(overrides),
                         **{f"sweep.{k}": v for k, v in sweep.items()}})
+        n_jobs = count_jobs(sweep)
         records.write_json(records.study_file(sweep_dir), {
             "name": study, "sweep_dir": str(sweep_dir), "status": "running",
             "started": _now(), "overrides": overrides, "sweep": sweep,
-            "parent": parent})
-        print(f"study {study}: {sweep_dir}", flush=True)
+            "parent": parent, "n_jobs": n_jobs})
+        print(f"study {study}: {sweep_dir}" + (f" ({n_jobs} jobs)" if n_jobs else ""),
+              flush=True)
         atexit.register(_finish_at_exit, sweep_dir)
 
     def on_job_start(self, config: DictConfig, **kwargs: Any) -> None:
@@ -100,6 +145,7 @@ class StudyCallback(Callback):
                           label=label or f"{study.get('name', 'job')} #{num}",
                           status=records.RUNNING, pid=os.getpid(), started=_now())
         os.environ[records.JOB_ENV] = str(job_dir)
+        print(study_progress_line(sweep_dir, study, num, label), file=sys.stderr, flush=True)
 
     def on_job_end(self, config: DictConfig, job_return: Any, **kwargs: Any) -> None:
         if not _multirun(config):
