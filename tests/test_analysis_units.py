@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -506,7 +507,8 @@ def test_analyse_warns_beside_small_sample_numbers_in_every_output(tmp_path):
     buf = io.StringIO()
     print_study(few, out, console=Console(file=buf, width=200))
     text = buf.getvalue()
-    assert "mean off-diagonal ρ = " in text and "⚠; common scenes per pair: 6" in text
+    assert "Spearman ρ over scenes" in text and "common scenes per pair: 1–2: 6" in text
+    assert "runs: 1 = " in text and "mean ρ" in text
     assert "fewer than 10 common scenes behind the marked ρ" in text
     assert "⚠ bootstrap: 3 row(s) computed over fewer than 10 common scenes" in text
     # 12 common scenes: no warning anywhere
@@ -522,6 +524,36 @@ def test_analyse_warns_beside_small_sample_numbers_in_every_output(tmp_path):
     buf = io.StringIO()
     print_study(many, tmp_path / "out12", console=Console(file=buf, width=200))
     assert "⚠" not in buf.getvalue()
+
+
+def test_analyse_prints_one_spearman_table_and_cuts_no_number(tmp_path):
+    """Three runs, two metrics: one table (a row per metric, a column per pair, the mean ρ),
+    and on a narrow console every number whole (labels fold, numbers do not)."""
+    import io
+
+    from rich.console import Console
+
+    from visphy_core.analysis.printing import print_study, rich_table
+
+    rng = np.random.default_rng(3)
+    runs = _two_runs(tmp_path / "runs", 12) + [make_run(tmp_path / "mid", "mid", scenes(
+        {"psnr": list(rng.uniform(10, 40, 12)), "judge_a": list(rng.uniform(1, 10, 12))}),
+        model="mid")]
+    out = analyse(runs, tmp_path / "out", resamples=100, metrics=["psnr", "judge_a"])
+    buf = io.StringIO()
+    print_study(out, console=Console(file=buf, width=200))
+    text = buf.getvalue()
+    assert text.count("Spearman ρ over scenes") == 1, text
+    assert "ρ 1–2" in text and "ρ 1–3" in text and "ρ 2–3" in text
+    table = [ln for ln in text.splitlines() if ln.startswith(("│ psnr", "│ judge_a"))]
+    assert len(table) == 2, text
+    narrow = io.StringIO()
+    df = pd.DataFrame({"a label that is rather long for a narrow console": ["x" * 40],
+                       "value": [4.70123e-05], "other": [-0.0], "big": [123456.789]})
+    Console(file=narrow, width=40).print(rich_table(df), crop=False)  # as print_study does
+    shown = narrow.getvalue()
+    assert "4.701e-05" in shown and "123457" in shown and "…" not in shown
+    assert not re.search(r"(?<!e)-0\b", shown)  # no negative zero (an exponent is fine)
 
 
 def test_the_default_columns_start_with_the_runs_headline_score():
