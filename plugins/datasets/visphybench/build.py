@@ -295,7 +295,7 @@ def _write_2d(args: tuple[Entry, str, bool]) -> dict | None:
 
 def _render(entries: list[Entry], root: Path, progress: bool, workers: int,
             lossless: bool = False) -> None:
-    from visphy_plugins.datasets.visphybench.catalogue import _track
+    from visphy_core.api.progress import track as _track  # bars on a terminal, lines in a log
 
     two_d = [e for e in entries if e.spec["dim"] == "2d"]
     three_d = [e for e in entries if e.spec["dim"] == "3d"]
