@@ -478,7 +478,7 @@ def _time_line(stage_seconds: dict, wall_s: float | None) -> str | None:
     """``time: wall 99.3 s · summed over scenes: render 12.1 s, score 187.7 s`` (scenes run
     side by side, so a stage's sum can exceed the wall time)."""
     parts = [f"{label} {stage_seconds[key]['total']:.1f} s" for key, label in STAGE_SECONDS
-             if (stage_seconds.get(key) or {}).get("total")]
+             if ((stage_seconds.get(key) or {}).get("total") or 0) >= 0.05]
     if not parts and wall_s is None:
         return None
     wall = f"wall {wall_s:.1f} s" if wall_s is not None else ""
@@ -503,8 +503,8 @@ def _print_family_means(console: Console, summary: dict, rows: dict, headline: s
     has_norm = any("norm" in by_view for by_view in rows.values())
     n = max((by_view["visphy"]["n_model_success"] for by_view in rows.values()
              if "visphy" in by_view), default=0)
-    console.print(f"means per family over the model's successes (n = {n}), visphy pairing"
-                  + ("; norm: 0 = the still clip, 1 = the twin" if has_norm else ""),
+    console.print(f"means per family (model successes, n = {n}, visphy pairing)"
+                  + ("; norm: 0 = still clip, 1 = twin" if has_norm else ""),
                   soft_wrap=False)
     table = Table(box=box.SIMPLE_HEAD, pad_edge=False, show_edge=False)
     table.add_column("family", no_wrap=True)
