@@ -1,10 +1,12 @@
 """Full VisPhyBench build time on this machine (target: ≤ 10 minutes on 2 cores).
 
     .venv/bin/python benchmarks/bench_build.py [--data-dir /tmp/visphy-bench-build] [--workers 2]
-        [--ground-truth threejs [--metrics default]]
+        [--ground-truth threejs [--metrics default]] [--shipped-catalogue]
 
 Builds from scratch (the data dir is wiped first) and prints the catalogue time (simulate and
-annotate every candidate), the render time, peak memory, and the per-dimension scene counts.
+annotate every candidate, even for the seed whose catalogue ships with visphy; with
+``--shipped-catalogue`` a first run's copy of it instead), the render time, peak memory, and the
+per-dimension scene counts.
 ``--ground-truth ENGINE`` then times the ground-truth step of the built split as a user runs it
 (``python -m visphy_core ground-truth dataset=visphybench engine=ENGINE metrics=…`` in a
 subprocess, the store in ``<data-dir>/ground_truth``): the twins rendered and every metric's
@@ -29,6 +31,8 @@ def main() -> None:
     parser.add_argument("--ground-truth", metavar="ENGINE",
                         help="also compute the split's ground-truth artefacts for ENGINE")
     parser.add_argument("--metrics", default="default", help="the suite they are for")
+    parser.add_argument("--shipped-catalogue", action="store_true",
+                        help="use the catalogue shipped with visphy (seed 0) as a run does")
     args = parser.parse_args()
 
     from visphy_plugins.datasets.visphybench.build import build_dataset
@@ -36,7 +40,8 @@ def main() -> None:
     data_dir = Path(args.data_dir)
     shutil.rmtree(data_dir, ignore_errors=True)
     start = time.perf_counter()
-    root = build_dataset(data_dir, seed=args.seed, workers=args.workers)
+    root = build_dataset(data_dir, seed=args.seed, workers=args.workers,
+                         rebuild_catalogue=not args.shipped_catalogue)
     total = time.perf_counter() - start
     times = json.loads((root / "build_times.json").read_text())
     metas = [json.loads(line) for line in (root / "metadata.jsonl").read_text().splitlines()]

@@ -13,10 +13,11 @@ starts one more run (the first job's config again) and checks:
 * the rows of the two runs with the same config, and of the run made afterwards, are equal.
 
 Usage: ``python benchmarks/concurrent_home.py [--repeats 5] [--scenes 4] [--json out.json]``.
-The first repeat builds the ``mini`` split into its fresh home (the catalogue of all 209 scenes
-included, as a new user's first run does); later repeats copy that build into their fresh home,
-so each repeat after the first measures the runs, not the build. tests/test_shared_home_runs.py
-runs a small version of the same check (`run_jobs`, `check_home`) on every test run.
+The first repeat builds the ``mini`` split into its fresh home (the shipped catalogue of all 209
+scenes written there, as a new user's first run does); later repeats copy that build into their
+fresh home, so each repeat after the first measures the runs, not the build.
+tests/test_shared_home_runs.py runs a small version of the same check (`run_jobs`,
+`check_home`) on every test run.
 """
 
 from __future__ import annotations

@@ -105,7 +105,7 @@ def pytest_collection_modifyitems(config, items):
 @pytest.fixture(scope="session")
 def mini_root(tmp_path_factory) -> Path:
     """The generated benchmark with its `mini` split rendered, built once per test session
-    (the whole catalogue is simulated: labels and splits are benchmark-wide).
+    (its catalogue is the one shipped with visphy: nothing is simulated).
 
     Built **lossless** (exact RGB clips) and placed where a default run looks for it: the
     tests compare reference programs, oracles and metrics with the exact ground truth, not

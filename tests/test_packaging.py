@@ -39,7 +39,10 @@ def test_wheel_contains_configs_assets_and_templates(wheel):
                      "visphy_core/sandbox/virtual_time.js", "visphy_core/calls/prompts/default.txt",
                      "visphy_core/infra/js_vendor/package-lock.json",
                      "visphy_core/spec/replay3d.html",
-                     "visphy_plugins/engines/templates/threejs_replay_2d.html"):
+                     "visphy_plugins/engines/templates/threejs_replay_2d.html",
+                     # the shipped catalogue (a fresh home simulates nothing) and its digest
+                     "visphy_plugins/datasets/visphybench/data/catalogue-v3-seed0.json.gz",
+                     "visphy_plugins/datasets/visphybench/data/catalogues.json"):
         assert required in names, required
     entry_points = next(n for n in names if n.endswith("entry_points.txt"))
     text = zipfile.ZipFile(wheel).read(entry_points).decode()

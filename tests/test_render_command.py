@@ -6,10 +6,13 @@ has), never a line per empty score column."""
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 
 import pytest
 
-from conftest import run_cli
+from conftest import REPO, run_cli
 from visphy_core.infra.video import decode_video
 from visphy_plugins.testing.replies import HTML_PROGRAM, reply
 
@@ -74,3 +77,28 @@ def test_render_of_one_generated_scene_builds_only_that_scene(visphy_home, tmp_p
         (line,) = [ln for ln in lines if ln.split()[:1] == [name]]
         assert float(line.split()[1]) == pytest.approx(scores[name], abs=1e-4)
     assert lines[-1] == f"folder: {out}"
+
+
+#: ``visphy`` in a child process whose catalogue simulator refuses to run.
+NO_SIMULATION = ("import sys; from visphy_plugins.datasets.visphybench import build; "
+                 "build.simulate_catalogue = lambda **_: sys.exit('simulated the catalogue'); "
+                 "from visphy_core.cli.main import main; sys.exit(main(sys.argv[1:]))")
+
+
+def test_render_of_one_scene_on_a_fresh_home_simulates_nothing(tmp_path):
+    """A fresh home: the catalogue shipped with visphy is written (none is simulated) and the
+    one scene named is the only one rendered."""
+    home = tmp_path / "home"
+    scene = "vpb3-s0-2d-t044-v01"
+    reply_file = tmp_path / "reply.txt"
+    reply_file.write_text(reply("html"))
+    proc = subprocess.run([sys.executable, "-c", NO_SIMULATION, "render", str(reply_file),
+                           "--engine", "threejs", "--scene", scene, "-o", str(tmp_path / "out"),
+                           *FAST], cwd=REPO, env=dict(os.environ, VISPHY_HOME=str(home)),
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert proc.stdout.splitlines()[0] == f"{scene}: rendered"
+    (root,) = (home / "data").iterdir()
+    assert [p.stem for p in (root / "meta").glob("*.json")] == [scene]
+    assert [p.stem for p in (root / "videos").glob("*.mp4")] == [scene]
+    assert len(json.loads((root / "catalogue.json").read_text())["scenes"]) == 209

@@ -20,12 +20,18 @@ class Dataset:
 
     name: str = ""
     description: str = ""
+    #: True when `load` applies ``dataset.scenes``, ``dataset.limit`` and ``dataset.shard``
+    #: itself (`visphy_core.api.selection.select_for` over its own listing, so that it builds
+    #: only the scenes chosen) and returns exactly those; False: it returns the whole split and
+    #: the core selects.
+    selects: bool = False
 
     def load(self, cfg: Any, data_dir: Path, progress: bool = True) -> list[Scene]:
-        """Every scene of the selected split (``cfg`` is the ``dataset`` node; ``data_dir`` is
-        ``paths.data_dir``, where generated data lives). Dataset-level problems (a missing root,
-        an unknown split) raise ``ValueError`` with one line; a scene whose own files are bad is
-        returned with its ``load_error`` set (it becomes a ``data_error`` row, never a gap)."""
+        """Every scene of the selected split, or only the selected ones when `selects` is set
+        (``cfg`` is the ``dataset`` node; ``data_dir`` is ``paths.data_dir``, where generated
+        data lives). Dataset-level problems (a missing root, an unknown split) raise
+        ``ValueError`` with one line; a scene whose own files are bad is returned with its
+        ``load_error`` set (it becomes a ``data_error`` row, never a gap)."""
         raise NotImplementedError
 
     def check(self, cfg: Any) -> None:

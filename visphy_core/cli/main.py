@@ -194,34 +194,9 @@ def cmd_setup(argv: list[str]) -> int:
 
 
 def cmd_build_dataset(argv: list[str]) -> int:
-    import os
-    import time
-    from pathlib import Path
+    from visphy_core.cli.build_dataset import cmd_build_dataset as build_dataset
 
-    from visphy_core.execute.datasets import build_dataset
-
-    home = os.environ.get("VISPHY_HOME", "visphy-out")
-    parser = argparse.ArgumentParser(
-        prog="visphy build-dataset",
-        description="Generate a dataset that is built, not downloaded (VisPhyBench by default: "
-                    "simulate every scene, render the requested split).")
-    parser.add_argument("--source", default="generated",
-                        help="the dataset plugin (default: generated, i.e. VisPhyBench)")
-    parser.add_argument("--split", default=None, help="sub, test or mini (default: all scenes)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--data-dir", default=f"{home}/data")
-    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
-    parser.add_argument("--lossless", action="store_true",
-                        help="exact-RGB clips (engine conformance) instead of the published "
-                             "encoding (H.264 yuv420p crf 23)")
-    args = parser.parse_args(argv)
-    start = time.perf_counter()
-    options = {"lossless": True} if args.lossless else {}
-    root = build_dataset(args.source, Path(args.data_dir), seed=args.seed, split=args.split,
-                         workers=args.workers, **options)
-    print(f"{args.source} (seed {args.seed}, split {args.split or 'all'}) ready in {root} "
-          f"({time.perf_counter() - start:.1f} s)")
-    return 0
+    return build_dataset(argv)
 
 
 def cmd_normalise(argv: list[str]) -> int:

@@ -110,7 +110,7 @@ class DatasetConfig:
     root: Optional[str] = None         # original layout: folder holding <split>/
     split: Optional[str] = None
     scenes: Optional[list[str]] = None  # explicit scene ids
-    limit: Optional[int] = field(default=None, metadata={"min": 1})  # first N scenes
+    limit: Optional[int] = field(default=None, metadata={"min": 1})  # N scenes across the split
     shard: Optional[str] = None        # "i/n": shard i (0-based) of n disjoint parts (merge)
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from visphy_core.api.scene import Scene
-from visphy_core.infra.shard import parse_shard, select_shard
+from visphy_core.api.selection import scene_traits, select_for
 
 
 def get_dataset(source: str):
@@ -22,26 +22,21 @@ def get_dataset(source: str):
 
 
 def load_dataset(cfg, data_dir: Path, progress: bool = True) -> list[Scene]:
-    """Scenes selected by the ``dataset`` config group (generated ones are built on first use).
+    """Scenes selected by the ``dataset`` config group (generated ones are built on first use):
+    ``dataset.scenes``, then ``dataset.limit`` spread over the split's dimensions, difficulties
+    and templates, then ``dataset.shard`` (`visphy_core.api.selection`).
 
     Dataset-level errors (missing root, unknown scene ids, empty selection) raise before any
-    work; a scene whose own files are bad is kept and becomes a ``data_error`` row.
+    work; a scene whose own files are bad is kept and becomes a ``data_error`` row. A plugin
+    that selects for itself (``Dataset.selects``: it builds only what it chose) is trusted with
+    the selection; any other returns its whole split and is narrowed here.
     """
-    scenes = get_dataset(str(cfg.source)).load(cfg, Path(data_dir), progress=progress)
-    if cfg.scenes:
-        missing = sorted(set(cfg.scenes) - {s.scene_id for s in scenes})
-        if missing:
-            raise ValueError(f"dataset {cfg.name!r} has no scene(s) {', '.join(missing)}")
-        wanted = set(cfg.scenes)  # here too: a plugin need not select them itself
-        scenes = [s for s in scenes if s.scene_id in wanted]
-    if cfg.limit is not None:
-        scenes = scenes[: int(cfg.limit)]
-    shard = parse_shard(cfg.get("shard"))
-    if shard is not None:  # after the limit: the shards together are the unsharded selection
-        scenes = select_shard(scenes, *shard)
+    dataset = get_dataset(str(cfg.source))
+    scenes = dataset.load(cfg, Path(data_dir), progress=progress)
+    if not getattr(dataset, "selects", False):
+        return select_for(cfg, scenes, scene_traits)
     if not scenes:
-        raise ValueError(f"dataset {cfg.name!r} selected no scenes (split={cfg.split!r}"
-                         f"{f', shard={cfg.shard}' if shard else ''})")
+        raise ValueError(f"dataset {cfg.name!r} selected no scenes (split={cfg.split!r})")
     return scenes
 
 

@@ -101,8 +101,8 @@ def render_reply(argv: list[str]) -> int:
     for judge in judges:
         judge[1].check_ready()
     cache = Cache(Path(cfg.paths.cache_dir).resolve(), enabled=bool(cfg.run.cache))
-    # a generated dataset builds only this scene (its catalogue too, the first time): a
-    # terminal sees that progress, transient
+    # a generated dataset renders only this scene (and writes its catalogue, the first time):
+    # a terminal sees that progress, transient
     scenes = load_dataset(cfg.dataset, Path(cfg.paths.data_dir).resolve(),
                           progress=sys.stdout.isatty())
     if len(scenes) != 1:

@@ -1,7 +1,9 @@
 """Write the generated VisPhyBench to disk: the VisPhyBench layout plus visphy's exact ground truth.
 
 ``<data_dir>/visphybench-v<version>-seed<seed>[-lossless]/`` holds ``catalogue.json`` (every scene's
-annotated spec, labels, splits, rejection counts: simulated, not rendered), and per rendered scene
+annotated spec, labels, splits, rejection counts: simulated, not rendered; for the default seed
+copied from the catalogue shipped with visphy, `visphy_plugins.datasets.visphybench.shipped`),
+and per rendered scene
 ``videos/<id>.mp4``, ``detection_json/<id>_frame_01.json``, ``keyframes/<id>_frame_01.png`` and
 ``_frame_10.png``, ``specs/<id>.json``, ``trajectories/<id>.npz`` and ``meta/<id>.json`` (written
 last: its presence means the scene is complete). ``metadata.jsonl``, ``difficulty_table.json``
@@ -13,7 +15,7 @@ Any number of processes may build into one root at once (runs, studies, ``visphy
 sharing a home). Each once-only step happens under an ``flock`` (`exclusive`) and is checked
 again inside it, so whoever comes next finds it done and only reads:
 
-- ``catalogue.json.lock``: simulating and writing the catalogue (one process simulates);
+- ``catalogue.json.lock``: writing the catalogue, shipped or simulated (one process writes);
 - ``meta/<id>.json.lock``: rendering that scene. A lock per scene, not per build: a process that
   needs four scenes waits only for those four, never for another process's 209-scene build, and
   two concurrent full builds each skip what the other has finished;
@@ -37,13 +39,14 @@ from pathlib import Path
 import numpy as np
 
 from visphy_core.api.media import PUBLISHED_CRF, png_bytes
+from visphy_core.api.selection import Traits
 from visphy_core.api.storage import atomic_write, exclusive, lock_path
 from visphy_plugins.datasets.visphybench.catalogue import (
     GENERATOR_VERSION,
     Catalogue,
     Entry,
-    build_catalogue,
 )
+from visphy_plugins.datasets.visphybench.catalogue import build_catalogue as simulate_catalogue
 
 #: The written files' version (= the generator's): a build of another version is never mixed
 #: with this one (each version has its own folder, `dataset_root`).
@@ -90,26 +93,33 @@ def _npz_bytes(rollout, dim: str) -> bytes:
 
 
 def load_or_build_catalogue(root: Path, seed: int, progress: bool = True,
-                            workers: int = 2) -> Catalogue:
-    """The catalogue of ``root``, simulated and written once per root: under its lock, and
-    checked again inside it, so of concurrent callers one builds and the others read its file.
-    A ``catalogue.json`` of another builder version or seed is rebuilt (its scenes with it); one
+                            workers: int = 2, rebuild: bool = False) -> Catalogue:
+    """The catalogue of ``root``, written once per root: under its lock, and checked again
+    inside it, so of concurrent callers one writes it and the others read its file. It comes
+    from `build_catalogue` (the shipped copy for the default seed, else simulated). A
+    ``catalogue.json`` of another builder version or seed is replaced (its scenes with it); one
     that does not parse is named in one warning and rebuilt (it is a deterministic function of
-    the generator, so the scenes already rendered stay valid)."""
+    the generator, so the scenes already rendered stay valid). ``rebuild``: simulate it here
+    whatever is on disk or shipped (``build-dataset --rebuild-catalogue``); a scene whose entry
+    comes out different is rendered again."""
     path = root / "catalogue.json"
     found = _read_catalogue(path, seed)
-    if isinstance(found, Catalogue):
+    if isinstance(found, Catalogue) and not rebuild:
         return found
     with exclusive(lock_path(path), f"the benchmark catalogue {path}"):
         found = _read_catalogue(path, seed)
-        if isinstance(found, Catalogue):  # another process built it while this one waited
-            return found
-        if found == _STALE:
+        if isinstance(found, Catalogue):
+            if not rebuild:  # another process wrote it while this one waited
+                return found
+        elif found == _STALE:
             for stale in (root / "meta").glob("*.json"):  # built by another builder version
                 stale.unlink()
         elif found != _MISSING:
-            log.warning("%s is unreadable (%s): rebuilding it from the generator", path, found)
-        return _build_catalogue_file(root, path, seed, progress, workers)
+            log.warning("%s is unreadable (%s): rebuilding it", path, found)
+        catalogue = _build_catalogue_file(root, path, seed, progress, workers, rebuild)
+        if isinstance(found, Catalogue):
+            _drop_changed_scenes(root, found, catalogue)
+        return catalogue
 
 
 def _read_catalogue(path: Path, seed: int) -> Catalogue | str:
@@ -121,6 +131,11 @@ def _read_catalogue(path: Path, seed: int) -> Catalogue | str:
         return _MISSING
     except (OSError, ValueError) as exc:
         return f"{type(exc).__name__}: {' '.join(str(exc).split())[:200]}"
+    return _parse_catalogue(data, seed)
+
+
+def _parse_catalogue(data, seed: int) -> Catalogue | str:
+    """A parsed ``catalogue.json`` as a `Catalogue`, or `_STALE`, or what is wrong with it."""
     try:
         if data.get("builder") != BUILDER_VERSION or data.get("seed") != seed:
             return _STALE
@@ -132,18 +147,75 @@ def _read_catalogue(path: Path, seed: int) -> Catalogue | str:
         return f"not a catalogue: {type(exc).__name__}: {' '.join(str(exc).split())[:200]}"
 
 
-def _build_catalogue_file(root: Path, path: Path, seed: int, progress: bool,
-                          workers: int) -> Catalogue:
-    """Simulate the catalogue and write it atomically (the caller holds its lock)."""
-    start = time.perf_counter()
-    catalogue = build_catalogue(seed=seed, workers=workers, progress=progress)
-    atomic_write(path, json_bytes({
-        "builder": BUILDER_VERSION, "seed": seed, "splits": catalogue.splits,
+def catalogue_bytes(catalogue: Catalogue) -> bytes:
+    """What ``catalogue.json`` holds: the same bytes for the same catalogue."""
+    return json_bytes({
+        "builder": BUILDER_VERSION, "seed": catalogue.seed, "splits": catalogue.splits,
         "rejected": catalogue.rejected,
         "scenes": [{"spec": e.spec, "digest": e.digest, "attempts": e.attempts,
-                    "rejected": e.rejected} for e in catalogue.entries]}))
+                    "rejected": e.rejected} for e in catalogue.entries]})
+
+
+def shipped_catalogue(seed: int) -> Catalogue | None:
+    """The catalogue shipped with visphy for ``seed`` and this builder version; None when none
+    is shipped for it, or (with one warning saying why) when the shipped file is damaged."""
+    from visphy_plugins.datasets.visphybench.shipped import ShippedDamaged, shipped_bytes
+
+    try:
+        raw = shipped_bytes(seed)
+        if raw is None:
+            return None
+        try:
+            found = _parse_catalogue(json.loads(raw), seed)
+        except ValueError as exc:
+            raise ShippedDamaged(f"not JSON: {exc}") from None
+        if not isinstance(found, Catalogue):
+            raise ShippedDamaged("not a catalogue of this builder and seed"
+                                 if found == _STALE else found)
+        return found
+    except ShippedDamaged as exc:
+        log.warning("the catalogue shipped with visphy for seed %d is unusable (%s): "
+                    "simulating it instead", seed, exc)
+        return None
+
+
+def build_catalogue(seed: int = 0, workers: int = 2, progress: bool = True) -> Catalogue:
+    """The catalogue of ``seed``: the copy shipped with visphy when there is one for this seed
+    and generator version (`shipped_catalogue`), else simulated (`simulate_catalogue`: every
+    scene drawn, simulated and screened, one to two minutes on two cores)."""
+    shipped = shipped_catalogue(seed)
+    if shipped is not None:
+        return shipped
+    return simulate_catalogue(seed=seed, workers=workers, progress=progress)
+
+
+def _build_catalogue_file(root: Path, path: Path, seed: int, progress: bool,
+                          workers: int, simulate: bool = False) -> Catalogue:
+    """Make the catalogue (``simulate``: never the shipped copy) and write it atomically (the
+    caller holds its lock)."""
+    start = time.perf_counter()
+    if simulate:
+        catalogue = simulate_catalogue(seed=seed, workers=workers, progress=progress)
+    else:
+        catalogue = build_catalogue(seed=seed, workers=workers, progress=progress)
+    atomic_write(path, catalogue_bytes(catalogue))
     _note_time(root, "catalogue_s", time.perf_counter() - start)
     return catalogue
+
+
+def _drop_changed_scenes(root: Path, before: Catalogue, after: Catalogue) -> None:
+    """Remove the rendered mark (``meta/<id>.json``) of every scene whose entry differs between
+    two catalogues of one root, so that it is rendered again from the new one."""
+    old = {e.spec["scene_id"]: (e.spec, e.digest) for e in before.entries}
+    new = {e.spec["scene_id"]: (e.spec, e.digest) for e in after.entries}
+    changed = sorted(sid for sid in old.keys() | new.keys() if old.get(sid) != new.get(sid))
+    dropped = [sid for sid in changed if (root / "meta" / f"{sid}.json").is_file()]
+    for sid in dropped:
+        (root / "meta" / f"{sid}.json").unlink()
+    if changed:
+        log.warning("the rebuilt catalogue of %s differs from the one it replaces in %d scene(s)"
+                    "%s", root, len(changed),
+                    f"; {len(dropped)} rendered one(s) will be rendered again" if dropped else "")
 
 
 def _note_time(root: Path, key: str, seconds: float) -> None:
@@ -181,7 +253,9 @@ def _simulate_checked(spec: dict, digest: str):
         got = trajectory_digest_3d(rollout)
     if got != digest:
         raise RuntimeError(f"{spec['scene_id']}: re-simulation gave trajectory digest {got[:12]}, "
-                           f"the catalogue says {digest[:12]} (non-deterministic simulation)")
+                           f"the catalogue says {digest[:12]} (the simulation differs here from "
+                           "where the catalogue was made: `visphy build-dataset "
+                           "--rebuild-catalogue` simulates it on this machine)")
     return rollout
 
 
@@ -366,30 +440,59 @@ def _write_previews(root: Path, metas: list[dict]) -> None:
                    for m in picks], root / "preview.mp4")
 
 
-def build_dataset(data_dir: Path, seed: int = 0, split: str | None = None,
-                  progress: bool = True, workers: int = 2, lossless: bool = False,
-                  scenes: list[str] | None = None) -> Path:
-    """Make sure every scene of ``split`` (default: all) is rendered; returns the dataset root
-    (this generator version's; ``lossless``: its exact-RGB twin build). ``scenes``: only
-    those scenes of it (a run naming ``dataset.scenes``, the ``render`` command's one scene)."""
-    root = dataset_root(data_dir, seed, lossless=lossless)
-    catalogue = load_or_build_catalogue(root, seed, progress=progress, workers=workers)
-    start = time.perf_counter()
-    if split is not None and split not in catalogue.splits:
+def split_entries(catalogue: Catalogue, split: str | None) -> list[Entry]:
+    """The entries of ``split`` (None: every scene), in catalogue order; ``ValueError`` naming
+    the valid splits for an unknown one."""
+    if split is None:
+        return list(catalogue.entries)
+    if split not in catalogue.splits:
         raise ValueError(f"the generated benchmark has no split {split!r}; valid: "
                          f"{', '.join(sorted(catalogue.splits))}")
-    wanted = set(catalogue.splits[split]) if split else None
+    members = set(catalogue.splits[split])
+    return [e for e in catalogue.entries if e.spec["scene_id"] in members]
+
+
+def entry_traits(entry: Entry) -> Traits:
+    """What `visphy_core.api.selection` knows of a catalogue entry (the same as of its loaded
+    `Scene`): id, dimension, difficulty label, template."""
+    spec = entry.spec
+    template = spec.get("template_id")
+    return Traits(scene_id=spec["scene_id"], dim=spec.get("dim"),
+                  difficulty=(spec.get("difficulty") or {}).get("label"),
+                  template=None if template is None else str(template))
+
+
+def render_scenes(root: Path, catalogue: Catalogue, split: str | None = None,
+                  scenes: list[str] | None = None, progress: bool = True, workers: int = 2,
+                  lossless: bool = False) -> None:
+    """Render every scene of ``split`` (default: all) not rendered yet, or only ``scenes`` of
+    it, then rewrite the indexes."""
+    start = time.perf_counter()
+    wanted = split_entries(catalogue, split)
     if scenes:
-        wanted = (wanted if wanted is not None else {e.spec["scene_id"]
-                                                     for e in catalogue.entries}) & set(scenes)
-    todo = [e for e in catalogue.entries
-            if (wanted is None or e.spec["scene_id"] in wanted)
-            and not _meta_path(root, e).is_file()]
+        named = set(scenes)
+        wanted = [e for e in wanted if e.spec["scene_id"] in named]
+    todo = [e for e in wanted if not _meta_path(root, e).is_file()]
     if todo:
         _render(todo, root, progress, workers, lossless=lossless)
         if not scenes:  # a few scenes' time is no split's build time
             _note_time(root, f"render_{split or 'all'}_s", time.perf_counter() - start)
     _update_indexes(root, catalogue)
+
+
+def build_dataset(data_dir: Path, seed: int = 0, split: str | None = None,
+                  progress: bool = True, workers: int = 2, lossless: bool = False,
+                  scenes: list[str] | None = None, rebuild_catalogue: bool = False) -> Path:
+    """Make sure every scene of ``split`` (default: all) is rendered; returns the dataset root
+    (this generator version's; ``lossless``: its exact-RGB twin build). ``scenes``: only
+    those scenes of it (a run's selection, the ``render`` command's one scene).
+    ``rebuild_catalogue``: simulate the catalogue here rather than use the shipped one or the
+    one on disk."""
+    root = dataset_root(data_dir, seed, lossless=lossless)
+    catalogue = load_or_build_catalogue(root, seed, progress=progress, workers=workers,
+                                        rebuild=rebuild_catalogue)
+    render_scenes(root, catalogue, split, scenes, progress=progress, workers=workers,
+                  lossless=lossless)
     return root
 
 

@@ -52,26 +52,70 @@ class VisPhyBench(Dataset):
     name = "generated"
     description = ("VisPhyBench regenerated from its templates: 2D Box2D and 3D cannon-es "
                    "scenes, simulated on first use and rendered per split")
+    #: ``dataset.scenes``, ``dataset.limit`` and ``dataset.shard`` are applied to the catalogue
+    #: before anything is rendered: a run renders the ground truth of its own scenes only.
+    selects = True
 
     def load(self, cfg: Any, data_dir: Path, progress: bool = True) -> list[Scene]:
-        from visphy_plugins.datasets.visphybench.build import build_dataset
+        from visphy_core.api.selection import scene_traits, select_for
+        from visphy_plugins.datasets.visphybench.build import (
+            dataset_root,
+            entry_traits,
+            load_or_build_catalogue,
+            render_scenes,
+            split_entries,
+        )
         from visphy_plugins.datasets.visphybench.loader import load_generated
 
         version = _version(cfg)
         lossless = bool(cfg_get(cfg, "lossless", False))
-        if version == GENERATOR_VERSION:
-            root = build_dataset(data_dir, seed=cfg.seed, split=cfg.split, progress=progress,
-                                 lossless=lossless, scenes=list(cfg.scenes or []) or None)
-        else:
-            root = _existing_build(Path(data_dir), int(cfg.seed), version, lossless)
-        return load_generated(root, split=cfg.split, scene_ids=cfg.scenes, strict=False)
+        seed = int(cfg.seed)
+        if version != GENERATOR_VERSION:
+            root = _existing_build(Path(data_dir), seed, version, lossless)
+            return select_for(cfg, load_generated(root, split=cfg.split, strict=False),
+                              scene_traits)
+        root = dataset_root(Path(data_dir), seed, lossless=lossless)
+        catalogue = load_or_build_catalogue(root, seed, progress=progress)
+        entries = split_entries(catalogue, cfg.split)
+        chosen = [e.spec["scene_id"] for e in select_for(cfg, entries, entry_traits)]
+        render_scenes(root, catalogue, split=cfg.split, progress=progress, lossless=lossless,
+                      scenes=None if len(chosen) == len(entries) else chosen)
+        scenes = load_generated(root, split=cfg.split, scene_ids=chosen, strict=False)
+        missing = sorted(set(chosen) - {s.scene_id for s in scenes})
+        if missing:
+            raise ValueError(f"{root / 'metadata.jsonl'} lacks scene(s) {_listing(missing)}, "
+                             "rendered for this run")
+        return scenes
 
     def build(self, data_dir: Path, *, seed: int = 0, split: str | None = None,
-              workers: int = 1, progress: bool = True, lossless: bool = False) -> Path:
-        from visphy_plugins.datasets.visphybench.build import build_dataset
+              workers: int = 1, progress: bool = True, lossless: bool = False,
+              rebuild_catalogue: bool = False, scenes: list[str] | None = None,
+              limit: int | None = None) -> Path:
+        """``build-dataset``: the split's scenes, or those of them named (``scenes``) and
+        ``limit`` of those (spread as a run's ``dataset.limit`` is)."""
+        from visphy_core.api.selection import select_scenes
+        from visphy_plugins.datasets.visphybench.build import (
+            build_dataset,
+            dataset_root,
+            entry_traits,
+            load_or_build_catalogue,
+            render_scenes,
+            split_entries,
+        )
 
-        return build_dataset(data_dir, seed=seed, split=split, workers=workers,
-                             progress=progress, lossless=lossless)
+        if not scenes and limit is None:
+            return build_dataset(data_dir, seed=seed, split=split, workers=workers,
+                                 progress=progress, lossless=lossless,
+                                 rebuild_catalogue=rebuild_catalogue)
+        root = dataset_root(Path(data_dir), seed, lossless=lossless)
+        catalogue = load_or_build_catalogue(root, seed, progress=progress, workers=workers,
+                                            rebuild=rebuild_catalogue)
+        entries = split_entries(catalogue, split)
+        chosen = select_scenes(entries, entry_traits, scenes=scenes, limit=limit,
+                               name=self.name, split=split)
+        render_scenes(root, catalogue, split, [e.spec["scene_id"] for e in chosen],
+                      progress=progress, workers=workers, lossless=lossless)
+        return root
 
     def check(self, cfg: Any) -> None:
         """Where the catalogue is already on disk, ``dataset.split`` and ``dataset.scenes`` are
