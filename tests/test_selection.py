@@ -143,3 +143,15 @@ def test_named_scenes_of_the_generated_benchmark_are_checked_against_the_split(t
         load_dataset(cfg.dataset, tmp_path, progress=False)
     (root,) = tmp_path.iterdir()
     assert not list(root.glob("meta/*.json"))  # refused before rendering anything
+
+
+def test_a_shards_run_finds_all_its_scenes_again(tmp_path, monkeypatch):
+    """Re-scoring, intervening on or rating a shard's run loads the scenes it names, all of
+    them: its ``dataset.shard`` selected them once and is not applied to them again."""
+    from visphy_core.execute import run_scenes
+
+    cfg = compose(["dataset=tiny", "dataset.shard=0/2", f"paths.data_dir={tmp_path}"])
+    ran = [s.scene_id for s in load_dataset(cfg.dataset, tmp_path, progress=False)]
+    assert len(ran) == 2
+    monkeypatch.setattr(run_scenes, "read_run_config", lambda run_dir: cfg)
+    assert sorted(run_scenes.load_run_scenes(tmp_path, ran)) == sorted(ran)

@@ -55,6 +55,7 @@ def load_run_scenes(run_dir: Path, scene_ids: list[str]) -> dict[str, Scene]:
     dataset = OmegaConf.create(OmegaConf.to_container(cfg.dataset, resolve=True))
     dataset.scenes = sorted(set(scene_ids))
     dataset.limit = None
+    dataset.shard = None  # a shard's run names its own scenes: sharding them again drops some
     try:
         scenes = load_dataset(dataset, run_data_dir(cfg), progress=False)
     except (ValueError, FileNotFoundError) as exc:
