@@ -1,6 +1,9 @@
 """What a person sees in the terminal: progress per stage while a run goes, then the summary
 table, the report's path and the command that opens the run in MLflow."""
 
+# size: everything a run prints for people (live progress, log lines, the summary tables and
+# their legend) in one module, so one place decides what the terminal and a log show
+
 from __future__ import annotations
 
 import os
