@@ -207,7 +207,7 @@ class SceneBook:
         self._lock = threading.Lock()
 
     def _build(self) -> dict[str, Any]:
-        from visphy_core.infra.png import png_bytes
+        from visphy_core.api.media import png_bytes
 
         with self._lock:
             if self._index is None:
