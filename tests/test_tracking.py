@@ -3,6 +3,8 @@ tests/test_mlflow_rest.py checks a real server)."""
 
 from __future__ import annotations
 
+import os
+
 import enum
 import json
 
@@ -115,3 +117,18 @@ def test_a_studys_comparison_table_has_a_row_per_job(tmp_path):
     assert done["model_success_rate"] == 0.5 and "psnr" not in done
     assert failed == {"job": 1, "label": "model=b engine=p5", "model": "b", "engine": "p5",
                       "status": "failed", "mlflow_run_id": None}
+
+
+def test_mlflow_telemetry_is_off_unless_the_user_turns_it_on():
+    """Its thread races the run's threads over the environment (and calls out of machines
+    that are often offline); a user's own setting wins."""
+    import subprocess
+    import sys
+
+    code = ("import os, visphy_core.tracking, mlflow; "
+            "print(os.environ['MLFLOW_DISABLE_TELEMETRY'])")
+    env = {k: v for k, v in os.environ.items() if k != "MLFLOW_DISABLE_TELEMETRY"}
+    off = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    on = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                        env=dict(env, MLFLOW_DISABLE_TELEMETRY="false"))
+    assert off.stdout.strip() == "true" and on.stdout.strip() == "false"

@@ -170,9 +170,21 @@ def visphy_run_start(run):
     try:
         _start(run)
     except Exception as exc:  # noqa: BLE001 - tracking is a record of the run, not the run
-        _ACTIVE.pop(id(run), None)
         run.extra["tracking_failed"] = _problem(run, exc)
         log.warning("%s", run.extra["tracking_failed"])
+        _close_failed(_ACTIVE.pop(id(run), None))
+
+
+def _close_failed(active) -> None:
+    """Mark an MLflow run whose logging failed FAILED (never left RUNNING), if the store lets
+    us."""
+    if active is None:
+        return
+    client, run_id = active
+    try:
+        client.set_terminated(run_id, status="FAILED")
+    except Exception:  # noqa: BLE001 - the store that just failed may fail again
+        pass
 
 
 def _start(run) -> None:
@@ -283,10 +295,7 @@ def visphy_run_end(run, summary):
         summary["tracking_failed"] = _problem(run, exc)
         summary.pop("mlflow", None)
         log.warning("%s", summary["tracking_failed"])
-        try:
-            client.set_terminated(run_id, status="FAILED")
-        except Exception:  # noqa: BLE001 - the store that just failed may fail again
-            pass
+        _close_failed(active)
 
 
 def _end(client, run_id: str, run, summary: dict) -> None:

@@ -16,6 +16,13 @@ from visphy_core.infra.locks import exclusive, lock_path
 
 log = logging.getLogger("visphy.tracking")
 
+#: MLflow's usage telemetry stays off unless the user turns it on: its background thread sets
+#: and removes an environment variable while the run's threads read the environment (a race
+#: that failed a run's tracking with ``KeyError: '_MLFLOW_TELEMETRY_SESSION_ID'`` when eight
+#: runs shared a machine), and it would send requests from machines that are often offline.
+#: Set before MLflow is first imported (this module is imported when the plugin loads).
+os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "true")
+
 
 def tracking_uris(cfg, root: Path) -> tuple[str, str | None]:
     """(tracking URI, artifact root URI) from the ``tracking`` config group. A tracking server
