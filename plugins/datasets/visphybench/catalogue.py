@@ -242,8 +242,7 @@ def build_catalogue(seed: int = 0, workers: int = 2, progress: bool = True,
 
 
 def _track(iterable: Iterable, total: int, description: str, progress: bool) -> Iterable:
-    if not progress:
-        return iterable
-    from rich.progress import track
+    """A bar on a terminal, paced plain lines in a log (`visphy_core.api.progress.track`)."""
+    from visphy_core.api.progress import track
 
-    return track(iterable, total=total, description=description, transient=True)
+    return track(iterable, total=total, description=description, enabled=progress)
