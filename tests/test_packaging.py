@@ -153,3 +153,10 @@ def test_a_fresh_venv_gets_visphy_with_every_plugin_and_config(fresh_venv, tmp_p
     for group, options in _conf_options().items():
         assert group in shown, (group, usage)
         assert options <= shown[group], (group, options - shown[group])
+
+    # the shipped catalogue is read from the installed package, its digest checked
+    shipped = _fresh(fresh_venv, str(fresh_venv / "bin" / "python"), "-c", (
+        "from visphy_plugins.datasets.visphybench.build import shipped_catalogue; "
+        "from visphy_plugins.datasets.visphybench.shipped import DATA; "
+        "print(len(shipped_catalogue(0).entries), DATA)"), cwd=tmp_path).stdout.split()
+    assert shipped[0] == "209" and Path(shipped[1]).resolve().is_relative_to(fresh_venv.resolve())

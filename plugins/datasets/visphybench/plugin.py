@@ -51,7 +51,7 @@ def _existing_build(data_dir: Path, seed: int, version: int, lossless: bool) -> 
 class VisPhyBench(Dataset):
     name = "generated"
     description = ("VisPhyBench regenerated from its templates: 2D Box2D and 3D cannon-es "
-                   "scenes, simulated on first use and rendered per split")
+                   "scenes, each rendered on first use by a run that selects it")
     #: ``dataset.scenes``, ``dataset.limit`` and ``dataset.shard`` are applied to the catalogue
     #: before anything is rendered: a run renders the ground truth of its own scenes only.
     selects = True
