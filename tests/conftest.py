@@ -82,7 +82,8 @@ LONGEST_FIRST = ("test_engines_browser.py", "test_experiments.py", "test_hostile
                  "test_resume.py", "test_models_e2e.py", "test_launchers.py",
                  "test_metric_suite_e2e.py", "test_hostile_process.py", "test_analysis_runs.py",
                  "test_config_values.py", "test_workers.py", "test_run_faults.py",
-                 "test_judges.py", "test_render_paths.py", "test_browser_engine.py")
+                 "test_judges.py", "test_render_paths.py", "test_browser_engine.py",
+                 "test_shipped_catalogue.py")
 
 
 def _file_rank(item) -> int:
