@@ -151,3 +151,5 @@ def test_baselines_are_registered_video_models():
     for name in ("static", "flow_extrapolate"):
         model = registry.get("models", name)(None)
         assert model.output_kind == "video" and model.name == name
+        assert model.baseline and model.describe()["baseline"] is True  # no model's successes
+    assert registry.get("models", "oracle")(None).baseline is False

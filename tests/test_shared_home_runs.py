@@ -43,6 +43,11 @@ def test_three_runs_at_once_then_a_fourth_on_one_fresh_home(tmp_path, mini_root)
     (first,), (twin,), (fourth,) = (j.run_dirs for j in (together[0], together[2], after[0]))
     assert len({first, twin, fourth}) == 3  # a live run is never resumed by its twin
     assert same_rows(first, twin) is None and same_rows(first, fourth) is None
+    (static,) = together[1].run_dirs  # a baseline's clips are its own, no model's successes
+    lines = together[1].out.splitlines()
+    assert any(ln.startswith("baseline clips made 1/1") for ln in lines)
+    assert not any(ln.startswith("model success") for ln in lines)
+    assert "baseline clips made (no model" in (static / "report" / "index.html").read_text()
     assert (home / "mlflow.db.lock").is_file()
     with sqlite3.connect(home / "mlflow.db") as con:  # MLflow 3's UI opens on the runs list
         kinds = con.execute("select value from experiment_tags where key = "

@@ -131,6 +131,7 @@ def _fit(frames: list[np.ndarray], contract: OutputContract) -> np.ndarray:
 class _Baseline(Model):
     version = "1"
     output_kind = "video"
+    baseline = True
 
     def _respond(self, frames: np.ndarray, request: ModelRequest, text: str, start: float,
                  raw: dict) -> ModelResponse:

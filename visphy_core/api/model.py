@@ -135,6 +135,9 @@ class Model(ABC):
     privileged: bool = False
     #: "program" (a reply with code) or "video" (a pixel-space baseline hands over a clip).
     output_kind: str = "program"
+    #: True for a reference point that is no model (the still clip, a flow extrapolation):
+    #: its clips are counted as the baseline's, never as a model's successes.
+    baseline: bool = False
 
     def __init__(self, cfg: Any = None):
         self.cfg = cfg
@@ -161,7 +164,7 @@ class Model(ABC):
     def describe(self) -> dict:
         """What the run manifest records about the model."""
         return {"name": self.name, "version": self.version, "privileged": self.privileged,
-                "output": self.output_kind}
+                "output": self.output_kind, "baseline": self.baseline}
 
     async def aclose(self) -> None:
         """Release clients (called once, on the generation service's loop)."""

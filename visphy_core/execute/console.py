@@ -360,6 +360,14 @@ def summary_width(full: bool = False) -> int:
     return width if full else max(40, min(width, SUMMARY_WIDTH))
 
 
+def success_label(summary: dict) -> str:
+    """What a run's own successes are: a model's programs (or clips), or a baseline's clips,
+    which are no model's success."""
+    if summary.get("model_baseline"):
+        return "baseline clips made"
+    return "model success"
+
+
 def print_summary(summary: dict, results: list, calls_heading: str | None = None,
                   mode: str = "short", wall_s: float | None = None) -> None:
     """The end of a run for people, within `SUMMARY_WIDTH` columns: the title, the headline
@@ -424,7 +432,7 @@ def print_summary(summary: dict, results: list, calls_heading: str | None = None
     failures = summary.get("failures") or {}
     model_f, other_f = failures.get("model") or {}, failures.get("infra_or_data") or {}
     console.print(
-        f"model success {summary['model_success']}/{n}"
+        f"{success_label(summary)} {summary['model_success']}/{n}"
         + (f" ({summary['model_success']}/{n_eval} evaluable)" if n_eval != n else "")
         + f" · system success {summary['system_success']}/{n} · fallbacks "
         f"{summary['fallbacks']} · repaired {summary['repaired']}"

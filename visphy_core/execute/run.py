@@ -688,6 +688,8 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
         summary = summarise(ctx.results, metrics, cache, judge_keys, ledger,
                             services.protocol, services.headline)
         summary.update({"status": status, "run_dir": str(run_dir), "model": cfg.model.name,
+                        "model_output": services.model.output_kind,
+                        "model_baseline": services.model.baseline,
                         "engine": cfg.engine.name, "dataset": cfg.dataset.name,
                         "n_selected": len(scenes), "resumed_rows": len(restored),
                         "config_hash": extra["config_hash"],

@@ -133,8 +133,12 @@ def _card(key: str, value: str, ident: str = "") -> str:
 def counts(run: RunData) -> str:
     s = run.summary
     n = s.get("n_scenes", len(run.results))
+    model = run.manifest.get("model") or {}
+    own = ("baseline clips made (no model: the baseline's own clip)" if model.get("baseline")
+           else "model success (the model's own clip)" if model.get("output") == "video"
+           else "model success (the model's own program)")
     cards = [
-        _card("model success (the model's own program)",
+        _card(own,
               esc(rate(s.get("model_success"), n)), "count-model-success"),
         _card("model success, evaluable scenes",
               esc(rate(s.get("model_success"), s.get("n_evaluable")))),
