@@ -53,7 +53,7 @@ SCENE_TABLE, STUDY_TABLE = "scenes.json", "comparison.json"
 def git_commit() -> str | None:
     """The commit of the visphy checkout this code runs from (None for an installed wheel, or
     when git is missing)."""
-    repo = Path(__file__).resolve().parents[1]
+    repo = Path(__file__).resolve().parents[2]
     if not (repo / ".git").exists():
         return None
     try:
