@@ -7,14 +7,12 @@ column is as wide as its widest cell, and the labels fold instead."""
 
 from __future__ import annotations
 
-import os
-import shutil
-import sys
 
 import pandas as pd
 
 from visphy_core.analysis import small_sample
 from visphy_core.analysis.export import _marked, fmt
+from visphy_core.infra.progress import output_columns
 
 #: the console's width when stdout is no terminal and ``COLUMNS`` is unset
 LOG_WIDTH = 200
@@ -86,14 +84,7 @@ def spearman_table(long: pd.DataFrame, means: pd.DataFrame | None,
 def _console():
     from rich.console import Console
 
-    columns = os.environ.get("COLUMNS", "")
-    if columns.isdigit() and int(columns) > 0:
-        width = int(columns)
-    elif sys.stdout.isatty():
-        width = shutil.get_terminal_size().columns
-    else:
-        width = LOG_WIDTH
-    return Console(width=width, highlight=False)
+    return Console(width=output_columns(LOG_WIDTH), highlight=False)
 
 
 def print_study(outputs, out_dir=None, console=None) -> None:

@@ -6,8 +6,6 @@ table, the report's path and the command that opens the run in MLflow."""
 
 from __future__ import annotations
 
-import os
-import shutil
 import sys
 import threading
 import time
@@ -32,7 +30,7 @@ from rich.text import Text
 from visphy_core.calls.retry import RETRYABLE, kind_of_description
 from visphy_core.infra.events import STAGES, StageEvents
 from visphy_core.infra.numbers import number
-from visphy_core.infra.progress import EVERY, PlainLines, duration, rate_and_eta
+from visphy_core.infra.progress import EVERY, PlainLines, duration, output_columns, rate_and_eta
 from visphy_core.tracking import mlflow_command
 
 #: A pipe or a log file has no width: lines and tables are written whole, however wide (rich
@@ -350,13 +348,7 @@ def summary_width(full: bool = False) -> int:
     """Columns of the summary: ``COLUMNS`` or the terminal's, at most `SUMMARY_WIDTH` for the
     default summary (a log gets `SUMMARY_WIDTH`); the full one on a pipe is not folded
     (`UNBOUNDED`)."""
-    columns = os.environ.get("COLUMNS", "")
-    if columns.isdigit() and int(columns) > 0:
-        width = int(columns)
-    elif sys.stdout.isatty():
-        width = shutil.get_terminal_size().columns
-    else:
-        width = UNBOUNDED if full else SUMMARY_WIDTH
+    width = output_columns(UNBOUNDED if full else SUMMARY_WIDTH)
     return width if full else max(40, min(width, SUMMARY_WIDTH))
 
 

@@ -22,6 +22,20 @@ EVERY = 5.0
 QUIET = 10.0
 
 
+def output_columns(off_terminal: int) -> int:
+    """Columns to print tables in: ``COLUMNS`` when set, the terminal's when stdout is one,
+    else ``off_terminal`` (a log or a pipe)."""
+    import os
+    import shutil
+
+    columns = os.environ.get("COLUMNS", "")
+    if columns.isdigit() and int(columns) > 0:
+        return int(columns)
+    if sys.stdout.isatty():
+        return shutil.get_terminal_size().columns
+    return off_terminal
+
+
 def on_terminal(stream: TextIO | None = None) -> bool:
     """Whether ``stream`` (default: stderr, where progress goes) is a terminal."""
     stream = stream if stream is not None else sys.stderr
