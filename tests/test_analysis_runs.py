@@ -246,11 +246,14 @@ def test_figures_are_real_png_and_svg(study):
 def test_the_analyse_command_prints_and_writes(study):
     home, out = study["home"], study["root"] / "cli"
     proc = run_cli("analyse", str(home / "runs"), "-o", str(out), "--study", "cross_engine",
-                   "--metrics", "psnr,flow_epe_dis", home=home)
+                   "--metrics", "psnr,flow_epe_dis", home=home, env={"COLUMNS": "80"})
     text = proc.stdout
     assert "Leaderboard" in text and ORACLE in text
     assert text.count("Spearman ρ over scenes") == 1  # one table: a row per metric
+    # five runs make ten pairs: too wide for 80 columns, so the pairs go on over more tables,
+    # each with the metric's name first; no line is wider than the terminal
     assert re.search(r"^│ psnr\b", text, re.M) and re.search(r"^│ flow_epe_dis\b", text, re.M)
+    assert "ρ 4–5" in text and max(len(ln.rstrip()) for ln in text.splitlines()[:-1]) <= 80
     assert str(out.resolve()) in text.replace("\n", "")
     for name in ("leaderboard.csv", "spearman_psnr.tex", "spearman_mean.md", "boxplot_psnr.svg",
                  "analysis.md", "analysis.json"):

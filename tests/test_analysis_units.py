@@ -533,7 +533,7 @@ def test_analyse_prints_one_spearman_table_and_cuts_no_number(tmp_path):
 
     from rich.console import Console
 
-    from visphy_core.analysis.printing import print_study, rich_table
+    from visphy_core.analysis.printing import fitting_tables, print_study, rich_table
 
     rng = np.random.default_rng(3)
     runs = _two_runs(tmp_path / "runs", 12) + [make_run(tmp_path / "mid", "mid", scenes(
@@ -554,6 +554,18 @@ def test_analyse_prints_one_spearman_table_and_cuts_no_number(tmp_path):
     shown = narrow.getvalue()
     assert "4.701e-05" in shown and "123457" in shown and "…" not in shown
     assert not re.search(r"(?<!e)-0\b", shown)  # no negative zero (an exponent is fine)
+    # a frame wider than the console goes on over more tables, each led by its labels
+    wide = pd.DataFrame({"metric": ["psnr", "flow_epe_dis"],
+                         **{f"ρ {i}–{i + 1}": [0.5 + i / 100, -0.25] for i in range(1, 11)}})
+    printed = io.StringIO()
+    for table in fitting_tables(wide, None, 60):
+        Console(file=printed, width=60).print(table, crop=False)
+    lines = printed.getvalue().splitlines()
+    assert max(len(line) for line in lines) <= 60
+    assert sum(line.startswith("│ psnr ") for line in lines) == len(fitting_tables(wide, None, 60))
+    assert all(f"ρ {i}–{i + 1}" in printed.getvalue() for i in range(1, 11))
+    assert "0.6" in printed.getvalue() and "…" not in printed.getvalue()
+    assert len(fitting_tables(wide, None, 400)) == 1
 
 
 def test_the_default_columns_start_with_the_runs_headline_score():

@@ -64,18 +64,26 @@ def test_render_of_one_generated_scene_builds_only_that_scene(visphy_home, tmp_p
     reply_file.write_text(reply("html"))
     out = tmp_path / "out"
     proc = run_cli("render", str(reply_file), "--engine", "threejs", "--scene", scene,
-                   "-o", str(out), *FAST, home=visphy_home, check=False, timeout=600)
+                   "-o", str(out), *FAST, "metrics.names=[psnr,ssim,spatiotemporal_iou]",
+                   home=visphy_home, check=False, timeout=600)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert {p.stem for p in (root / "meta").glob("*.json")} == built | {scene}
     lines = proc.stdout.splitlines()
     assert lines[0] == f"{scene}: rendered"
     assert lines[1].startswith(f"video: {out / 'video.mp4'} (17 frames 512x512 @ 5 fps) · "
                                "render ")
-    assert len(lines) <= 8 and "—" not in proc.stdout, proc.stdout
+    assert len(lines) <= 10 and "—" not in proc.stdout, proc.stdout
     scores = json.loads((out / "scores.json").read_text())["scores"]
     for name in ("psnr", "ssim"):
         (line,) = [ln for ln in lines if ln.split()[:1] == [name]]
         assert float(line.split()[1]) == pytest.approx(scores[name], abs=1e-4)
+    # the headline (a component is among the metrics) comes first, in the files as well
+    (head,) = [ln for ln in lines if ln.startswith("physics_score: ")]
+    assert lines.index(head) < min(i for i, ln in enumerate(lines) if ln.startswith("  "))
+    row = json.loads((out / "result.json").read_text())
+    assert float(head.split()[1]) == pytest.approx(scores["physics_score"], abs=1e-3)
+    assert row["score_physics_score"] == scores["physics_score"]
+    assert (out / "headline.json").is_file()
     assert lines[-1] == f"folder: {out}"
 
 

@@ -3,7 +3,8 @@ runs are compared (a row per metric, a column per pair of runs, the mean off-dia
 so a study's outcome is readable without opening a file. Numbers over fewer than
 `small_sample.MIN_SCENES` common scenes are shown with ``⚠`` beside them, and every table that
 has such numbers (the bootstrap's included) gets a warning line. A number is never cut: its
-column is as wide as its widest cell, and the labels fold instead."""
+column is as wide as its widest cell, and the labels fold instead. A table wider than the
+console is split over several, each with the labels first (`fitting_tables`)."""
 
 from __future__ import annotations
 
@@ -18,26 +19,81 @@ from visphy_core.infra.progress import output_columns
 LOG_WIDTH = 200
 
 
+#: the widest a label column gets before its labels fold onto more lines
+LABEL_WIDTH = 30
+
+
 def rich_table(df: pd.DataFrame, marks: pd.DataFrame | None = None):
-    """``df`` as a rich table: numeric columns right-justified and never narrower than their
-    widest cell (a number is not cut), the other columns folding onto more lines."""
+    """``df`` as one rich table: numeric columns right-justified and never narrower than their
+    widest cell (a number is not cut), the other columns folding onto more lines. On a console
+    narrower than the table, print `fitting_tables` instead."""
+    return _table(df, _cells(df, marks), range(len(df.columns)), LABEL_WIDTH)
+
+
+def fitting_tables(df: pd.DataFrame, marks: pd.DataFrame | None, width: int) -> list:
+    """``df`` as rich tables that each fit in ``width`` columns, the way pandas prints a wide
+    frame: the first column (the labels) in every table, the other columns split, in order,
+    over as many tables as it takes. One table when it fits; a column wider than the console
+    on its own still gets a table of its own (its numbers whole, its labels folded)."""
+    from rich.cells import cell_len
+
+    cells = _cells(df, marks)
+    label = _label_width(width)
+    natural = []
+    for i, col in enumerate(df.columns):
+        widest = max([cell_len(str(col)), *(cell_len(r[i]) for r in cells)])
+        natural.append(widest if _numeric(df[col]) else min(widest, label))
+    if not natural:
+        return [_table(df, cells, [], label)]
+    first, rest = natural[0] + 3, list(range(1, len(df.columns)))  # 3: padding and a rule
+    groups: list[list[int]] = [[]]
+    used = 1 + first
+    for i in rest:
+        need = natural[i] + 3
+        if groups[-1] and used + need > width:
+            groups.append([])
+            used = 1 + first
+        groups[-1].append(i)
+        used += need
+    return [_table(df, cells, [0, *group], label) for group in groups]
+
+
+def _label_width(width: int) -> int:
+    return min(LABEL_WIDTH, max(12, width // 3))
+
+
+def _numeric(series: pd.Series) -> bool:
+    return pd.api.types.is_numeric_dtype(series) and not pd.api.types.is_bool_dtype(series)
+
+
+def _cells(df: pd.DataFrame, marks: pd.DataFrame | None) -> list[list[str]]:
+    return [[fmt(v) + (f" {small_sample.MARK}" if f else "") for v, f in zip(row, flags)]
+            for row, flags in zip(df.itertuples(index=False), _marked(marks, df))]
+
+
+def _table(df: pd.DataFrame, cells: list[list[str]], columns, label: int):
+    from rich.cells import cell_len
     from rich.table import Table
 
-    cells = [[fmt(v) + (f" {small_sample.MARK}" if f else "") for v, f in zip(row, flags)]
-             for row, flags in zip(df.itertuples(index=False), _marked(marks, df))]
     table = Table()
-    for i, col in enumerate(df.columns):
-        numeric = pd.api.types.is_numeric_dtype(df[col]) and not pd.api.types.is_bool_dtype(df[col])
-        widest = max((len(r[i]) for r in cells), default=0)
-        if numeric:
+    for i in columns:
+        col = df.columns[i]
+        widest = max((cell_len(r[i]) for r in cells), default=0)
+        if _numeric(df[col]):
             table.add_column(str(col), justify="right", no_wrap=True, min_width=widest,
                              overflow="fold")
-        else:  # a label: whole up to 20 characters, folded beyond
+        else:  # a label: whole up to ``label`` characters, folded beyond
             table.add_column(str(col), justify="left", overflow="fold",
-                             min_width=min(widest, 20) if i == 0 else None)
+                             min_width=min(widest, label) if i == 0 else None,
+                             max_width=label)
     for row in cells:
-        table.add_row(*row)
+        table.add_row(*(row[i] for i in columns))
     return table
+
+
+def _print_fitting(console, df: pd.DataFrame, marks: pd.DataFrame | None = None) -> None:
+    for table in fitting_tables(df, marks, console.width):
+        console.print(table, crop=False)
 
 
 def spearman_table(long: pd.DataFrame, means: pd.DataFrame | None,
@@ -94,7 +150,7 @@ def print_study(outputs, out_dir=None, console=None) -> None:
     tables = outputs.tables
     console.print("[bold]Leaderboard[/bold] (means over the model's own successes; n = scenes "
                   "in each mean)")
-    console.print(rich_table(tables["leaderboard"]), crop=False)
+    _print_fitting(console, tables["leaderboard"])
     long = tables.get("spearman")
     marks = getattr(outputs, "marks", None) or {}
     if long is not None and len(long):
@@ -105,7 +161,7 @@ def print_study(outputs, out_dir=None, console=None) -> None:
                       "with the mean off-diagonal ρ (p-values in spearman.csv)")
         for line in legend:
             console.print(line, markup=False)
-        console.print(rich_table(table, table_marks), crop=False)
+        _print_fitting(console, table, table_marks)
         if table_marks.to_numpy().any():
             console.print(f"{small_sample.MARK} fewer than {small_sample.MIN_SCENES} common "
                           f"scenes behind the marked ρ: too few to rely on")

@@ -264,6 +264,8 @@ def _write_merged(out: Path, cfg: DictConfig, shards: list[Shard],
                         headline=Headline.for_run(cfg.metrics, metrics))
     summary.update({
         "status": FINISHED, "run_dir": str(out), "model": cfg.model.name,
+        **{key: shards[0].summary[key] for key in ("model_output", "model_baseline")
+           if key in shards[0].summary},
         "engine": cfg.engine.name, "dataset": cfg.dataset.name,
         "n_selected": sum(int(s.summary.get("n_selected") or len(s.rows)) for s in shards),
         "resumed_rows": sum(int(s.summary.get("resumed_rows") or 0) for s in shards),

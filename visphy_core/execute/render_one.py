@@ -28,6 +28,7 @@ from visphy_core.execute.render_program import (
     render_alone,
 )
 from visphy_core.infra.errors import UserError
+from visphy_core.scoring.headline import Headline
 from visphy_core.scoring.score import ScoringProtocol, select_metrics
 
 
@@ -114,10 +115,11 @@ def render_reply(argv: list[str]) -> int:
     out.mkdir(parents=True, exist_ok=True)
     ledger = UsageLedger(out / "calls.jsonl")
     engine = registry.get("engines", cfg.engine.name)(cfg.engine)
+    metrics = select_metrics(registry, cfg.metrics)
     services = SceneServices(
         model=model, caller=ModelCaller(model, cache, ledger), engine=engine,
-        metrics=select_metrics(registry, cfg.metrics),
-        protocol=ScoringProtocol.from_cfg(cfg.metrics),
+        metrics=metrics, protocol=ScoringProtocol.from_cfg(cfg.metrics),
+        headline=Headline.for_run(cfg.metrics, metrics),
         settings=PipelineSettings(prompt=PromptSettings.from_cfg(cfg.prompt), retry=False,
                                   fallback=False, timeout_s=cfg.engine.timeout_s,
                                   seed=cfg.run.seed),
@@ -131,11 +133,11 @@ def render_reply(argv: list[str]) -> int:
     finally:
         engine.close()
     (out / "result.json").write_text(json.dumps(result.row(), indent=1, default=str))
-    _report(result, out, scene)
+    _report(result, out, scene, services.headline)
     return 0 if result.model_success else 1
 
 
-def _report(result, out: Path, scene) -> None:
+def _report(result, out: Path, scene, headline: Headline | None = None) -> None:
     """A few lines: the outcome, the video (frames, render time), the scores this scene has in
     the primary view; how many more columns ``scores.json`` holds and how many are empty."""
     ok = result.model_success
@@ -153,7 +155,14 @@ def _report(result, out: Path, scene) -> None:
                                   "invalid: " + "; ".join(result.spec_problems[:3])))
     if result.flags:
         print(f"flags: {', '.join(result.flags)}")
-    shown = {n: v for n, v in result.scores.items() if v is not None and "." not in n}
+    head = headline.name if headline is not None and headline.name in result.scores else None
+    if head is not None:
+        value = result.scores[head]
+        print(f"{head}: " + (f"{value:.3f} (0 = the first key frame held, 1 = the ground "
+                                  "truth's twin; details in headline.json)" if value is not None
+                                  else "undefined on this scene (headline.json says why)"))
+    shown = {n: v for n, v in result.scores.items()
+             if v is not None and "." not in n and n != head}
     width = max((len(n) for n in shown), default=0)
     for name, value in shown.items():
         print(f"  {name:>{width}} {value:.4f}")
