@@ -79,10 +79,15 @@ def test_default_config_values():
     cfg = compose([])
     assert cfg.model.name == "oracle" and cfg.engine.name == "threejs"
     assert cfg.dataset.name == "mini"
-    names = list(cfg.metrics.names)  # the offline suite (conf/metrics/default.yaml)
+    names = list(cfg.metrics.names)  # the default suite (conf/metrics/default.yaml)
     assert names[:2] == ["psnr", "ssim"]
-    assert {"st_lpips", "flow_epe_dis", "track_pos_err", "param_gravity_err",
-            "bertscore_minilm"} <= set(names)
+    assert {"flow_epe_dis", "track_pos_err", "param_gravity_err", "rouge_l",
+            *cfg.metrics.headline.components} <= set(names)
+    assert not {"st_lpips", "fsim", "vsi", "ms_ssim", "bertscore_minilm"} & set(names)
+    offline = list(compose(["metrics=appearance"]).metrics.names)  # the whole offline suite
+    assert set(names) < set(offline) and {"st_lpips", "bertscore_minilm"} <= set(offline)
+    full = set(compose(["metrics=full"]).metrics.names)
+    assert set(offline) <= full and {"lpips", "clip_img", "raft_epe"} <= full
     assert cfg.metrics.spec_track is True and cfg.metrics.weights_dir is None
     assert list(cfg.prompt.frames) == [1, 10] and cfg.prompt.timed is False
 

@@ -31,6 +31,10 @@ def _entries(root: Path, kind: str) -> dict[str, bytes]:
             if p.name != ".complete" and p.parent.parent.parent.name == kind}
 
 
+def _summary(run_dir: Path) -> dict:
+    return json.loads((run_dir / "summary.json").read_text())
+
+
 def _run(home: Path, tmp: Path, name: str, scene_id: str, store: Path) -> tuple[Path, list]:
     from visphy_core.config.check import compose
     from visphy_core.execute.run import run_experiment
@@ -57,8 +61,12 @@ def test_anchors_built_ahead_are_the_run_time_anchors_and_a_run_reuses_them(
     run_anchors = _entries(tmp_path / "gt_run", "anchor")
     assert len(run_anchors) == 2 * 3  # floor and ceiling of each metric
     assert len(_entries(tmp_path / "first" / "cache", "render")) == 1  # the program only
+    # by the run's ground-truth stage, before its scene was scored: the scoring found them
     assert json.loads((first_dir / "scenes" / scene / "normalisation.json").read_text())[
-        "anchors_from"].startswith("computed now")
+        "anchors_from"].startswith("stored")
+    filled = _summary(first_dir)["ground_truth"]
+    assert (filled["computed_now"], filled["reused"], filled["values_computed"]) == (1, 0, 6)
+    assert filled["wall_s"] > 0 and filled["failed"] == []
 
     # built ahead, from another cache: the same entries, byte for byte
     assert prepare([f"paths.root={home}", f"paths.cache_dir={tmp_path / 'prep-cache'}",
@@ -79,6 +87,8 @@ def test_anchors_built_ahead_are_the_run_time_anchors_and_a_run_reuses_them(
     assert (again_dir / "scenes" / scene / "twin_video.mp4").read_bytes() == \
         (first_dir / "scenes" / scene / "twin_video.mp4").read_bytes()
     assert _entries(tmp_path / "gt_built", "anchor") == run_anchors  # nothing added
+    filled = _summary(again_dir)["ground_truth"]  # the scene's mark: found without a lookup
+    assert (filled["computed_now"], filled["reused"], filled["values_computed"]) == (0, 1, 0)
 
 
 class _Clips:
@@ -130,6 +140,19 @@ def test_stored_anchors_are_served_and_keyed_by_what_determines_them(tmp_path, m
     assert frozen_identity(scene, longer) != ident
     # the time limit does not change a clip
     assert frozen_identity(scene, RenderContract.for_scene(scene, timeout_s=5.0)) == ident
+
+    # a scene's completion mark: another metric, contract or ceiling is another mark
+    from visphy_core.execute.ground_truth import complete_key
+
+    class _Engine:
+        def cache_identity(self):
+            return "engine/1"
+
+    mark = complete_key(scene, _Engine(), [metric], contract, True)
+    assert mark == complete_key(scene, _Engine(), [metric], contract, True)
+    assert complete_key(scene, _Engine(), [metric, newer], contract, True) != mark
+    assert complete_key(scene, _Engine(), [metric], longer, True) != mark
+    assert complete_key(scene, _Engine(), [metric], contract, False) != mark
 
 
 def test_the_subcommand_reports_bad_overrides_in_one_line(tmp_path):

@@ -292,6 +292,15 @@ def test_plain_lines_are_paced_per_key_with_a_heartbeat():
                                            "score 2/4", "still working"]
 
 
+def test_rates_are_read_without_exponents():
+    from visphy_core.infra.progress import rate_and_eta
+
+    assert rate_and_eta(970, 970, 1.0) == "970/s"
+    assert rate_and_eta(5, 10, 2.0) == "2.5/s · ETA 2 s"
+    assert rate_and_eta(1, 10, 10.0) == "6/min · ETA 1 min 30 s"
+    assert rate_and_eta(9, 100, 30.0) == "18/min · ETA 5 min 03 s"
+
+
 def test_stage_lines_for_a_log_have_count_rate_and_eta():
     clock = FakeClock()
     progress = StageProgress(4, ["render", "score"], live=False, clock=clock, plain=True)

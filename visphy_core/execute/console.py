@@ -462,7 +462,8 @@ def print_summary(summary: dict, results: list, calls_heading: str | None = None
     for key, j in (summary.get("judges") or {}).items():
         console.print(f"judge {key}: {j['n_valid']} valid verdict(s), {j['n_invalid']} invalid"
                       + (f" {j['invalid']}" if j["invalid"] else ""))
-    time_line = _time_line(summary.get("stage_seconds") or {}, wall_s)
+    time_line = _time_line(summary.get("stage_seconds") or {}, wall_s,
+                           summary.get("ground_truth"))
     if time_line:
         console.print(time_line, soft_wrap=False)
     console.print(f"run directory: {summary['run_dir']}", soft_wrap=True)
@@ -477,14 +478,19 @@ STAGE_SECONDS = (("model_latency_s", "model calls"), ("render_wall_s", "render")
                  ("scoring_wall_s", "score"), ("judge_wall_s", "judge"))
 
 
-def _time_line(stage_seconds: dict, wall_s: float | None) -> str | None:
-    """``time: wall 99.3 s · summed over scenes: render 12.1 s, score 187.7 s`` (scenes run
-    side by side, so a stage's sum can exceed the wall time)."""
+def _time_line(stage_seconds: dict, wall_s: float | None,
+               ground_truth: dict | None = None) -> str | None:
+    """``time: wall 99.3 s (ground truth 40.2 s of it) · summed over scenes: render 12.1 s,
+    score 187.7 s`` (scenes run side by side, so a stage's sum can exceed the wall time; the
+    ground-truth stage is named when it computed anything)."""
     parts = [f"{label} {stage_seconds[key]['total']:.1f} s" for key, label in STAGE_SECONDS
              if ((stage_seconds.get(key) or {}).get("total") or 0) >= 0.05]
     if not parts and wall_s is None:
         return None
-    wall = f"wall {wall_s:.1f} s" if wall_s is not None else ""
+    gt = ground_truth or {}
+    first = (f" (ground truth {gt['wall_s']:.1f} s of it)"
+             if gt.get("computed_now") and gt.get("wall_s") else "")
+    wall = f"wall {wall_s:.1f} s{first}" if wall_s is not None else ""
     summed = f"summed over scenes: {', '.join(parts)}" if parts else ""
     return "time: " + " · ".join(p for p in (wall, summed) if p)
 

@@ -512,6 +512,31 @@ def _close_calls(services: SceneServices) -> None:
         services.judges.close()
 
 
+def _ground_truth_stage(cfg: DictConfig, services: SceneServices, scenes: list[Scene],
+                        workers: int):
+    """The run's ``ground truth`` stage, before any scene is scored: the anchors its scoring
+    reads (every frame/sequence metric's floor and ceiling with normalisation on, else the
+    headline components' floors) filled into the ground-truth store for ``scenes``
+    (`visphy_core.execute.ground_truth.fill_store`), with its cost on one line. None when the
+    run needs no anchor."""
+    from visphy_core.execute.ground_truth import fill_store
+    from visphy_core.scoring.ground_truth import writable
+
+    norm = services.protocol.variance_norm
+    metrics = (services.metrics if norm else
+               services.headline.metrics_of(services.metrics) if services.headline else [])
+    if not scenes or not metrics or not (writable(services.ground_truth)
+                                         or services.cache.enabled):
+        return None  # run.cache=false: nothing would keep the anchors for the scenes to read
+    progress = bool(cfg.run.progress)
+    filled = fill_store(scenes, services.engine, metrics, services.cache, services.ground_truth,
+                        ceiling=norm, timeout_s=float(cfg.engine.timeout_s),
+                        seed=int(cfg.run.seed), workers=workers, progress=progress)
+    if progress:
+        print(filled.line(), file=sys.stderr, flush=True)
+    return filled
+
+
 def _write_row(rows, result: SceneResult, ctx: RunContext) -> None:
     """Append the scene's row to results.jsonl (flushed, fsynced) and to the run's results.
     The row on disk and the row in memory go together: a signal between them would leave a
@@ -635,6 +660,9 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
             if ctx.extra.get("mlflow"):  # so a resumed run can close this one if it is killed
                 manifest["tracking"] = {"mlflow": ctx.extra["mlflow"]}
                 write_json(run_dir / "manifest.json", manifest)
+            filled = _ground_truth_stage(cfg, services, pending, int(extra["workers"]["workers"]))
+            if filled is not None:
+                ctx.extra["ground_truth"] = filled.as_dict()
             with stage_progress(len(pending), run_stages(services),
                                 enabled=bool(cfg.run.progress)) as progress, \
                     rows_path.open("a") as rows:
@@ -694,6 +722,8 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
                         "n_selected": len(scenes), "resumed_rows": len(restored),
                         "config_hash": extra["config_hash"],
                         "isolation_levels": extra["isolation"]})
+        if ctx.extra.get("ground_truth"):
+            summary["ground_truth"] = ctx.extra["ground_truth"]
         if cost_stop is not None:
             done_ids = {r.scene_id for r in ctx.results}
             summary["cost_cap"] = {

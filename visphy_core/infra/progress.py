@@ -63,7 +63,8 @@ def rate_and_eta(done: int, total: int, elapsed: float) -> str:
     if done <= 0 or elapsed <= 0:
         return ""
     per_s = done / elapsed
-    rate = f"{per_s:.2g}/s" if per_s >= 1 else f"{per_s * 60:.2g}/min"
+    rate = (f"{per_s:.0f}/s" if per_s >= 10 else f"{per_s:.2g}/s" if per_s >= 1
+            else f"{per_s * 60:.0f}/min" if per_s * 60 >= 10 else f"{per_s * 60:.2g}/min")
     left = max(0, total - done)
     eta = f" · ETA {duration(left / per_s)}" if left and not math.isinf(per_s) else ""
     return f"{rate}{eta}"
