@@ -144,19 +144,15 @@ def split_ids(dataset: str, home: Path) -> list[str]:
     return [s.scene_id for s in load_dataset(cfg.dataset, home / "data", progress=False)]
 
 
-def parse_stages(stderr: str) -> dict[str, float]:
-    """``stages: generate 4/4 (0.0 s) · render …`` → seconds per stage (and ``all``)."""
-    out: dict[str, float] = {}
-    for line in stderr.splitlines():
-        if not line.startswith("stages: "):
-            continue
-        for part in line[len("stages: "):].split(" · "):
-            words = part.split()
-            if part.endswith("in all"):
-                out["all"] = float(words[0])
-            elif len(words) >= 3:
-                out[words[0]] = float(words[2].lstrip("("))
-    return out
+def _manifest_wall(manifest: dict) -> float | None:
+    """Seconds from the run's start (its dataset loaded, its engine up) to its end."""
+    import datetime as dt
+
+    try:
+        return (dt.datetime.fromisoformat(manifest["ended"])
+                - dt.datetime.fromisoformat(manifest["started"])).total_seconds()
+    except (KeyError, TypeError, ValueError):
+        return None
 
 
 def run_once(*, dataset: str, scene_ids: list[str] | None, limit: int | None, model: str,
@@ -208,7 +204,12 @@ def run_once(*, dataset: str, scene_ids: list[str] | None, limit: int | None, mo
         "peak_rss_tree_gib": round(memory.peak_tree / 2**30, 2),
         "peak_rss_run_gib": round(memory.peak_main / 2**30, 2),
         "peak_rss_others_gib": round(memory.peak_others / 2**30, 2),
-        "stages_s": parse_stages(err),
+        "stages_s": {k.removesuffix("_s"): v["total"]
+                     for k, v in (summary.get("stage_seconds") or {}).items() if v["total"]},
+        "ground_truth": summary.get("ground_truth"),
+        "run_wall_s": _manifest_wall(manifest),
+        "before_run_s": (round(wall - _manifest_wall(manifest), 1)
+                         if _manifest_wall(manifest) is not None else None),
         "render_wall_s_median": round(statistics.median(renders), 2) if renders else None,
         "model_success": summary["model_success"],
         "load_avg_start": load_start, "load_avg_end": [round(x, 2) for x in os.getloadavg()],
@@ -237,7 +238,9 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     home = Path(args.home).resolve()
     ids = split_ids(args.dataset, home)[::args.every] if args.every else None
-    info = machine_info()
+    from machine import machine
+
+    info = {**machine_info(), **machine()}  # SIMD flags and the calibration figures
     figures = run_once(dataset=args.dataset, scene_ids=ids, limit=args.scenes,
                        model=args.model, engine=args.engine,
                        metrics=None if args.metric_names else args.metrics,
@@ -253,6 +256,12 @@ def main(argv: list[str] | None = None) -> None:
           f"{figures['cpu_s']} s ({figures['cpu_s_per_scene']} s/scene) · peak RSS "
           f"{figures['peak_rss_tree_gib']} GiB (tree), {figures['peak_rss_run_gib']} GiB (run), "
           f"{figures['peak_rss_others_gib']} GiB (the rest: Chromium, Playwright's driver)")
+    print(f"SIMD {' '.join(info['simd'])} · calibration {json.dumps(info['calibration'])}")
+    gt = figures["ground_truth"] or {}
+    print(f"before the run (start-up, the dataset's scenes built): {figures['before_run_s']} s "
+          f"· the run {figures['run_wall_s']} s, of it the ground-truth stage "
+          f"{gt.get('wall_s')} s ({gt.get('computed_now')} scenes computed, "
+          f"{gt.get('reused')} stored)")
     print("stages (s, summed over scenes): " + ", ".join(
         f"{k} {v}" for k, v in figures["stages_s"].items()))
     print(f"render wall per clip, median: {figures['render_wall_s_median']} s")

@@ -122,6 +122,30 @@ def test_a_server_that_lists_no_models_is_taken_at_its_word(no_key):
         _model(f"model.base_url={server.url}/v1", "model.model_id=anything").check_ready()
 
 
+@pytest.mark.parametrize("suffix", ["", "/v1/chat/completions", "/v1/models/"])
+def test_a_base_url_off_the_api_root_names_the_right_one(no_key, suffix):
+    """``GET {base_url}/models`` is 404 (no ``/v1``, or a pasted endpoint path): the URL that
+    lists the models is named, before any call."""
+    with ListingServer() as server:
+        with pytest.raises(UserError) as info:
+            _model(f"model.base_url={server.url}{suffix}",
+                   f"model.model_id={SERVED[0]}").check_ready()
+        assert chat_calls(server) == 0
+        root = f"{server.url}/v1"
+    message = str(info.value)
+    assert message.endswith(f"set model.base_url={root}"), message
+    assert "HTTP 404" in message and "\n" not in message
+
+
+def test_the_api_roots_tried_after_a_404():
+    from visphy_plugins.providers.preflight import api_roots
+
+    assert api_roots("http://h:8000") == ["http://h:8000/v1"]
+    assert api_roots("http://h:8000/v1/chat/completions") == ["http://h:8000/v1"]
+    assert api_roots("http://h/compatible-mode/v1") == []  # already a /v1 root: none other
+    assert api_roots("http://h/api/chat/completions?x=1") == ["http://h/api", "http://h/api/v1"]
+
+
 def test_a_remote_endpoint_still_needs_its_key(no_key):
     model = _model("model.base_url=https://api.example.com/v1", "model.model_id=m")
     assert model.needs_key == "OPENAI_COMPAT_API_KEY"

@@ -12,7 +12,10 @@ through the official SDK with a short timeout and no retries:
   ``model.base_url``, before any work (instead of every scene's call retrying for half a minute);
 * the key is refused (401/403): one line naming the key variable;
 * the server lists its models: ``model.model_id`` must be one of them (the line lists them);
-  a server that does not list models (404, or any other answer) is taken at its word.
+* ``GET /models`` is not found (404): the URLs a wrong ``base_url`` usually meant are tried —
+  with ``/v1`` added, and without a pasted endpoint path (``…/v1/chat/completions``) — and when
+  one lists models the line names it (``set model.base_url=<that URL>``); a server that lists
+  models nowhere (or answers anything else) is taken at its word.
 
 A local endpoint (`is_local`: loopback, a private or link-local address, ``localhost``, a
 single-label host name or one under ``.local``/``.lan``/``.internal``/``.home.arpa``) needs no
@@ -81,11 +84,54 @@ def served_models(base_url: str, api_key: str, timeout_s: float = PREFLIGHT_TIME
         raise _Refused(exc.status_code) from None
     except openai.PermissionDeniedError as exc:
         raise _Refused(exc.status_code) from None
+    except openai.NotFoundError:
+        raise _NotFound() from None
     except (openai.APIStatusError, openai.APIResponseValidationError, ValueError,
             TypeError, AttributeError):
-        return None  # no model list here (404, an unusual body): the first call will tell
+        return None  # no model list here (an unusual answer or body): the first call will tell
     finally:
         client.close()
+
+
+class _NotFound(Exception):
+    """``GET {base_url}/models`` answered 404."""
+
+
+#: endpoint paths a user may paste into ``base_url`` (the SDK adds them itself)
+ENDPOINT_PATHS = ("/chat/completions", "/completions", "/responses", "/embeddings", "/models")
+
+
+def api_roots(base_url: str) -> list[str]:
+    """Where the OpenAI-compatible API probably is when ``base_url`` has no ``/models``: the
+    URL without a pasted endpoint path, and with ``/v1`` added (most servers' prefix)."""
+    parts = urlsplit(base_url)
+    path = parts.path.rstrip("/")
+    roots = []
+    for suffix in ENDPOINT_PATHS:
+        if path.endswith(suffix):
+            path = path[:-len(suffix)].rstrip("/")
+            roots.append(path)
+            break
+    if not path.endswith("/v1"):
+        roots.append(path + "/v1")
+    seen, out = {parts.path.rstrip("/")}, []
+    for root in roots:
+        if root not in seen:
+            seen.add(root)
+            out.append(parts._replace(path=root, query="", fragment="").geturl())
+    return out
+
+
+def _listed_elsewhere(base_url: str, api_key: str) -> tuple[str, list[str]] | None:
+    """(the URL, its models) of the first of `api_roots` that lists models, if any."""
+    for root in api_roots(base_url):
+        try:
+            ids = served_models(root, api_key)
+        except (UserError, _NotFound):
+            continue
+        if ids:
+            return root, ids
+    return None
 
 
 class _Refused(UserError):
@@ -110,8 +156,12 @@ def preflight(settings: Any, who: str, api: ApiCaller) -> None:
                             "name> to the command")
         return
     base_url = str(base_url).rstrip("/")
+    found = None
     try:
-        ids = served_models(base_url, key)
+        try:
+            ids = served_models(base_url, key)
+        except _NotFound:
+            ids, found = None, _listed_elsewhere(base_url, key)  # None: lists them nowhere
     except _Refused as exc:
         env = api.key_env
         raise UserError(f"{who}: the server at {base_url} refused the key (HTTP {exc.status}): "
@@ -122,6 +172,10 @@ def preflight(settings: Any, who: str, api: ApiCaller) -> None:
         raise UserError(f"{who}: {exc}: start the server (vLLM, Ollama, llama.cpp, ...) or set "
                         "model.base_url=<its OpenAI-compatible URL, e.g. "
                         "http://localhost:8000/v1>") from None
+    if found is not None:
+        raise UserError(f"{who}: {base_url}/models is not found (HTTP 404): model.base_url is "
+                        f"not the server's OpenAI-compatible API; it answers at {found[0]}: "
+                        f"set model.base_url={found[0]}")
     if not model_id:
         served = f"; it serves: {_listing(ids)}" if ids else ""
         raise UserError(f"{who} has no model id: add model.model_id=<the model the server at "
