@@ -158,20 +158,33 @@ def test_scene_ids_and_split_are_checked_against_a_built_catalogue(tmp_path):
     root = dataset_root(home / "data", 0)
     root.mkdir(parents=True)
     catalogue = {"builder": BUILDER_VERSION, "seed": 0, "rejected": {},
-                 "splits": {"mini": ["task00001_001", "task00002_001"], "sub": []},
+                 "splits": {"mini": ["vpb3-s0-2d-t001-v00", "vpb3-s0-2d-t002-v00"], "sub": []},
                  "scenes": [{"spec": {"scene_id": s}, "digest": "", "attempts": 1,
-                             "rejected": 0} for s in ("task00001_001", "task00002_001")]}
+                             "rejected": 0} for s in ("vpb3-s0-2d-t001-v00",
+                                                      "vpb3-s0-2d-t002-v00")]}
     (root / "catalogue.json").write_text(json.dumps(catalogue))
     before = sorted(p.relative_to(home) for p in home.rglob("*"))
     proc = run_cli("dataset.scenes=[nope]", "tracking=none", home=home, check=False)
     line = _assert_one_line(proc, ["dataset.scenes: split 'mini' has no scene(s) nope; valid: "
-                                   "task00001_001, task00002_001"])
+                                   "vpb3-s0-2d-t001-v00, vpb3-s0-2d-t002-v00"])
     _record("dataset.scenes=[nope]  (catalogue built)", line)
     proc = run_cli("dataset.split=mni", "tracking=none", home=home, check=False)
     line = _assert_one_line(proc, ["dataset.split=mni is not a split of the generated "
                                    "benchmark; valid: mini, sub"])
     _record("dataset.split=mni  (catalogue built)", line)
     assert sorted(p.relative_to(home) for p in home.rglob("*")) == before
+
+
+def test_scene_ids_are_checked_against_the_shipped_catalogue_on_a_fresh_home(tmp_path):
+    """No catalogue on disk: the one shipped with visphy says which ids exist, before anything
+    is written."""
+    home = tmp_path / "fresh"
+    proc = run_cli("dataset=visphybench", "dataset.scenes=[vpb3-s0-2d-t001-v00,nope]",
+                   "tracking=none", home=home, check=False)
+    line = _assert_one_line(proc, ["dataset.scenes: split 'sub' has no scene(s) nope; valid: "
+                                   "vpb3-s0-2d-t001-v00, "])
+    _record("dataset.scenes=[…,nope]  (fresh home)", line)
+    assert not home.exists()
 
 
 def test_a_plugin_that_fails_to_load_is_one_line(tmp_path):

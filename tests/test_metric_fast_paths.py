@@ -336,6 +336,7 @@ def test_st_lpips_bf16_is_opt_in_within_its_tolerance(clips, monkeypatch):
     assert metric.precision() == "fp32"
     fp32_identity = metric.identity()
     ref, gen = clips["2d"]
+    ref, gen = ref[[0, 1, 2, 6]], gen[[0, 1, 2, 6]]  # a repeat on each side; bf16 is slow here
     fp32 = metric.pair_values(ref, gen)
     monkeypatch.setenv(LD.STLPIPS_BF16_ENV, "1")
     assert metric.precision() == "bf16"

@@ -235,7 +235,10 @@ class Cache:
 
     @staticmethod
     def _fill(tmp: Path, files: dict[str, bytes | str | Path]) -> None:
-        """Write the payload files into ``tmp``, then the marker with their digests."""
+        """Write the payload files into ``tmp``, then the marker with their digests. Nothing is
+        fsynced: every read verifies the digests (`verify`), so an entry torn by a power cut is
+        dropped and computed again, never served (an fsync per entry cost 8 % of the
+        ground-truth stage, which writes one small entry per anchor)."""
         digests = {}
         for name, content in files.items():
             if name == MARKER or "/" in name or name.startswith("."):
@@ -250,8 +253,6 @@ class Cache:
             digests[name] = file_digest(target)
         with open(tmp / MARKER, "w") as fh:
             json.dump({"format": FORMAT, "files": digests}, fh, sort_keys=True)
-            fh.flush()
-            os.fsync(fh.fileno())
 
     @staticmethod
     def _move_aside(entry: Path, why: str) -> Path | None:

@@ -477,7 +477,8 @@ def render_scenes(root: Path, catalogue: Catalogue, split: str | None = None,
         _render(todo, root, progress, workers, lossless=lossless)
         if not scenes:  # a few scenes' time is no split's build time
             _note_time(root, f"render_{split or 'all'}_s", time.perf_counter() - start)
-    _update_indexes(root, catalogue)
+    if todo or not (root / "metadata.jsonl").is_file():  # nothing new: the indexes stand
+        _update_indexes(root, catalogue)
 
 
 def build_dataset(data_dir: Path, seed: int = 0, split: str | None = None,

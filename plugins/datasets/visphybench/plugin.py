@@ -118,8 +118,9 @@ class VisPhyBench(Dataset):
         return root
 
     def check(self, cfg: Any) -> None:
-        """Where the catalogue is already on disk, ``dataset.split`` and ``dataset.scenes`` are
-        checked against it (else the run checks them once it is built)."""
+        """``dataset.split`` and ``dataset.scenes`` are checked against the catalogue: the one
+        on disk, else the one shipped with visphy for this seed and generator version (else the
+        run checks them once it is built)."""
         from visphy_plugins.datasets.visphybench.build import dataset_root
 
         root = OmegaConf.select(cfg, "dataset.root", default=None)
@@ -142,9 +143,17 @@ class VisPhyBench(Dataset):
                 raise ConfigError(str(exc)) from None
         try:
             path = dataset_root(data_dir, seed, version, lossless) / "catalogue.json"
-            if not path.is_file():
+            if path.is_file():
+                data = json.loads(path.read_text())
+            elif version == GENERATOR_VERSION:
+                from visphy_plugins.datasets.visphybench.shipped import shipped_bytes
+
+                raw = shipped_bytes(seed)
+                if raw is None:
+                    return
+                data = json.loads(raw)
+            else:
                 return
-            data = json.loads(path.read_text())
             if data.get("builder") != f"visphy-bench/{version}" or data.get("seed") != seed:
                 return
             splits = {str(k): [str(i) for i in v] for k, v in data["splits"].items()}
