@@ -283,8 +283,9 @@ def _room_for_1_5_scenes(reference) -> int:
 
 def test_a_full_disk_is_one_line_and_the_rerun_resumes(tmp_path, mini_root, script, reference):
     """The runs folder on a file system that fills in the second scene: the run stops at a scene
-    boundary with one ``error: disk full writing <path> (... free there, about ... needed)`` line and exit status
-    74, its rows kept and its manifest not finished; with space again, the same command resumes
+    boundary with one ``error: disk full writing <path> (... free there, about ... needed)``
+    line and exit status 74, its rows kept and its manifest not finished; with space again, the
+    same command resumes
     to the uninterrupted run's rows, no model call repeated."""
     if shutil.which("unshare") is None or os.geteuid() != 0:
         pytest.skip("needs root and util-linux unshare to mount a small tmpfs privately")

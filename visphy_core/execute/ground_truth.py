@@ -1,6 +1,7 @@
 """A dataset's ground-truth artefacts computed ahead of scoring
-(`visphy_core.scoring.ground_truth`): for each scene, the twin rendered by the engine's reference program and every frame/sequence
-metric's floor and ceiling, into the ground-truth store (``paths.ground_truth_dir``).
+(`visphy_core.scoring.ground_truth`): for each scene, the twin rendered by the engine's
+reference program and every frame/sequence metric's floor and ceiling, into the ground-truth
+store (``paths.ground_truth_dir``).
 
 Two callers: ``python -m visphy_core ground-truth [overrides]`` (`prepare`: a dataset's scenes
 ahead of any run), and a run itself (`fill_store`, its ``ground truth`` stage: the scenes it is
