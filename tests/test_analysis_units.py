@@ -533,7 +533,7 @@ def test_analyse_prints_one_spearman_table_and_cuts_no_number(tmp_path):
 
     from rich.console import Console
 
-    from visphy_core.analysis.printing import fitting_tables, print_study, rich_table
+    from visphy_core.analysis.printing import fitting_tables, print_study
 
     rng = np.random.default_rng(3)
     runs = _two_runs(tmp_path / "runs", 12) + [make_run(tmp_path / "mid", "mid", scenes(
@@ -550,7 +550,8 @@ def test_analyse_prints_one_spearman_table_and_cuts_no_number(tmp_path):
     narrow = io.StringIO()
     df = pd.DataFrame({"a label that is rather long for a narrow console": ["x" * 40],
                        "value": [4.70123e-05], "other": [-0.0], "big": [123456.789]})
-    Console(file=narrow, width=40).print(rich_table(df), crop=False)  # as print_study does
+    for table in fitting_tables(df, None, 40):  # as print_study prints a table
+        Console(file=narrow, width=40).print(table, crop=False)
     shown = narrow.getvalue()
     assert "4.701e-05" in shown and "123457" in shown and "…" not in shown
     assert not re.search(r"(?<!e)-0\b", shown)  # no negative zero (an exponent is fine)

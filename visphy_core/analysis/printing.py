@@ -8,7 +8,6 @@ console is split over several, each with the labels first (`fitting_tables`)."""
 
 from __future__ import annotations
 
-
 import pandas as pd
 
 from visphy_core.analysis import small_sample
@@ -18,16 +17,8 @@ from visphy_core.infra.progress import output_columns
 #: the console's width when stdout is no terminal and ``COLUMNS`` is unset
 LOG_WIDTH = 200
 
-
 #: the widest a label column gets before its labels fold onto more lines
 LABEL_WIDTH = 30
-
-
-def rich_table(df: pd.DataFrame, marks: pd.DataFrame | None = None):
-    """``df`` as one rich table: numeric columns right-justified and never narrower than their
-    widest cell (a number is not cut), the other columns folding onto more lines. On a console
-    narrower than the table, print `fitting_tables` instead."""
-    return _table(df, _cells(df, marks), range(len(df.columns)), LABEL_WIDTH)
 
 
 def fitting_tables(df: pd.DataFrame, marks: pd.DataFrame | None, width: int) -> list:
