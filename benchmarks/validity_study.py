@@ -1,9 +1,11 @@
-"""Metric validity study (issues 9, 21): perturbation monotonicity, the baseline ranking and the
+"""Metric validity study (issues 9, 21, 32): perturbation monotonicity, the baseline ranking and the
 validity ordering.
 
     .venv/bin/python benchmarks/validity_study.py [--n 10] [--home visphy-out] [--json out.json]
-    .venv/bin/python benchmarks/validity_study.py --order [--every N] [--dims 2d,3d]
-        [--checkpoint scenes.jsonl] [--json out.json]
+    .venv/bin/python benchmarks/validity_study.py --order [--split test] [--every N]
+        [--dims 2d,3d] [--checkpoint scenes.jsonl] [--json out.json]
+        [--summary docs/validity/summary.json] [--dose | --no-dose] [--variants NAMES]
+        [--metrics NAMES] [--clips-cache DIR]
 
 1. Perturbation: for each parameter (restitution, friction, initial speed, gravity), the first
    ``n`` non-chaotic 2D scenes of the generated benchmark that reveal it (its
@@ -29,7 +31,28 @@ mean (i) > mean (ii) > max((iii), (iv)) ("means") and where every (i) > every (i
 baselines ("strict"), and the mean value of each kind; then where each kind sits on the
 headline scale, how the headline's shares move when only clearly wrong (ii) clips count, and
 under other headline definitions. ``--checkpoint``: each scored scene is appended there and a
-rerun skips the scenes it holds.
+rerun skips the scenes it holds (those scored with the same metrics, variants and series; the
+last line of a scene wins).
+
+Issue 32 adds restyles (colour ±40 %, swapped colours, line widths, background shade), the truth
+clip itself as the reference, the twin scored with every metric, and the dose series
+(`validity_dose`: gravity ×0.9/×0.75/×0.5, restitution −0.1/−0.2/−0.3, launch +5°/+10°/+20°,
+playback ×0.9/×0.8/×0.67), and prints, per score, the goals (`validity_goals`): strict
+ordering with the (ii) clips departing ≥ 20 px, appearance invariance (median |Δ| per restyle),
+physics drop (median per intervention ≥ 20 px), monotone share over the dose series; a table per
+scene; the discriminative power. ``--summary`` (default ``docs/validity/summary.json``; ``''``
+for none) writes all of it as JSON with the scenes, wall time, machine
+(``benchmarks/machine.py``) and command line: the docs and tests read that file.
+``--no-dose`` leaves the dose series out; ``--variants`` keeps only the named (i) and (ii)
+variants and dose series (``right``, ``wrong``, ``dose``: a whole group); ``--metrics`` only
+these metrics of the default suite; ``--split`` another split (``mini``: four 2D scenes);
+``--clips-cache DIR`` keeps the rendered clips (npz) so a rerun with other metrics skips
+simulating and drawing them. ``--order`` reads only the catalogue (it draws its own clips).
+
+The whole study (49 scenes of the test split, 44 2D and 5 3D)::
+
+    .venv/bin/python benchmarks/validity_study.py --order --checkpoint validity.jsonl \
+        --json validity.json
 """
 
 from __future__ import annotations
@@ -112,20 +135,37 @@ VISIBLE_STEPS = (0.0, 2.0, 5.0, 20.0, 50.0)
 RESIZED = ("grow", "shrink")
 
 
-def order_study(catalogue: dict, every: int, dims: tuple[str, ...], checkpoint: str | None,
-                progress: bool) -> dict:
+#: where ``--order`` writes its summary (the docs and tests read it)
+SUMMARY = REPO / "docs" / "validity" / "summary.json"
+
+
+def split_specs(catalogue, split: str, dims: tuple[str, ...], every: int) -> list[dict]:
+    """Every ``every``-th scene of ``split`` in ``dims`` (a `Catalogue`'s specs, split order)."""
+    by_id = {e.spec["scene_id"]: e.spec for e in catalogue.entries}
+    specs = [by_id[i] for i in catalogue.splits[split] if by_id[i]["dim"] in dims]
+    return specs[::max(1, every)]
+
+
+def order_study(specs: list[dict], dims: tuple[str, ...], checkpoint: str | None,
+                progress: bool, *, metrics: list | None = None, dose: bool = True,
+                variants: list[str] | None = None, clips_cache: str | None = None,
+                summary: str | Path | None = None, meta: dict | None = None) -> dict:
+    """The validity ordering on ``specs`` (in ``dims``) with ``metrics`` (default: the default
+    suite's frame and sequence metrics); prints its tables and, with ``summary``, writes the
+    goals' summary there (`validity_goals.study_summary`, ``meta`` included)."""
+    from visphy_plugins.datasets.visphybench import validity_goals as vg
     from visphy_plugins.datasets.visphybench import validity_order as vo
 
-    by_id = {s["spec"]["scene_id"]: s["spec"] for s in catalogue["scenes"]}
-    specs = [by_id[i] for i in catalogue["splits"]["test"] if by_id[i]["dim"] in dims]
-    specs = specs[::max(1, every)]
-    metrics = default_suite()
+    metrics = default_suite() if metrics is None else metrics
+    appearances = interventions = series = None
+    if variants:
+        appearances, interventions, series = vo.variants_named(variants)
     done: dict = {}
     if checkpoint and Path(checkpoint).is_file():
         for line in Path(checkpoint).read_text().splitlines():
             if line.strip():
                 res = vo.SceneOrder.from_json(json.loads(line))
-                done[res.scene_id] = res
+                done[res.scene_id] = res  # the last line of a scene wins
 
     t0 = time.perf_counter()
     fresh = []
@@ -138,7 +178,9 @@ def order_study(catalogue: dict, every: int, dims: tuple[str, ...], checkpoint: 
 
     results = vo.run_order_study(
         specs, metrics, dims=dims, done=done, on_scene=save,
-        progress=(lambda s: print(f"  {s}", file=sys.stderr, flush=True)) if progress else None)
+        progress=(lambda s: print(f"  {s}", file=sys.stderr, flush=True)) if progress else None,
+        appearances=appearances, interventions=interventions, dose=dose, series=series,
+        clips_cache=vo.ClipCache(clips_cache) if clips_cache else None)
     wall = time.perf_counter() - t0
     table = vo.summarise_order(results, metrics)
     placement = vo.headline_placement(results)
@@ -154,13 +196,16 @@ def order_study(catalogue: dict, every: int, dims: tuple[str, ...], checkpoint: 
     unchanged: dict[str, int] = {}
     for res in results:
         for name, why in res.skipped.items():
-            into = unchanged if why.endswith("the clip equals the truth") else skipped
+            into = unchanged if why.endswith(("the clip equals the truth",
+                                              "the clip equals the previous dose's")) \
+                else skipped
             into[name] = into.get(name, 0) + 1
     counts = {k: sum(1 for r in results for c in r.clips if c.kind == k) for k in vo.KINDS}
     scene_s = {d: [r.seconds for r in results if r.dim == d] for d in dims}
 
     n2 = sum(1 for r in results if r.dim == "2d")
-    print(f"### Validity ordering ({len(results)} scenes of the test split: {n2} 2D, "
+    split = (meta or {}).get("split", "test")
+    print(f"### Validity ordering ({len(results)} scenes of the {split} split: {n2} 2D, "
           f"{len(results) - n2} 3D; clips (i) {counts['right']}, (ii) {counts['wrong']}, "
           f"(iii) {counts['static']}, (iv) {counts['flow']}; "
           + ", ".join(f"{d} {sum(v):.0f} s ({sum(v) / len(v):.0f} s a scene)"
@@ -226,19 +271,78 @@ def order_study(catalogue: dict, every: int, dims: tuple[str, ...], checkpoint: 
           + "; best baseline: "
           + ", ".join(f"{k} {v}" for k, v in breakers["baseline_high"].items()) + ").")
     if unchanged:
-        print("\n(ii) variants skipped because their clip equals the truth (scenes): "
+        print("\nVariants skipped because their clip equals the truth or the previous dose's "
+              "(scenes): "
               + ", ".join(f"{k} {v}" for k, v in sorted(unchanged.items())))
     if skipped:
-        print("\n(ii) variants that do not apply (scenes; speed and mirror need a thrown body, "
-              "kick one at rest) or failed: "
+        print("\nVariants that do not apply (scenes; speed, mirror and the launch series need a "
+              "thrown body, kick one at rest; swapped two body colours) or failed: "
               + ", ".join(f"{k} {v}" for k, v in sorted(skipped.items())))
+    goals = vg.study_summary(results, metrics, meta={
+        **(meta or {}), "wall_s": round(wall, 1), "scored_this_run": len(fresh),
+        "scene_ids": [r.scene_id for r in results]})
+    print_goals(goals)
+    if summary:
+        Path(summary).parent.mkdir(parents=True, exist_ok=True)
+        Path(summary).write_text(json.dumps(goals, indent=1) + "\n")
+        print(f"\n(summary written to {summary})", file=sys.stderr)
     return {"scenes": [r.scene_id for r in results], "wall_s": round(wall, 1),
             "scene_seconds": {d: round(sum(v), 1) for d, v in scene_s.items()},
             "table": table, "placement": placement,
             "sensitivity": {str(k): v for k, v in sensitivity.items()},
             "alternatives": alternatives, "skipped": skipped, "unchanged": unchanged,
-            "strict_breakers": breakers, "scored_this_run": fresh,
+            "strict_breakers": breakers, "scored_this_run": fresh, "goals": goals,
             "results": [r.to_json() for r in results]}
+
+
+def _yes(v) -> str:
+    return "—" if v is None else ("yes" if v else "no")
+
+
+def print_goals(goals: dict) -> None:
+    """The issue-32 tables: per score, per dose series (headline), per scene, and the
+    discriminative power."""
+    g = goals["goals"]
+    print(f"\n### Goals (issue 32): strict on ≥ {g['strict_share']:.0%} of scenes ((ii) clips "
+          f"departing ≥ {g['min_px']:g} px), each restyle ≤ {g['invariance']:g} and each "
+          f"intervention ≥ {g['physics_drop']:g} (medians, the headline's scale), monotone in "
+          f"the dose (ρ ≤ {g['monotone_rho']:g}) on ≥ {g['monotone_share']:.0%}\n")
+    print("| score | strict | means | monotone (cases) | monotone (scenes) | worst restyle "
+          "(median \\|Δ\\|) | weakest intervention (median drop) |")
+    print("|---|---|---|---|---|---|---|")
+    for key, row in goals["scores"].items():
+        label = f"**{row['name']}**" if key == "headline" else f"`{key}`"
+        inv, drop, mono = row["invariance"], row["physics_drop"], row["monotone"]
+        print(f"| {label} | {_share(row['strict']['ordered'], row['strict']['scenes'])} | "
+              f"{_share(row['means']['ordered'], row['means']['scenes'])} | "
+              f"{_share(mono['monotone'], mono['cases'])} | "
+              f"{_share(mono['scenes_monotone'], mono['scenes'])} | "
+              f"{inv['worst'] or '—'} {_fmt(inv['max_median'])} | "
+              f"{drop['weakest'] or '—'} {_fmt(drop['min_median'])} |")
+    head = goals["scores"]["headline"]
+    print("\nHeadline per dose series: " + "; ".join(
+        f"{name} {_share(r['monotone'], r['cases'])} (mean ρ {_fmt(r['mean_rho'], 2)})"
+        for name, r in head["monotone"]["per_series"].items()) + ".")
+    print("Headline per restyle (median |Δ|): " + ", ".join(
+        f"{n} {_fmt(r['median_abs'])}" for n, r in head["invariance"]["per_restyle"].items())
+          + ".")
+    print("Headline per intervention ≥ 20 px (median drop): " + ", ".join(
+        f"{n} {_fmt(r['median'])} ({r['scenes']})"
+        for n, r in head["physics_drop"]["per_intervention"].items()) + ".")
+    print("\n| scene | dim | strict | means | monotone | worst restyle | smallest ≥ 20 px drop |")
+    print("|---|---|---|---|---|---|---|")
+    for r in goals["scenes"]:
+        print(f"| {r['scene']} | {r['dim']} | {_yes(r['strict'])} | {_yes(r['means'])} | "
+              f"{_fmt(r['monotone'], 2)} | {_fmt(r['worst_restyle'])} "
+              f"({r['worst_restyle_name'] or '—'}) | {_fmt(r['smallest_drop'])} "
+              f"({r['smallest_drop_name'] or '—'}) |")
+    print("\nDiscriminative power (headline; the half-width of a 95 % paired-bootstrap interval "
+          "of a mean difference between two variants of one kind, median over pairs / from "
+          "the per-scene SD):")
+    for kind, row in goals["discriminative_power"].items():
+        print(f"  {kind}: " + "; ".join(
+            f"n={n} {_fmt(r['median'])} / {_fmt(r['from_sd'])}"
+            for n, r in row["n_scenes"].items()))
 
 
 def main() -> None:
@@ -254,23 +358,59 @@ def main() -> None:
     parser.add_argument("--dims", default="2d,3d", help="--order: 2d, 3d or 2d,3d")
     parser.add_argument("--checkpoint", default=None,
                         help="--order: append each scored scene here; skip those it holds")
+    parser.add_argument("--split", default="test", help="--order: the split (test, sub, mini)")
+    parser.add_argument("--dose", action=argparse.BooleanOptionalAction, default=True,
+                        help="--order: the dose series (default on)")
+    parser.add_argument("--variants", default=None,
+                        help="--order: only these (i), (ii) variants and dose series, "
+                             "comma-separated (right, wrong, dose: a whole group)")
+    parser.add_argument("--metrics", default=None,
+                        help="--order: only these metrics of the default suite, comma-separated")
+    parser.add_argument("--clips-cache", default=None,
+                        help="--order: keep the rendered clips here (npz) and reuse them")
+    parser.add_argument("--summary", default=str(SUMMARY),
+                        help="--order: write the goals' summary (JSON) here; '' for none")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
     args = parser.parse_args()
 
     from visphy_plugins.datasets.visphybench.build import build_dataset
 
     home = Path(args.home).resolve()
-    t_build = time.perf_counter()
-    root = build_dataset(home / "data", split="test", progress=False)
-    catalogue = json.loads((root / "catalogue.json").read_text())
-    if args.order:
+    if args.order:  # the study draws its own clips: the catalogue is all it reads
+        from machine import machine
+
+        from visphy_plugins.datasets.visphybench.build import (
+            dataset_root,
+            load_or_build_catalogue,
+        )
+
+        root = dataset_root(home / "data")
+        root.mkdir(parents=True, exist_ok=True)
+        catalogue = load_or_build_catalogue(root, 0, progress=False)
         dims = tuple(d.strip() for d in args.dims.split(",") if d.strip())
-        print(f"(test split ready in {time.perf_counter() - t_build:.0f} s)\n",
-              file=sys.stderr)
-        result = order_study(catalogue, args.every, dims, args.checkpoint, not args.quiet)
+        specs = split_specs(catalogue, args.split, dims, args.every)
+        metrics = None
+        if args.metrics:
+            wanted = [n.strip() for n in args.metrics.split(",") if n.strip()]
+            suite = {m.name: m for m in default_suite()}
+            unknown = [n for n in wanted if n not in suite]
+            if unknown:
+                raise SystemExit(f"--metrics: not in the default suite here: {unknown}")
+            metrics = [suite[n] for n in wanted]
+        meta = {"command": " ".join([Path(sys.executable).name, *sys.argv]),
+                "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "split": args.split,
+                "every": args.every, "dims_asked": list(dims), "dose": args.dose,
+                "variants_asked": args.variants, "machine": machine()}
+        result = order_study(specs, dims, args.checkpoint, not args.quiet, metrics=metrics,
+                             dose=args.dose,
+                             variants=args.variants.split(",") if args.variants else None,
+                             clips_cache=args.clips_cache, summary=args.summary or None,
+                             meta=meta)
         if args.json:
             Path(args.json).write_text(json.dumps(result, indent=1))
         return
+    root = build_dataset(home / "data", split="test", progress=False)
+    catalogue = json.loads((root / "catalogue.json").read_text())
     specs = [s["spec"] for s in catalogue["scenes"] if s["spec"]["dim"] == "2d"]
     t0 = time.perf_counter()
     table, cases = perturbation(specs, args.n, progress=True)

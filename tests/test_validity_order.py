@@ -10,6 +10,7 @@ rest, one thrown), scored by the headline's components and PSNR only (seconds, n
 from __future__ import annotations
 
 import colorsys
+import copy
 import math
 
 import numpy as np
@@ -22,6 +23,7 @@ from visphy_core.scoring.normalisation import twin_spec
 from visphy_plugins.datasets.visphybench import validity_order as vo
 
 RED = (243, 79, 70)
+ISSUE_21 = ("pale", "tint+20", "tint-20", "outline", "antialias", "grow", "shrink")
 
 
 @pytest.fixture(scope="module")
@@ -128,6 +130,135 @@ def test_grow_and_shrink_draw_every_body_ten_percent_larger_or_smaller_at_the_sa
         0.9)["parts"][0]
     assert part["shape"]["size_m"] == pytest.approx([0.9, 1.8, 2.7])
     assert part["offset_m"] == pytest.approx([0.0, 0.9, 0.0])
+
+
+class _Drawing(vo.Renderer2D):
+    """The ground truth's rasteriser that records the poses it is asked to draw and refuses to
+    simulate: a variant drawn through it cannot have changed the physics."""
+
+    def __init__(self):
+        self.drawn: list[np.ndarray] = []
+
+    def simulate(self, spec):
+        raise AssertionError("an appearance variant simulated")
+
+    def rollout(self, spec):
+        raise AssertionError("an appearance variant simulated")
+
+    def draw(self, spec, poses):
+        self.drawn.append(np.asarray(poses).copy())
+        return super().draw(spec, poses)
+
+
+def _recolouring(truth: np.ndarray, clip: np.ndarray) -> dict[tuple, tuple]:
+    """truth colour → the one colour its pixels have in ``clip`` (AssertionError where a
+    truth colour's pixels take several: the clip is not a recolouring of the same regions)."""
+    def rgb(code: int) -> tuple:
+        return int(code >> 16), int((code >> 8) & 255), int(code & 255)
+
+    pairs = np.unique(vo._codes(truth).astype(np.int64) << 24 | vo._codes(clip))
+    src, dst = pairs >> 24, pairs & ((1 << 24) - 1)
+    assert len(np.unique(src)) == len(src), "a region took several colours"
+    return {rgb(a): rgb(b) for a, b in zip(src, dst)}
+
+
+def test_the_issue_32_restyles_keep_the_truths_poses_and_change_only_the_drawing(thrown):
+    """dark, swapped, background: every pixel region of the truth keeps its exact extent and
+    takes one new colour (a recolouring of the same frames); outline1/outline4 darken rings
+    inside bodies only; thick widens the bars only; the redrawn ones draw the truth's own
+    poses without simulating."""
+    truth = vo.Truth(thrown.spec, thrown.poses, thrown.frames, _Drawing())
+    bg = tuple(thrown.spec["render"]["background_rgb"])
+    dynamic = [tuple(b["color_rgb"]) for b in thrown.spec["bodies"] if b.get("dynamic")]
+    static = [tuple(b["color_rgb"]) for b in thrown.spec["bodies"] if not b.get("dynamic")]
+    for name in ("dark", "swapped", "background"):
+        truth.renderer.drawn.clear()
+        clip = _variant(truth, name)
+        assert clip.shape == thrown.frames.shape
+        new = _recolouring(thrown.frames, clip)  # one region → one colour, nothing moves
+        regions = list(new)
+        if name == "dark":
+            assert new == {c: (c if c == bg else vo.dark_rgb(c)) for c in regions}
+            assert vo.dark_rgb(RED) == (146, 47, 42)                 # 40 % toward black
+        elif name == "swapped":      # the dynamic colours rotate: each body wears another's
+            assert sorted(new[c] for c in dynamic) == sorted(dynamic)
+            assert all(new[c] != c for c in dynamic)
+            assert all(new[c] == c for c in static + [bg])
+        else:
+            assert new == {c: (vo.dark_rgb(c, vo.SHADE) if c == bg else c) for c in regions}
+        if name != "dark":             # redrawn at the truth's own poses
+            assert len(truth.renderer.drawn) == 1
+            assert np.array_equal(truth.renderer.drawn[0], thrown.poses)
+    body = np.any(thrown.frames != np.asarray(bg, dtype=np.uint8), axis=-1)
+    rings = {}
+    for w in vo.OUTLINE_WIDTHS:
+        clip = _variant(truth, f"outline{w}")
+        changed = np.any(clip != thrown.frames, axis=-1)
+        assert changed.any() and not (changed & ~body).any()          # inside bodies only
+        assert np.all(clip[changed] == np.asarray(vo.OUTLINE_RGB, dtype=np.uint8))
+        rings[w] = changed
+    assert not (rings[1] & ~rings[4]).any() and rings[4].sum() > 2 * rings[1].sum()
+    truth.renderer.drawn.clear()
+    clip = _variant(truth, "thick")
+    assert np.array_equal(truth.renderer.drawn[0], thrown.poses)
+    black = _of_colour(thrown.frames, (0, 0, 0))
+    assert not (black & ~_of_colour(clip, (0, 0, 0))).any()          # the bar only grows
+    grown = _of_colour(clip, (0, 0, 0)) & ~black
+    assert grown.any() and np.array_equal(grown, np.any(clip != thrown.frames, axis=-1))
+    bar = next(b for b in vo.thickened_spec(copy.deepcopy(thrown.spec))["bodies"]
+               if b["id"] == "black_bar")["shape"]
+    assert bar["thickness_px"] == pytest.approx(512 / 50 + vo.THICKER_PX)
+
+
+def test_restyles_that_do_not_apply_are_skipped_with_their_reason(specs):
+    fall = next(s for s in specs.values() if s["description"].startswith("red ball falls "
+                                                                         "freely"))
+    alone = vo.Truth.of(fall, vo.Renderer2D())            # one dynamic body: nothing to swap
+    skipped: dict[str, str] = {}
+    keep = [a for a in vo.APPEARANCES if a.name in ("swapped", "pale") and "2d" in a.dims]
+    clips = list(vo.make_clips(alone, (vo.RIGHT,), skipped, appearances=keep))
+    assert [c.name for c in clips] == ["pale"]
+    assert skipped == {"swapped": "1 distinct dynamic-body colour(s): nothing to swap"}
+    no_bar = {"dim": "2d", "bodies": [{"shape": {"type": "box", "length_px": 40.0,
+                                                 "thickness_px": 30.0}}]}
+    with pytest.raises(vo.NotApplicable, match="no bar"):
+        vo.thickened_spec(no_bar)
+    # 3D: the sky (the page's clear colour) and the floor, 15 % darker; the lights kept
+    sky = {"dim": "3d", "render": {"background_rgb": [255, 255, 255],
+                                   "lighting": {"hemisphere": {"sky_rgb": [255, 255, 255]}}},
+           "world": {"floor": {"y": 0.0, "color_rgb": [148, 148, 148]}}}
+    shaded = vo.shaded_spec(copy.deepcopy(sky))
+    assert shaded["render"]["background_rgb"] == [217, 217, 217]
+    assert shaded["world"]["floor"]["color_rgb"] == [126, 126, 126]
+    assert shaded["render"]["lighting"] == sky["render"]["lighting"]
+
+
+def test_the_clips_cache_gives_back_the_same_clips_without_drawing_again(thrown, tmp_path):
+    truth = vo.Truth(thrown.spec, thrown.poses, thrown.frames, _Drawing())
+    cache = vo.ClipCache(tmp_path)
+    keep = [a for a in vo.APPEARANCES if a.name in ("pale", "swapped") and "2d" in a.dims]
+    first = list(vo.make_clips(truth, (vo.RIGHT, vo.STATIC), appearances=keep, cache=cache))
+    drawn = len(truth.renderer.drawn)
+    again = list(vo.make_clips(truth, (vo.RIGHT, vo.STATIC), appearances=keep, cache=cache))
+    assert len(truth.renderer.drawn) == drawn == 1           # swapped drawn once, then cached
+    assert [c.name for c in again] == ["pale", "swapped", "static"]
+    for a, b in zip(first, again):
+        assert np.array_equal(a.frames, b.frames) and (a.what, a.changed) == (b.what, b.changed)
+    skipped: dict[str, str] = {}
+    cache.put(thrown.spec, vo.RIGHT, "outline", "a reason")  # a cached skip stays a skip
+    out = list(vo.make_clips(truth, (vo.RIGHT,), skipped, [a for a in vo.APPEARANCES
+                                                           if a.name == "outline"], cache=cache))
+    assert out == [] and skipped == {"outline": "a reason"}
+
+
+def test_variants_are_selected_by_name_or_group():
+    right, wrong, series = vo.variants_named(["swapped", "gravity_x0.5", "dose"])
+    assert {a.name for a in right} == {"swapped"} and [iv.name for iv in wrong] == ["gravity_x0.5"]
+    assert [s.name for s in series] == ["gravity", "restitution", "launch", "playback"]
+    right, wrong, series = vo.variants_named(["right"])
+    assert len(right) == len(vo.APPEARANCES) and wrong == [] and series == []
+    with pytest.raises(ValueError, match="unknown variant"):
+        vo.variants_named(["sepia"])
 
 
 # ---------------------------------------------------------------------------- (ii) physics
@@ -291,12 +422,14 @@ def test_on_mini_scenes_the_headline_orders_the_four_kinds(jar, thrown):
     names = ("psnr", "spatiotemporal_iou", "weighted_spatial_iou", "track_pos_err")
     metrics = vo.frame_metrics(registry.get("metrics", n) for n in names)
     assert [m.name for m in metrics] == list(names)
-    results = [vo.score_truth(t, metrics) for t in (jar, thrown)]
+    seven = [a for a in vo.APPEARANCES if a.name in ISSUE_21]   # issue 21's restyles
+    results = [vo.score_truth(t, metrics, appearances=seven) for t in (jar, thrown)]
     for res in results:
         kinds = {c.kind for c in res.clips}
         assert kinds == set(vo.KINDS), res.skipped
         assert len([c for c in res.clips if c.kind == vo.RIGHT]) == 7
-        assert res.twin and res.floor
+        assert set(res.twin) == set(res.floor) == set(names)  # every metric, not only the
+        assert res.truth.headline == pytest.approx(1.0)        # headline's components
     table = vo.summarise_order(results, metrics)
     head = table["headline"]
     assert head["scenes"] == 2 and head["share_means"] == 1.0, head

@@ -1,5 +1,5 @@
-"""Validity ordering (issue 21): does a score put physics above drawing, and both above "nothing
-moves"?
+"""Validity ordering (issues 21, 32): does a score put physics above drawing, and both above
+"nothing moves"?
 
 For each scene of the generated benchmark four kinds of clip are made and scored against the
 ground truth X (the raw render, no codec) under visphy's unaligned pairing:
@@ -16,14 +16,31 @@ ground truth X (the raw render, no codec) under visphy's unaligned pairing:
       (coverage anti-aliasing, what a canvas does); ``aliased`` (3D, whose truth is
       multisampled): the same page with multisampling off;
     * ``grow`` / ``shrink``: every body drawn `SIZE` (10 %) larger or smaller about its own
-      origin at the truth's poses (a dilated or eroded body; the motion is the truth's).
+      origin at the truth's poses (a dilated or eroded body; the motion is the truth's);
 
-    In 2D, pale and tint repaint the raw raster by colour (it has the exact palette: a body
-    colour maps to its new colour, the background is untouched); the others, and every 3D
+    and, issue 32:
+
+    * ``dark``: every body colour blended `DARK` (40 %) toward black (with ``pale``: colour
+      ±40 %);
+    * ``swapped``: the distinct dynamic-body colours rotated among the dynamic bodies (spec
+      order: the first colour's bodies take the second's, …, the last's the first's), so each
+      wears another body's colour and no new colour appears; static bodies keep theirs; skipped
+      where the dynamic bodies have fewer than two colours;
+    * line width (2D; the 3D bodies are shaded solids with no drawn line): ``outline1`` /
+      ``outline4``: the outline at `OUTLINE_WIDTHS` (1 and 4 px) instead of 2; ``thick``: every
+      bar (a box at most `THIN_PX` = 12 px thick; PHYRE's bars are 10.24 px) drawn `THICKER_PX`
+      (2 px) thicker, half on each side, at the truth's poses (compound parts such as a jar's
+      walls are left alone); skipped where the scene has no bar;
+    * ``background``: the background `SHADE` (15 %) darker: 2D the canvas, 3D the sky (the
+      replay page's clear colour, ``render.background_rgb``) and the floor
+      (``world.floor.color_rgb``); the lights are kept.
+
+    In 2D, pale, dark and tint repaint the raw raster by colour (it has the exact palette: a
+    body colour maps to its new colour, the background is untouched); the others, and every 3D
     variant, draw an edited spec at the truth's own poses (the same rasteriser, or the same
-    three.js replay page). A variant is a function `Truth` → clip: `per_frame` turns a
-    frame → frame function into one, `redrawn` a spec → spec edit; add an `Appearance` to
-    `APPEARANCES` to add a variant.
+    three.js replay page). A variant is a function `Truth` → clip (raising `NotApplicable`
+    where it does not apply: ``skipped``): `per_frame` turns a frame → frame function into
+    one, `redrawn` a spec → spec edit; add an `Appearance` to `APPEARANCES` to add a variant.
 (ii) ``wrong`` — the physics changed and re-simulated (Box2D in 2D, cannon-es in 3D), drawn like
     the truth (`INTERVENTIONS`): gravity ×0.5 and ×2; restitution ±0.3 (clamped to
     [0, 0.98]); friction ×0.25 and +0.4 (every body material, the default contact and every
@@ -39,11 +56,20 @@ ground truth X (the raw render, no codec) under visphy's unaligned pairing:
 (iii) ``static`` — the first frame held for the whole clip (the ``static`` baseline).
 (iv) ``flow`` — the ``flow_extrapolate`` baseline's own function on key frames 1 and 10.
 
+Besides these: the truth clip itself (`SceneOrder.truth`: the reference of the invariance and
+drop summaries, and dose 0) and, with ``dose``, the dose series (`validity_dose`: gravity,
+restitution, launch angle and playback speed in three growing steps each;
+`SceneOrder.doses`).
+
 Scores: every frame and sequence metric of the suite (`visphy_core.scoring.score.score_scene`,
 ``ScoringProtocol(unaligned=True, aligned=False, paper=False)``) and the headline
-(`visphy_core.scoring.headline.scene_headline`): floor = the static clip's component values, ceiling
-= the twin's (`visphy_core.scoring.normalisation.twin_spec`, simulated and drawn like the truth), so
-the static clip scores exactly 0 on the headline.
+(`visphy_core.scoring.headline.scene_headline`): floor = the static clip's component values,
+ceiling = the twin's (`visphy_core.scoring.normalisation.twin_spec`, simulated and drawn like
+the truth), so the static clip scores exactly 0 on the headline. The twin and the static clip
+are scored with every metric, not only the headline's components, so any other headline
+(`rescored_headline`, `headline_alternatives`) is recomputed from a checkpoint without
+scoring a clip again. ``clips_cache`` (`ClipCache`) keeps the rendered clips as compressed
+npz so that scoring them again with other metrics skips simulating and drawing.
 
 Ordering (`order_of`), per scene and score, in the score's good direction (a lower-is-better
 value is negated), over the clips whose value is defined:
@@ -55,7 +81,9 @@ value is negated), over the clips whose value is defined:
 Ties are not ordered. A scene counts for a score only when at least one (i) and one (ii) value
 and both (iii) and (iv) are defined. A **family** row pools its metrics: its cases are (scene,
 metric) pairs and its shares are the shares of those cases (no mean value: its metrics have
-different units).
+different units). Issue 32's goals (strict with the (ii) clips departing ≥ 20 px, appearance
+invariance, physics drop, monotonicity in the dose, discriminative power) are summarised by
+`validity_goals`.
 """
 # size: one study: its clip variants, scoring loop and table are read together
 
@@ -64,6 +92,8 @@ from __future__ import annotations
 import colorsys
 import copy
 import dataclasses
+import hashlib
+import json
 import math
 import tempfile
 import time
@@ -78,6 +108,7 @@ from visphy_core.api.storage import Cache
 from visphy_plugins.datasets.visphybench.validity import _materials, scene_of
 
 RIGHT, WRONG, STATIC, FLOW = "right", "wrong", "static", "flow"
+TRUTH, DOSE = "truth", "dose"  # the truth clip itself (`SceneOrder.truth`); a dose series' clip
 KINDS = {RIGHT: "(i) physics right, drawn differently", WRONG: "(ii) physics wrong",
          STATIC: "(iii) static", FLOW: "(iv) flow_extrapolate"}
 UNALIGNED = ScoringProtocol(unaligned=True, aligned=False, paper=False)
@@ -88,6 +119,11 @@ OUTLINE_PX = 2
 OUTLINE_RGB = (40, 40, 40)
 SUPERSAMPLE = 4            # 2D anti-aliasing: render at 4x, area-average down
 SIZE = 0.10                # grow / shrink
+DARK = 0.4                 # blend toward black
+OUTLINE_WIDTHS = (1, 4)    # the outline at other line widths (besides `OUTLINE_PX`)
+THIN_PX = 12.0             # a 2D box this thin or thinner is a bar (PHYRE's are W/50 = 10.24 px)
+THICKER_PX = 2.0           # ``thick``: bars drawn this much thicker (half on each side)
+SHADE = 0.15               # ``background``: the background (3D: sky and floor) this much darker
 GRAVITY = (0.5, 2.0)
 RESTITUTION_DELTA = 0.3
 RESTITUTION_RANGE = (0.0, 0.98)
@@ -116,9 +152,13 @@ class Renderer2D:
     """Box2D and the ground-truth rasteriser (`raster2d.render_clip_2d`)."""
 
     def simulate(self, spec: dict) -> np.ndarray:
+        return np.asarray(self.rollout(spec).frame_poses, dtype=np.float64)
+
+    def rollout(self, spec: dict):
+        """The engine's whole rollout (``step_poses``, ``frame_steps``: every 1/60 s step)."""
         from visphy_plugins.physics.box2d import simulate_2d
 
-        return np.asarray(simulate_2d(spec).frame_poses, dtype=np.float64)
+        return simulate_2d(spec)
 
     def draw(self, spec: dict, poses: np.ndarray) -> np.ndarray:
         from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
@@ -133,9 +173,13 @@ class Renderer3D:
         self.pool = pool
 
     def simulate(self, spec: dict) -> np.ndarray:
+        return np.asarray(self.rollout(spec).frame_poses, dtype=np.float64)
+
+    def rollout(self, spec: dict):
+        """The engine's whole rollout (``step_poses``, ``frame_steps``)."""
         from visphy_plugins.physics.cannon import simulate_3d
 
-        return np.asarray(simulate_3d(spec).frame_poses, dtype=np.float64)
+        return simulate_3d(spec)
 
     def draw(self, spec: dict, poses: np.ndarray) -> np.ndarray:
         from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
@@ -145,17 +189,34 @@ class Renderer3D:
 
 @dataclasses.dataclass
 class Truth:
-    """A scene's ground truth: its spec, per-frame poses and frames, and how it was made."""
+    """A scene's ground truth: its spec, per-frame poses and frames, and how it was made;
+    ``steps``: the rollout's every step (``step_poses``, ``frame_steps``) where the renderer
+    keeps them (the playback-speed dose series reads them)."""
 
     spec: dict
     poses: np.ndarray
     frames: np.ndarray
     renderer: Renderer
+    steps: tuple[np.ndarray, np.ndarray] | None = None
 
     @classmethod
-    def of(cls, spec: dict, renderer: Renderer) -> "Truth":
-        poses = renderer.simulate(spec)
-        return cls(spec, poses, renderer.draw(spec, poses), renderer)
+    def of(cls, spec: dict, renderer: Renderer, cache: "ClipCache | None" = None) -> "Truth":
+        if cache is not None:
+            hit = cache.truth(spec, renderer)
+            if hit is not None:
+                return hit
+        steps = None
+        if hasattr(renderer, "rollout"):
+            rollout = renderer.rollout(spec)
+            poses = np.asarray(rollout.frame_poses, dtype=np.float64)
+            steps = (np.asarray(rollout.step_poses, dtype=np.float64),
+                     np.asarray(rollout.frame_steps, dtype=np.int64))
+        else:
+            poses = renderer.simulate(spec)
+        truth = cls(spec, poses, renderer.draw(spec, poses), renderer, steps)
+        if cache is not None:
+            cache.put_truth(truth)
+        return truth
 
     @property
     def dim(self) -> str:
@@ -170,9 +231,15 @@ class Truth:
 ClipFn = Callable[[Truth], np.ndarray]
 
 
+class NotApplicable(Exception):
+    """Raised by a variant that does not apply to a scene (its message says why: the variant
+    goes into the scene's ``skipped``)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class Appearance:
-    """One physics-right variant: ``make(truth)`` is the clip; ``dims`` where it applies."""
+    """One physics-right variant: ``make(truth)`` is the clip (or raises `NotApplicable`);
+    ``dims`` where it applies."""
 
     name: str
     what: str
@@ -199,6 +266,11 @@ def redrawn(edit: Callable[[dict], dict]) -> ClipFn:
 def pale_rgb(rgb: Iterable[int], amount: float = PALE) -> tuple[int, int, int]:
     """``rgb`` blended ``amount`` of the way toward white."""
     return tuple(int(round(c + amount * (255.0 - c))) for c in rgb)
+
+
+def dark_rgb(rgb: Iterable[int], amount: float = DARK) -> tuple[int, int, int]:
+    """``rgb`` blended ``amount`` of the way toward black."""
+    return tuple(int(round(c * (1.0 - amount))) for c in rgb)
 
 
 def tint_rgb(rgb: Iterable[int], degrees: float) -> tuple[int, int, int]:
@@ -321,6 +393,53 @@ def _aliased(spec: dict) -> dict:
     return spec
 
 
+def swapped_spec(spec: dict) -> dict:
+    """Every dynamic body painted the next distinct dynamic-body colour (spec order, the last
+    one the first's): the colours rotate among the bodies, so each dynamic body wears another
+    body's colour and no new colour appears; static bodies keep theirs. `NotApplicable` with
+    fewer than two distinct dynamic-body colours."""
+    colours: list[tuple[int, ...]] = []
+    for b in spec["bodies"]:
+        c = tuple(int(v) for v in b["color_rgb"])
+        if b.get("dynamic") and c not in colours:
+            colours.append(c)
+    if len(colours) < 2:
+        raise NotApplicable(f"{len(colours)} distinct dynamic-body colour(s): nothing to swap")
+    turn = {c: colours[(i + 1) % len(colours)] for i, c in enumerate(colours)}
+    for b in spec["bodies"]:
+        if b.get("dynamic"):
+            b["color_rgb"] = list(turn[tuple(int(v) for v in b["color_rgb"])])
+    return spec
+
+
+def thickened_spec(spec: dict, extra: float = THICKER_PX, thin: float = THIN_PX) -> dict:
+    """2D: every box at most ``thin`` px thick (a bar; compound parts are left alone) drawn
+    ``extra`` px thicker about its own axis (half on each side; its length kept).
+    `NotApplicable` where the scene has no bar."""
+    n = 0
+    for b in spec["bodies"]:
+        shape = b["shape"]
+        if shape.get("type") == "box":
+            key = "thickness_px" if shape["thickness_px"] <= shape["length_px"] else "length_px"
+            if float(shape[key]) <= thin:
+                shape[key] = float(shape[key]) + extra
+                n += 1
+    if not n:
+        raise NotApplicable(f"no bar (a box at most {thin:g} px thick)")
+    return spec
+
+
+def shaded_spec(spec: dict, amount: float = SHADE) -> dict:
+    """The background ``amount`` darker (toward black): 2D the canvas
+    (``render.background_rgb``); 3D the sky (the same field: the replay page's clear colour)
+    and the floor (``world.floor.color_rgb``). The lights are kept."""
+    spec["render"]["background_rgb"] = list(dark_rgb(spec["render"]["background_rgb"], amount))
+    floor = spec["world"].get("floor")
+    if spec["dim"] == "3d" and floor:
+        floor["color_rgb"] = list(dark_rgb(floor["color_rgb"], amount))
+    return spec
+
+
 APPEARANCES: list[Appearance] = [
     Appearance("pale", f"body colours {PALE:.0%} toward white (2D: repainted by colour)",
                per_frame(recoloured(pale_rgb)), ("2d",)),
@@ -342,6 +461,22 @@ APPEARANCES: list[Appearance] = [
                redrawn(resized_spec(1.0 + SIZE))),
     Appearance("shrink", f"every body drawn {SIZE:.0%} smaller at the truth's poses",
                redrawn(resized_spec(1.0 - SIZE))),
+    # issue 32: more restyles
+    Appearance("dark", f"body colours {DARK:.0%} toward black (2D: repainted by colour)",
+               per_frame(recoloured(dark_rgb)), ("2d",)),
+    Appearance("dark", f"body colours {DARK:.0%} toward black (spec recoloured)",
+               redrawn(recolour_spec(dark_rgb)), ("3d",)),
+    Appearance("swapped", "the distinct dynamic-body colours rotated among the bodies "
+               "(each wears another's colour; redrawn)", redrawn(swapped_spec)),
+    *[Appearance(f"outline{w}", f"a {w}-px dark outline inside every body's edge",
+                 per_frame(lambda f, spec, w=w: outline_frame(f, spec, w)), ("2d",))
+      for w in OUTLINE_WIDTHS],
+    Appearance("thick", f"every bar (a box ≤ {THIN_PX:g} px thick) drawn {THICKER_PX:g} px "
+               "thicker at the truth's poses", redrawn(thickened_spec), ("2d",)),
+    Appearance("background", f"the background {SHADE:.0%} darker (redrawn)",
+               redrawn(shaded_spec), ("2d",)),
+    Appearance("background", f"the sky and the floor {SHADE:.0%} darker (redrawn)",
+               redrawn(shaded_spec), ("3d",)),
 ]
 
 
@@ -603,8 +738,10 @@ class Clip:
     what: str
     frames: np.ndarray
     changed: float | None = None  # share of the truth's pixels it changes (over the clip)
-    deviation: float | None = None  # (ii): `deviation` (px)
+    deviation: float | None = None  # (ii), dose: `deviation` (px)
     missing: list[str] | None = None  # (ii): bodies of the truth the clip does not draw
+    series: str | None = None  # dose: its series (`validity_dose.SERIES`)
+    dose: float | None = None  # dose: how far from the truth, in the series' own unit
 
 
 def changed_share(frames: np.ndarray, truth: np.ndarray) -> float:
@@ -612,10 +749,108 @@ def changed_share(frames: np.ndarray, truth: np.ndarray) -> float:
         else 1.0
 
 
+class ClipCache:
+    """Rendered clips kept on disk (``--clips-cache DIR``) so that scoring the same clips
+    again (other metrics, another headline) skips simulating and drawing them: one compressed
+    ``.npz`` per (scene, spec, kind, variant) under ``DIR/<scene_id>/`` holding the frames and
+    what the `Clip` records (a variant that does not apply: its reason, no frames); the truth
+    keeps its poses and steps too. Keyed by the spec's digest, not by the variants' code:
+    empty the folder when a variant's definition changes."""
+
+    def __init__(self, root: Path | str):
+        self.root = Path(root)
+
+    @staticmethod
+    def digest(spec: dict) -> str:
+        return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:12]
+
+    def path(self, spec: dict, kind: str, name: str) -> Path:
+        safe = "".join(ch if ch.isalnum() or ch in "+-._" else "_" for ch in name)
+        return self.root / spec["scene_id"] / f"{self.digest(spec)}-{kind}-{safe}.npz"
+
+    def get(self, spec: dict, kind: str, name: str) -> "Clip | str | None":
+        """The cached clip, the reason it was skipped, or None (not cached)."""
+        path = self.path(spec, kind, name)
+        if not path.is_file():
+            return None
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+            if meta.get("skipped") is not None:
+                return str(meta["skipped"])
+            return Clip(frames=z["frames"], **meta)
+
+    def put(self, spec: dict, kind: str, name: str, clip: "Clip | str") -> None:
+        path = self.path(spec, kind, name)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if isinstance(clip, str):
+            arrays = {"meta": np.array(json.dumps({"skipped": clip}))}
+        else:
+            meta = {f.name: getattr(clip, f.name) for f in dataclasses.fields(clip)
+                    if f.name != "frames"}
+            arrays = {"meta": np.array(json.dumps(meta)), "frames": clip.frames}
+        tmp = path.with_suffix(".tmp.npz")
+        np.savez_compressed(tmp, **arrays)
+        tmp.replace(path)
+
+    def truth(self, spec: dict, renderer: Renderer) -> "Truth | None":
+        path = self.path(spec, "truth", "truth")
+        if not path.is_file():
+            return None
+        with np.load(path, allow_pickle=False) as z:
+            steps = (z["step_poses"], z["frame_steps"]) if "step_poses" in z else None
+            return Truth(spec, z["poses"], z["frames"], renderer, steps)
+
+    def put_truth(self, truth: "Truth") -> None:
+        path = self.path(truth.spec, "truth", "truth")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        arrays = {"poses": truth.poses, "frames": truth.frames}
+        if truth.steps is not None:
+            arrays["step_poses"], arrays["frame_steps"] = truth.steps
+        tmp = path.with_suffix(".tmp.npz")
+        np.savez_compressed(tmp, **arrays)
+        tmp.replace(path)
+
+
+def made(truth: Truth, kind: str, name: str, make: Callable[[], "Clip | str"],
+         skipped: dict[str, str], key: str | None = None,
+         cache: ClipCache | None = None) -> Clip | None:
+    """``make()``'s clip, or None with the reason in ``skipped[key or name]`` (``make``
+    returned a reason or raised `NotApplicable`); through ``cache`` when one is given."""
+    hit = cache.get(truth.spec, kind, name) if cache is not None else None
+    if hit is None:
+        try:
+            hit = make()
+        except NotApplicable as exc:
+            hit = str(exc)
+        if cache is not None:
+            cache.put(truth.spec, kind, name, hit)
+    if isinstance(hit, str):
+        skipped[key or name] = hit
+        return None
+    return hit
+
+
+def resimulated(truth: Truth, spec: dict, what: str) -> Clip | str:
+    """``spec`` simulated and drawn like the truth, as a clip that records its deviation; a
+    reason instead when it fails or its clip equals the truth's."""
+    try:
+        poses = truth.renderer.simulate(spec)
+        frames = truth.renderer.draw(spec, poses)
+    except Exception as exc:  # noqa: BLE001 - a failed variant is reported, not fatal
+        return f"{what}: failed: {str(exc).splitlines()[0][:200]}"
+    if frames.shape == truth.frames.shape and np.array_equal(frames, truth.frames):
+        return f"{what}: the clip equals the truth"
+    ids = {b["id"] for b in spec["bodies"]}
+    return Clip("", WRONG, what, frames, changed_share(frames, truth.frames),
+                deviation(truth, spec, poses),
+                [b["id"] for b in truth.spec["bodies"] if b["id"] not in ids])
+
+
 def make_clips(truth: Truth, kinds: Iterable[str] = (RIGHT, WRONG, STATIC, FLOW),
                skipped: dict[str, str] | None = None,
                appearances: list[Appearance] | None = None,
-               interventions: list[Intervention] | None = None) -> Iterable[Clip]:
+               interventions: list[Intervention] | None = None,
+               cache: ClipCache | None = None) -> Iterable[Clip]:
     """The scene's clips of the asked kinds, one at a time (3D clips are large); a variant that
     does not apply, fails, or (ii) gives the truth's own clip goes into ``skipped``: why."""
     skipped = {} if skipped is None else skipped
@@ -625,36 +860,42 @@ def make_clips(truth: Truth, kinds: Iterable[str] = (RIGHT, WRONG, STATIC, FLOW)
         for a in appearances if appearances is not None else APPEARANCES:
             if truth.dim not in a.dims:
                 continue
-            frames = a.make(truth)
-            yield Clip(a.name, RIGHT, a.what, frames, changed_share(frames, truth.frames))
+
+            def right(a: Appearance = a) -> Clip:
+                frames = a.make(truth)
+                return Clip(a.name, RIGHT, a.what, frames, changed_share(frames, truth.frames))
+
+            clip = made(truth, RIGHT, a.name, right, skipped, cache=cache)
+            if clip is not None:
+                yield clip
     if WRONG in kinds:
         for iv in interventions if interventions is not None else INTERVENTIONS:
-            spec, what = iv.edit(copy.deepcopy(truth.spec), truth)
-            if spec is None:
-                skipped[iv.name] = what
-                continue
-            try:
-                poses = truth.renderer.simulate(spec)
-                frames = truth.renderer.draw(spec, poses)
-            except Exception as exc:  # noqa: BLE001 - a failed variant is reported, not fatal
-                skipped[iv.name] = f"{what}: failed: {str(exc).splitlines()[0][:200]}"
-                continue
-            if frames.shape == truth.frames.shape and np.array_equal(frames, truth.frames):
-                skipped[iv.name] = f"{what}: the clip equals the truth"
-                continue
-            ids = {b["id"] for b in spec["bodies"]}
-            yield Clip(iv.name, WRONG, what, frames, changed_share(frames, truth.frames),
-                       deviation(truth, spec, poses),
-                       [b["id"] for b in truth.spec["bodies"] if b["id"] not in ids])
+            def wrong(iv: Intervention = iv) -> Clip | str:
+                spec, what = iv.edit(copy.deepcopy(truth.spec), truth)
+                if spec is None:
+                    return what
+                out = resimulated(truth, spec, what)
+                if isinstance(out, Clip):
+                    out.name = iv.name
+                return out
+
+            clip = made(truth, WRONG, iv.name, wrong, skipped, cache=cache)
+            if clip is not None:
+                yield clip
     if STATIC in kinds:
         frames = static_clip(truth.frames)
         yield Clip("static", STATIC, "the first frame held", frames,
                    changed_share(frames, truth.frames))
     if FLOW in kinds:
-        frames = flow_clip(truth.frames, fps)
-        yield Clip("flow_extrapolate", FLOW,
-                   f"DIS flow between key frames {KEY_FRAMES[0]} and {KEY_FRAMES[1]}, "
-                   "extrapolated", frames, changed_share(frames, truth.frames))
+        def flow() -> Clip:
+            frames = flow_clip(truth.frames, fps)
+            return Clip("flow_extrapolate", FLOW,
+                        f"DIS flow between key frames {KEY_FRAMES[0]} and {KEY_FRAMES[1]}, "
+                        "extrapolated", frames, changed_share(frames, truth.frames))
+
+        clip = made(truth, FLOW, "flow_extrapolate", flow, skipped, cache=cache)
+        if clip is not None:
+            yield clip
 
 
 def twin_clip(truth: Truth) -> np.ndarray:
@@ -676,6 +917,8 @@ class ClipScore:
     changed: float | None = None
     deviation: float | None = None
     missing: list[str] | None = None
+    series: str | None = None
+    dose: float | None = None
 
     def visible(self, min_px: float) -> bool:
         """A (ii) clip whose motion differs from the truth's by at least ``min_px`` (or that
@@ -687,7 +930,11 @@ class ClipScore:
 
 @dataclasses.dataclass
 class SceneOrder:
-    """One scene's clips and scores; ``floor``/``twin``: the headline components' anchors."""
+    """One scene's clips and scores. ``floor``: the static clip's values, ``twin``: the twin's
+    (every metric scored: any headline can be recomputed, `rescored_headline`); ``truth``: the
+    truth clip itself scored (the reference of the invariance and drop summaries, dose 0 of
+    every series); ``doses``: the dose series' clips (`validity_dose`); ``options``: what was
+    asked (`study_options`: a checkpoint line is reused only for the same)."""
 
     scene_id: str
     dim: str
@@ -696,13 +943,19 @@ class SceneOrder:
     twin: dict[str, float | None]
     skipped: dict[str, str]
     seconds: float
+    truth: ClipScore | None = None
+    doses: list[ClipScore] = dataclasses.field(default_factory=list)
+    options: dict = dataclasses.field(default_factory=dict)
 
     def to_json(self) -> dict:
         return dataclasses.asdict(self)
 
     @classmethod
     def from_json(cls, d: dict) -> "SceneOrder":
-        return cls(**{**d, "clips": [ClipScore(**c) for c in d["clips"]]})
+        truth = d.get("truth")
+        return cls(**{**d, "clips": [ClipScore(**c) for c in d["clips"]],
+                      "truth": ClipScore(**truth) if truth else None,
+                      "doses": [ClipScore(**c) for c in d.get("doses") or []]})
 
 
 def frame_metrics(metrics: Iterable[Metric]) -> list[Metric]:
@@ -711,14 +964,57 @@ def frame_metrics(metrics: Iterable[Metric]) -> list[Metric]:
     return [m for m in metrics if m.kind != SCENE and m.unavailable_reason() is None]
 
 
+def study_options(metrics: Iterable[Metric], kinds: Iterable[str] = (RIGHT, WRONG, STATIC, FLOW),
+                  appearances: list[Appearance] | None = None,
+                  interventions: list[Intervention] | None = None,
+                  series: list | None = None, dose: bool = False, twin: bool = True) -> dict:
+    """What a scene's scores were asked with (kept in `SceneOrder.options`)."""
+    from visphy_plugins.datasets.visphybench.validity_dose import SERIES
+
+    return {"metrics": [m.name for m in metrics], "kinds": sorted(kinds), "twin": bool(twin),
+            "appearances": sorted({a.name for a in (APPEARANCES if appearances is None
+                                                    else appearances)}),
+            "interventions": [iv.name for iv in (INTERVENTIONS if interventions is None
+                                                 else interventions)],
+            "series": [x.name for x in (SERIES if series is None else series)] if dose else []}
+
+
+def variants_named(names: Iterable[str]) -> tuple[list[Appearance], list[Intervention], list]:
+    """The (i) variants, (ii) variants and dose series (`validity_dose.SERIES`) among
+    ``names`` (``--variants``): each a variant's or a series' name, or ``right``, ``wrong``,
+    ``dose`` for a whole group; a group none of whose names is given is left out. An unknown
+    name: ``ValueError`` listing the known ones."""
+    from visphy_plugins.datasets.visphybench.validity_dose import SERIES
+
+    names = [n.strip() for n in names if n.strip()]
+    groups = {RIGHT: [a.name for a in APPEARANCES], WRONG: [iv.name for iv in INTERVENTIONS],
+              DOSE: [s.name for s in SERIES]}
+    known = {n for v in groups.values() for n in v} | set(groups)
+    bad = [n for n in names if n not in known]
+    if bad:
+        raise ValueError(f"unknown variant(s) {', '.join(bad)}; known: "
+                         + "; ".join(f"{g}: {', '.join(dict.fromkeys(v))}"
+                                     for g, v in groups.items()))
+
+    def keep(group: str, name: str) -> bool:
+        return group in names or name in names
+
+    return ([a for a in APPEARANCES if keep(RIGHT, a.name)],
+            [iv for iv in INTERVENTIONS if keep(WRONG, iv.name)],
+            [s for s in SERIES if keep(DOSE, s.name)])
+
+
 def score_truth(truth: Truth, metrics: list[Metric], headline: Headline | None = None,
                 progress: Callable[[str], None] | None = None,
                 kinds: Iterable[str] = (RIGHT, WRONG, STATIC, FLOW),
                 appearances: list[Appearance] | None = None,
                 interventions: list[Intervention] | None = None,
-                twin: bool = True) -> SceneOrder:
-    """Every clip of one scene scored; the headline from the static clip (floor) and the twin
-    (ceiling; ``twin=False``: the components' ideal values)."""
+                twin: bool = True, dose: bool = False, series: list | None = None,
+                clips_cache: ClipCache | None = None) -> SceneOrder:
+    """Every clip of one scene scored by every one of ``metrics``: the twin (``twin=False``:
+    none; the headline's ceilings are then the components' ideal values), the static clip
+    (the headline's floor), the truth clip itself, the clips of ``kinds``, and with ``dose``
+    the dose series (`validity_dose.SERIES`, or ``series``)."""
     headline = headline or Headline()
     start = time.perf_counter()
     spec = truth.spec
@@ -726,6 +1022,10 @@ def score_truth(truth: Truth, metrics: list[Metric], headline: Headline | None =
     components = headline.metrics_of(metrics)
     skipped: dict[str, str] = {}
     rows: list[ClipScore] = []
+    doses: list[ClipScore] = []
+    reference: ClipScore | None = None
+    kinds = tuple(kinds)
+    options = study_options(metrics, kinds, appearances, interventions, series, dose, twin)
     with tempfile.TemporaryDirectory(prefix="visphy-order-") as scratch:
         cache = Cache(Path(scratch), enabled=False)
 
@@ -734,29 +1034,46 @@ def score_truth(truth: Truth, metrics: list[Metric], headline: Headline | None =
                                protocol=UNALIGNED)[0]
 
         twin_values: dict[str, float | None] = {}
-        if twin and components:
+        if twin:
             if progress:
                 progress(f"{spec['scene_id']} twin")
-            twin_values = score(twin_clip(truth), components)
-        kinds = tuple(kinds)
-        wanted = tuple(k for k in (STATIC, RIGHT, WRONG, FLOW) if k in kinds)
-        if STATIC not in wanted and components:
-            wanted = (STATIC, *wanted)  # the floor
+            made_twin = made(truth, "twin", "twin", lambda: Clip(
+                "twin", "twin", "the ground truth's twin", twin_clip(truth)), skipped,
+                cache=clips_cache)
+            twin_values = score(made_twin.frames, metrics)
         floor: dict[str, float | None] = {}
-        for kind in wanted:  # the static clip first: it is every other clip's floor
-            for clip in make_clips(truth, (kind,), skipped, appearances, interventions):
-                if progress:
-                    progress(f"{spec['scene_id']} {clip.kind} {clip.name}")
-                values = score(clip.frames, metrics)
-                if clip.kind == STATIC:
-                    floor = {m.name: values.get(m.name) for m in components}
-                value = scene_headline(headline, metrics, values, floor, twin_values)[0] \
-                    if components else None
-                if kind in kinds:
-                    rows.append(ClipScore(clip.name, clip.kind, clip.what, values, value,
-                                          clip.changed, clip.deviation, clip.missing))
+
+        def scored(clip: Clip) -> ClipScore:
+            if progress:
+                progress(f"{spec['scene_id']} {clip.kind} {clip.name}")
+            values = score(clip.frames, metrics)
+            value = scene_headline(headline, metrics, values, floor, twin_values)[0] \
+                if components else None
+            return ClipScore(clip.name, clip.kind, clip.what, values, value, clip.changed,
+                             clip.deviation, clip.missing, clip.series, clip.dose)
+
+        # the static clip first: it is every other clip's floor
+        (still,) = make_clips(truth, (STATIC,))
+        still_score = scored(still)
+        floor.update({m.name: still_score.scores.get(m.name) for m in metrics})
+        still_score.headline = scene_headline(headline, metrics, still_score.scores, floor,
+                                              twin_values)[0] if components else None
+        reference = scored(Clip("truth", TRUTH, "the ground truth itself", truth.frames, 0.0,
+                                0.0, []))
+        for kind in (k for k in (STATIC, RIGHT, WRONG, FLOW) if k in kinds):
+            if kind == STATIC:
+                rows.append(still_score)
+                continue
+            for clip in make_clips(truth, (kind,), skipped, appearances, interventions,
+                                   clips_cache):
+                rows.append(scored(clip))
+        if dose:
+            from visphy_plugins.datasets.visphybench.validity_dose import dose_clips
+
+            for clip in dose_clips(truth, series, skipped, clips_cache):
+                doses.append(scored(clip))
     return SceneOrder(spec["scene_id"], spec["dim"], rows, floor, twin_values, skipped,
-                      round(time.perf_counter() - start, 2))
+                      round(time.perf_counter() - start, 2), reference, doses, options)
 
 
 def run_order_study(specs: list[dict], metrics: list[Metric], headline: Headline | None = None,
@@ -764,22 +1081,32 @@ def run_order_study(specs: list[dict], metrics: list[Metric], headline: Headline
                     dims: Iterable[str] = ("2d", "3d"), pool=None,
                     done: dict[str, SceneOrder] | None = None,
                     on_scene: Callable[[SceneOrder], None] | None = None,
-                    twin: bool = True) -> list[SceneOrder]:
+                    twin: bool = True, kinds: Iterable[str] = (RIGHT, WRONG, STATIC, FLOW),
+                    appearances: list[Appearance] | None = None,
+                    interventions: list[Intervention] | None = None,
+                    dose: bool = False, series: list | None = None,
+                    clips_cache: ClipCache | None = None) -> list[SceneOrder]:
     """Every scene of ``specs`` in ``dims``: its truth rendered like the benchmark's, its clips
-    of kinds (i)–(iv) scored by the frame and sequence ``metrics`` available here and by the
-    headline. ``done``: scenes already scored (by id; reused, not scored again); ``on_scene``:
-    called with each newly scored scene (a checkpoint). A 3D scene needs Chromium: ``pool`` (a
-    `BrowserPool`), else one is opened for the study."""
+    of ``kinds`` ((i)–(iv); ``appearances``, ``interventions``: subsets of (i), (ii)) and with
+    ``dose`` its dose series scored by the frame and sequence ``metrics`` available here and by
+    the headline (`score_truth`). ``done``: scenes already scored (by id; reused, not scored
+    again, when asked with the same `study_options`); ``on_scene``: called with each newly
+    scored scene (a checkpoint); ``clips_cache``: rendered clips kept and reused
+    (`ClipCache`). A 3D scene needs Chromium: ``pool`` (a `BrowserPool`), else one is opened
+    for the study."""
     usable = frame_metrics(metrics)
     dims = tuple(dims)
+    kinds = tuple(kinds)
     todo = [s for s in specs if s["dim"] in dims]
     done = done or {}
+    options = study_options(usable, kinds, appearances, interventions, series, dose, twin)
     out: list[SceneOrder] = []
     own_pool = None
     try:
         for spec in todo:
-            if spec["scene_id"] in done:
-                out.append(done[spec["scene_id"]])
+            old = done.get(spec["scene_id"])
+            if old is not None and old.options == options:
+                out.append(old)
                 continue
             if spec["dim"] == "2d":
                 renderer: Renderer = Renderer2D()
@@ -789,8 +1116,9 @@ def run_order_study(specs: list[dict], metrics: list[Metric], headline: Headline
 
                     own_pool = pool = BrowserPool(untrusted=False).__enter__()
                 renderer = Renderer3D(pool)
-            truth = Truth.of(_clean(spec), renderer)
-            result = score_truth(truth, usable, headline, progress, twin=twin)
+            truth = Truth.of(_clean(spec), renderer, clips_cache)
+            result = score_truth(truth, usable, headline, progress, kinds, appearances,
+                                 interventions, twin, dose, series, clips_cache)
             out.append(result)
             if on_scene:
                 on_scene(result)
@@ -930,18 +1258,24 @@ def headline_placement(results: list[SceneOrder], min_px: float = 0.0) -> dict:
 def rescored_headline(results: list[SceneOrder], metrics: list[Metric], headline: Headline,
                       ceiling: str = "twin") -> list[SceneOrder]:
     """``results`` with the headline recomputed under another definition (components, clip;
-    ``ceiling="ideal"``: the ideal values instead of the twin's) from the stored component
-    values and anchors (no clip is scored again; the static clip must hold every component)."""
+    ``ceiling="ideal"``: the ideal values instead of the twin's) from the stored values and
+    anchors, the truth clip and the dose clips included (no clip is scored again; the static
+    clip, or the scene's ``floor``, and the twin must hold every component: the study scores
+    the twin with every metric)."""
     out = []
     for res in results:
         static = next((c for c in res.clips if c.kind == STATIC), None)
-        floor = {m.name: static.scores.get(m.name) for m in headline.metrics_of(metrics)} \
-            if static is not None else {}
+        held = static.scores if static is not None else res.floor
+        floor = {m.name: held.get(m.name) for m in headline.metrics_of(metrics)}
         twin = res.twin if ceiling == "twin" else {}
-        clips = [dataclasses.replace(c, headline=scene_headline(headline, metrics, c.scores,
-                                                                floor, twin)[0])
-                 for c in res.clips]
-        out.append(dataclasses.replace(res, clips=clips))
+
+        def again(c: ClipScore) -> ClipScore:
+            return dataclasses.replace(c, headline=scene_headline(headline, metrics, c.scores,
+                                                                  floor, twin)[0])
+
+        out.append(dataclasses.replace(res, clips=[again(c) for c in res.clips],
+                                       truth=again(res.truth) if res.truth else None,
+                                       doses=[again(c) for c in res.doses]))
     return out
 
 
