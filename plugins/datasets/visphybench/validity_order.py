@@ -754,8 +754,9 @@ class ClipCache:
     again (other metrics, another headline) skips simulating and drawing them: one compressed
     ``.npz`` per (scene, spec, kind, variant) under ``DIR/<scene_id>/`` holding the frames and
     what the `Clip` records (a variant that does not apply: its reason, no frames); the truth
-    keeps its poses and steps too. Keyed by the spec's digest, not by the variants' code:
-    empty the folder when a variant's definition changes."""
+    keeps its poses and steps too, and the twin's clip is kept (kind ``twin``). Keyed by the
+    spec's digest, not by the variants' code: empty the folder when a variant's definition
+    changes."""
 
     def __init__(self, root: Path | str):
         self.root = Path(root)
