@@ -51,7 +51,7 @@ from visphy_core.cli.help import (
     run_usage,
     unknown_command,
 )
-from visphy_core.config.check import check_inputs, check_overrides
+from visphy_core.config.check import LAST_HYDRA_MODE, check_inputs, check_overrides
 from visphy_core.infra.errors import HostFault, UserError, describe_host_fault, host_fault
 
 #: A ValueError / FileNotFoundError raised below these (a dataset plugin loading or building its
@@ -383,6 +383,16 @@ def quiet_chatty_loggers() -> None:
         logging.getLogger(name).setLevel(logging.WARNING)
 
 
+def _skip_hydra_mode_compose() -> None:
+    """Hydra composes the whole config once only to read ``hydra.mode`` (``Hydra.get_mode``,
+    about 0.5 s of every command) before it composes it again for the job. The check above
+    composed the same overrides and found no mode set, which is what Hydra would return; so it
+    is answered without composing (Hydra then picks RUN, or MULTIRUN with ``-m``)."""
+    from hydra._internal.hydra import Hydra
+
+    Hydra.get_mode = lambda self, config_name, overrides: None
+
+
 def run_hydra(argv: list[str]) -> int:
     import hydra
     from hydra.core.global_hydra import GlobalHydra
@@ -391,15 +401,20 @@ def run_hydra(argv: list[str]) -> int:
 
     show_traceback = _traceback_wanted()
     quiet_chatty_loggers()  # the pre-flight below already calls servers
+    checked = False
     try:
         get_registry()  # plugins store their structured configs before Hydra composes
         if not any(a in HYDRA_FLAGS or a.startswith("--info") for a in argv):
+            LAST_HYDRA_MODE.clear()
             check_overrides(_overrides_of(argv), inputs=True)
+            checked = LAST_HYDRA_MODE == [None]
     except Exception as exc:  # noqa: BLE001
         if show_traceback or not is_user_error(exc):
             raise
         return report(exc)
     GlobalHydra.instance().clear()
+    if checked:
+        _skip_hydra_mode_compose()
 
     @hydra.main(version_base="1.3", config_path="pkg://visphy_conf", config_name="config")
     def _main(cfg) -> dict:

@@ -21,7 +21,7 @@ import dataclasses
 import math
 from typing import Any, Iterator
 
-from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf, open_dict
 
 from visphy_core.infra.errors import ConfigError, UserError
 
@@ -191,11 +191,21 @@ def _one_line(exc: Exception, overrides: list[str], base: DictConfig) -> str:
     return first[:400]
 
 
+#: ``hydra.mode`` of the last config `compose_all` composed (None: the config leaves it to the
+#: command line's ``-m``), read by the CLI so Hydra need not compose the config once more only
+#: to learn it (`visphy_core.cli.main.run_hydra`).
+LAST_HYDRA_MODE: list = []
+
+
 def _compose_one(overrides: list[str]) -> DictConfig:
     from hydra import compose as hydra_compose
 
     try:
-        return hydra_compose(config_name="config", overrides=overrides, return_hydra_config=False)
+        cfg = hydra_compose(config_name="config", overrides=overrides, return_hydra_config=True)
+        LAST_HYDRA_MODE[:] = [OmegaConf.select(cfg, "hydra.mode", default=None)]
+        with open_dict(cfg):
+            del cfg["hydra"]
+        return cfg
     except Exception as exc:  # noqa: BLE001 - Hydra wraps OmegaConf's errors in its own
         groups_only = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") in GROUPS]
         try:
