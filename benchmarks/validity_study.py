@@ -4,8 +4,8 @@ validity ordering.
     .venv/bin/python benchmarks/validity_study.py [--n 10] [--home visphy-out] [--json out.json]
     .venv/bin/python benchmarks/validity_study.py --order [--split test] [--every N]
         [--dims 2d,3d] [--checkpoint scenes.jsonl] [--json out.json]
-        [--summary docs/validity/summary.json] [--dose | --no-dose] [--variants NAMES]
-        [--metrics NAMES] [--clips-cache DIR]
+        [--summary visphy_core/api/validity_summary.json] [--dose | --no-dose]
+        [--variants NAMES] [--metrics NAMES] [--clips-cache DIR]
 
 1. Perturbation: for each parameter (restitution, friction, initial speed, gravity), the first
    ``n`` non-chaotic 2D scenes of the generated benchmark that reveal it (its
@@ -40,9 +40,10 @@ clip itself as the reference, the twin scored with every metric, and the dose se
 playback ×0.9/×0.8/×0.67), and prints, per score, the goals (`validity_goals`): strict
 ordering with the (ii) clips departing ≥ 20 px, appearance invariance (median |Δ| per restyle),
 physics drop (median per intervention ≥ 20 px), monotone share over the dose series; a table per
-scene; the discriminative power. ``--summary`` (default ``docs/validity/summary.json``; ``''``
-for none) writes all of it as JSON with the scenes, wall time, machine
-(``benchmarks/machine.py``) and command line: the docs and tests read that file.
+scene; the discriminative power. ``--summary`` (default
+``visphy_core/api/validity_summary.json``: the figures the metric registry, the docs'
+generated pages and the tests read; ``''`` for none) writes all of it as JSON with the
+scenes, wall time, machine (``benchmarks/machine.py``) and command line.
 ``--no-dose`` leaves the dose series out; ``--variants`` keeps only the named (i) and (ii)
 variants and dose series (``right``, ``wrong``, ``dose``: a whole group); ``--metrics`` only
 these metrics of the default suite; ``--split`` another split (``mini``: four 2D scenes);
@@ -136,7 +137,7 @@ RESIZED = ("grow", "shrink")
 
 
 #: where ``--order`` writes its summary (the docs and tests read it)
-SUMMARY = REPO / "docs" / "validity" / "summary.json"
+SUMMARY = REPO / "visphy_core" / "api" / "validity_summary.json"
 
 
 def split_specs(catalogue, split: str, dims: tuple[str, ...], every: int) -> list[dict]:

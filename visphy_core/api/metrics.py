@@ -136,4 +136,12 @@ class Metric(ABC):
         return {"name": self.name, "direction": self.direction, "family": self.family,
                 "kind": self.kind, "range": list(self.score_range), "needs": list(self.needs),
                 "weights": self.weights, "max_pairs": self.max_pairs,
-                "unavailable": self.unavailable_reason()}
+                "unavailable": self.unavailable_reason(), "validity": self.validity()}
+
+    def validity(self) -> dict | None:
+        """This metric's figures from the validity study (`visphy_core.api.validity`:
+        strict, means and monotone shares, invariance, physics drop), or None when the study
+        did not score it."""
+        from visphy_core.api.validity import figures
+
+        return figures(self.name)

@@ -1,6 +1,6 @@
 """The validity study's goals (issue 32) measured: the summary ``benchmarks/validity_study.py
---order`` writes (``--summary``, default ``docs/validity/summary.json``) and the docs and tests
-read.
+--order`` writes (``--summary``, default ``visphy_core/api/validity_summary.json``) and the
+metric registry (`visphy_core.api.validity`), the docs' generated pages and the tests read.
 
 Per score — the headline, and every frame and sequence metric — `study_summary` holds:
 
