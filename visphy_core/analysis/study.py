@@ -18,6 +18,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from visphy_core.analysis import (
@@ -145,6 +146,28 @@ def _notes(runs: list[RunData], columns: list[str], view: str) -> list[str]:
     return notes
 
 
+def below_power(runs: list[RunData], table: pd.DataFrame) -> list[str]:
+    """One warning per pair of runs whose headline means differ by less than the validity
+    study's discriminative power on their common scenes (`visphy_core.api.validity.power_at`):
+    a difference the headline's own noise between equally right drawings can make."""
+    from visphy_core.api.validity import power_at
+
+    metric = next((str((r.summary.get("headline") or {}).get("metric") or "") for r in runs
+                   if (r.summary.get("headline") or {}).get("metric")), "")
+    if not metric or table.empty:
+        return []
+    out = []
+    for row in table[table["metric"].astype(str).str.split().str[0] == metric].itertuples(
+            index=False):
+        n, diff = int(row[3]), float(row[6])
+        power = power_at(n)
+        if power is not None and np.isfinite(diff) and abs(diff) < power:
+            out.append(f"`{row[1]}` − `{row[2]}` on `{metric}`: {diff:+.3f} over {n} scenes, "
+                       f"below the {power:.3f} the validity study finds separable on {n} "
+                       "scenes (docs/reference/validity.md): read it as a tie.")
+    return out
+
+
 def analyse(runs: list[RunData], out_dir: Path, study: str | None = None,
             metrics: list[str] | None = None, *, view: str = MODEL_SUCCESS,
             resamples: int = RESAMPLES, seed: int = SEED) -> StudyOutputs:
@@ -185,6 +208,7 @@ def analyse(runs: list[RunData], out_dir: Path, study: str | None = None,
         tables["difficulty"] = breakdown.difficulty_table(runs, labels, columns, view)
     if "bootstrap" in parts and len(runs) >= 2:
         tables["bootstrap"] = bootstrap_table(runs, labels, columns, view, resamples, seed)
+        notes += below_power(runs, tables["bootstrap"])
     if "spearman" in parts and len(runs) >= 2:
         long = correlation.spearman_long(runs, labels, columns, view)
         tables["spearman"] = long

@@ -70,3 +70,20 @@ def scope(summary: dict | None = None) -> str:
     part = f"every {every}th scene of" if every and every > 1 else "the whole"
     return (f"{part} the {summary.get('split', '?')} split: {summary.get('n_scenes', '?')} "
             f"scenes ({dims}), {summary.get('created', '')[:10]}")
+
+
+def power_at(n_scenes: int, summary: dict | None = None) -> float | None:
+    """The discriminative power on ``n_scenes`` scenes: the smallest difference in mean
+    headline that a paired bootstrap over that many scenes separates at 95 %, given how much the
+    headline moves between physics-right redraws of one scene (the study's ``right`` spread:
+    its figure at 49 scenes, scaled by √(49 / n)). None without a study or for n < 2."""
+    summary = load_summary() if summary is None else summary
+    block = (((summary or {}).get("discriminative_power") or {}).get("right") or {})
+    at = (block.get("n_scenes") or {})
+    if n_scenes < 2 or not at:
+        return None
+    ref_n = 49 if "49" in at else int(min(at, key=lambda k: abs(int(k) - n_scenes)))
+    value = (at.get(str(ref_n)) or {}).get("median")
+    if not isinstance(value, (int, float)):
+        return None
+    return float(value) * (ref_n / n_scenes) ** 0.5
