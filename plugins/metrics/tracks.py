@@ -463,7 +463,8 @@ def scene_tracks(inp: MetricInput) -> dict | None:
         min_area = np.maximum(floor, PRESENT_FRACTION * max_area)
         ref_present = (ref.area >= min_area) & (ref.core >= floor)
         gen, source, cost = generated_tracks(inp.generated, palette, ref, ref_present,
-                                             min_area, floor, inp.scene)
+                                             min_area, floor, inp.scene,
+                                             keep=inp.extra.setdefault("tracks.blobs", {}))
         value = {"palette": palette, "ref": ref, "gen": gen,
                  "ref_present": ref_present,
                  "gen_present": (gen.area >= min_area) & (gen.core >= floor),
@@ -513,11 +514,12 @@ def other_rows(scene, palette: Palette) -> list[Row]:
 
 
 def generated_tracks(frames: np.ndarray, palette: Palette, ref: Tracks, ref_present: np.ndarray,
-                     min_area: np.ndarray, floor: float, scene=None):
+                     min_area: np.ndarray, floor: float, scene=None, keep: dict | None = None):
     """The generated clip's observations: the palette segmentation where it finds a body and
     agrees with the colour-tolerant association (`plugins/metrics/association.py`), the
     associated blobs elsewhere (module docstring). Returns (`Tracks`, source N×B, colour cost
-    N×B)."""
+    N×B). ``keep``: a dict that receives the clip's blobs (``key``: ``id(frames)``, ``blobs``;
+    `plugins/metrics/object_level.py` reuses them)."""
     frames = np.asarray(frames)
     pal = segment(frames, palette)
     n, n_b = pal.area.shape
@@ -530,6 +532,8 @@ def generated_tracks(frames: np.ndarray, palette: Palette, ref: Tracks, ref_pres
     background = palette.background + tuple(dominant_colours(frames, s))
     blobs = find_blobs(frames, background, s, MIN_SAMPLES,
                        lambda g: palette_labels(palette, g), n_b)
+    if keep is not None:
+        keep.update(key=id(frames), blobs=blobs)
     max_area = ref.area.max(axis=0, initial=0.0)
     fallback = float(np.median(max_area[max_area > 0])) if (max_area > 0).any() else 100.0
     rows = []
