@@ -4,7 +4,7 @@ study's numbers, not by taste").
 
     .venv/bin/python benchmarks/validity_headlines.py CHECKPOINT.jsonl
         [--pool spatiotemporal_iou,weighted_spatial_iou,track_pos_err,...] [--max-size 3]
-        [--top 15] [--json out.json]
+        [--top 15] [--clip -1,1] [--ceiling twin|ideal] [--json out.json]
 
 The checkpoint is what ``benchmarks/validity_study.py --order --checkpoint F`` writes: every
 clip of every scene scored with every frame metric, the still clip and the twin included, so a
@@ -38,12 +38,13 @@ def load(checkpoint: Path):
     return list(done.values())
 
 
-def evaluate(results, metrics, components: tuple[str, ...], base) -> dict:
+def evaluate(results, metrics, components: tuple[str, ...], base, ceiling: str = "twin"
+             ) -> dict:
     from visphy_plugins.datasets.visphybench import validity_goals as vg
     from visphy_plugins.datasets.visphybench import validity_order as vo
 
-    headline = dataclasses.replace(base, components=components)
-    res = vo.rescored_headline(results, metrics, headline)
+    headline = dataclasses.replace(base, components=components, ceiling=ceiling)
+    res = vo.rescored_headline(results, metrics, headline, ceiling)
     row = vg.score_summary(res, [], headline)["headline"]
     inv = (row.get("invariance") or {}).get("max_median")
     drop = (row.get("physics_drop") or {}).get("min_median")
@@ -67,6 +68,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pool", default=None, help="comma-separated metric names")
     parser.add_argument("--max-size", type=int, default=3)
     parser.add_argument("--top", type=int, default=15)
+    parser.add_argument("--clip", default="-1,1", help="the headline's clip bounds: LO,HI")
+    parser.add_argument("--ceiling", choices=("twin", "ideal"), default="twin",
+                        help="each component's 1: the twin's value or the metric's ideal")
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
 
@@ -83,13 +87,16 @@ def main(argv: list[str] | None = None) -> int:
         n for n in seen if n in registry.metrics
         and all(r.twin.get(n) is not None or not r.twin for r in results[:3]))
     metrics = [registry.get("metrics", n) for n in names if n in registry.metrics]
-    base = Headline()
+    lo, hi = (float(v) for v in args.clip.split(","))
+    base = dataclasses.replace(Headline(), clip=(lo, hi))
     rows = []
     for size in range(1, args.max_size + 1):
         for combo in itertools.combinations([m.name for m in metrics], size):
-            rows.append(evaluate(results, metrics, combo, base))
+            rows.append(evaluate(results, metrics, combo, base, args.ceiling))
     rows.sort(key=lambda r: (-r["goals_met"], -r["margin"]))
-    current = evaluate(results, metrics, tuple(c for c in base.components if c in names), base)
+    now = Headline()
+    current = evaluate(results, metrics, tuple(c for c in now.components if c in names), now,
+                       now.ceiling)
 
     def fmt(v, pct=False):
         return "—" if v is None else (f"{100 * v:.0f}%" if pct else f"{v:.3f}")

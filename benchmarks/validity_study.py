@@ -183,6 +183,11 @@ def order_study(specs: list[dict], dims: tuple[str, ...], checkpoint: str | None
         appearances=appearances, interventions=interventions, dose=dose, series=series,
         clips_cache=vo.ClipCache(clips_cache) if clips_cache else None)
     wall = time.perf_counter() - t0
+    # the headline as it is defined now, from the stored values (a checkpoint's scenes may
+    # have been scored under another definition; no clip is scored again)
+    from visphy_core.api.scoring import Headline
+
+    results = vo.rescored_headline(results, metrics, Headline())
     table = vo.summarise_order(results, metrics)
     placement = vo.headline_placement(results)
     same_size = vo.without_variants(results, RESIZED)

@@ -368,12 +368,16 @@ def validity_page() -> str:
     out.append(
         "Generated from `visphy_core/api/validity_summary.json`, which "
         "`benchmarks/validity_study.py --order` writes ([Metrics](../metrics.md) explains the "
-        f"study). Scope: {scope(summary)}; wall time {summary.get('wall_s', 0) / 60:.0f} min "
-        f"on a {summary.get('machine', {}).get('cores', '?')}-core "
-        f"{summary.get('machine', {}).get('cpu', '')}. Command:\n\n"
+        f"study). Scope: {scope(summary)}; {summary.get('scene_seconds', 0) / 60:.0f} min of "
+        f"scene work (simulating, drawing and scoring every clip, summed over scenes) on a "
+        f"{summary.get('machine', {}).get('cores', '?')}-core "
+        f"{summary.get('machine', {}).get('cpu', '')}. Command (run again on its checkpoint, "
+        "it re-summarises without scoring a clip):\n\n"
         f"```bash\n{summary.get('command', '')}\n```\n\n"
         f"Headline: `{head.get('name', '')}` = mean of "
-        f"{', '.join(f'`{c}`' for c in head.get('components', []))}.\n\n"
+        f"{', '.join(f'`{c}`' for c in head.get('components', []))}, each between the still "
+        f"clip (0) and {'the twin' if head.get('ceiling') == 'twin' else 'its ideal value'} "
+        "(1).\n\n"
         "## Goals\n\n"
         f"**strict**: every physics-right redraw above every physics-wrong clip that departs by "
         f"at least {goals.get('min_px', 20):g} px, and every such clip above both baselines "
@@ -383,7 +387,8 @@ def validity_page() -> str:
         f"series); **invariance**: the largest median change a restyle causes (goal ≤ "
         f"{goals.get('invariance', 0.05):g}); **drop**: the smallest median drop a physics "
         f"error causes (goal ≥ {goals.get('physics_drop', 0.2):g}); both on the headline's "
-        "scale (0 = the still clip, 1 = the twin).\n\n")
+        "scale (0 = the still clip, 1 = its ceiling; a metric alone: its own ceiling, the "
+        "twin).\n\n")
     rows = []
     for name in (summary.get("scores") or {}):
         fig = figures(name, summary)
@@ -398,11 +403,15 @@ def validity_page() -> str:
     if power:
         out.append("\n## Discriminative power\n\nThe smallest difference in mean headline "
                    "that a paired bootstrap over scenes separates at 95 %, from the spread of "
-                   "the headline between clips of one kind (median over pairs of variants):\n\n")
+                   "the headline between two clips of one kind (median over pairs of variants): "
+                   "two redraws of the right physics (`right`), two different physics errors "
+                   "(`wrong`: what two models are; `visphy analyse` calls a difference below "
+                   "it a tie):\n\n")
         prow = []
         for kind, block in power.items():
             per = (block or {}).get("n_scenes") or {}
-            prow.append([kind] + [_num((per.get(n) or {}).get("median")) for n in ("49", "209")])
+            prow.append([kind] + [f"{(per.get(n) or {}).get('median', float('nan')):.3f}"
+                                  for n in ("49", "209")])
         out.append(_table(["between", "49 scenes", "209 scenes"], prow))
     scenes = summary.get("scenes") or []
     if scenes:

@@ -12,9 +12,17 @@ import pytest
 
 from conftest import run_cli
 from visphy_core.api.metrics import HIGHER, LOWER
-from visphy_core.scoring.headline import Headline, bootstrap_ci, component, ideal, scene_headline
+from visphy_core.scoring.headline import (
+    DEFAULT_CEILING,
+    DEFAULT_COMPONENTS,
+    Headline,
+    bootstrap_ci,
+    component,
+    ideal,
+    scene_headline,
+)
 
-COMPONENTS = "metrics.names=[psnr,spatiotemporal_iou,weighted_spatial_iou,track_pos_err]"
+COMPONENTS = "metrics.names=[psnr,spatiotemporal_iou_tol,weighted_spatial_iou_tol]"
 QUIET = ("tracking=none", "run.progress=false", "metrics.spec_track=false")
 
 
@@ -36,7 +44,7 @@ def test_components_are_normalised_between_the_still_clip_and_the_ceiling_and_cl
 def test_the_ceiling_is_the_twin_where_there_is_one_else_the_ideal_value():
     iou, err = _M("iou", HIGHER, (0.0, 1.0)), _M("err", LOWER, (0.0, math.inf))
     assert ideal(iou) == 1.0 and ideal(err) == 0.0
-    head = Headline(name="h", components=("iou", "err"))
+    head = Headline(name="h", components=("iou", "err"), ceiling="twin")
     value, details = scene_headline(head, [iou, err], {"iou": 0.8, "err": 5.0},
                                     {"iou": 0.0, "err": 50.0}, {"err": 1.0})
     parts = details["components"]
@@ -48,6 +56,12 @@ def test_the_ceiling_is_the_twin_where_there_is_one_else_the_ideal_value():
     value, details = scene_headline(head, [iou, err], {"iou": None, "err": 5.0},
                                     {"iou": 0.0, "err": 50.0}, {})
     assert value == pytest.approx(0.9) and details["components"]["iou"]["undefined"]
+    # metrics.headline.ceiling=ideal: the twin is not read, every 1 is the metric's best value
+    ideal_head = Headline(name="h", components=("iou", "err"), ceiling="ideal")
+    value, details = scene_headline(ideal_head, [iou, err], {"iou": 0.8, "err": 5.0},
+                                    {"iou": 0.0, "err": 50.0}, {"err": 1.0, "iou": 0.5})
+    assert {p["ceiling_from"] for p in details["components"].values()} == {"ideal"}
+    assert value == pytest.approx((0.8 + 45 / 50) / 2) and details["ceiling"] == "ideal"
 
 
 def test_the_bootstrap_interval_is_seeded_and_brackets_the_mean():
@@ -72,9 +86,8 @@ def test_the_oracle_scores_about_one_and_the_still_clip_exactly_zero(visphy_home
     rows = pd.read_parquet(run_dir / "results.parquet")
     assert (rows["score_physics_score"] > 0.8).all()
     details = json.loads(next((run_dir / "scenes").glob("*/headline.json")).read_text())
-    assert set(details["components"]) == {"spatiotemporal_iou", "weighted_spatial_iou",
-                                          "track_pos_err"}
-    assert {p["ceiling_from"] for p in details["components"].values()} == {"twin"}
+    assert set(details["components"]) == set(DEFAULT_COMPONENTS)
+    assert {p["ceiling_from"] for p in details["components"].values()} == {DEFAULT_CEILING}
     # the static baseline's clip is the first key frame held, encoded by the baseline itself:
     # the floor's own clip up to the codec's rounding
     _, run_dir, summary = _run(visphy_home, "model=static", "dataset=mini")

@@ -191,7 +191,7 @@ def test_a_small_study_on_the_mini_split_writes_the_summary(tmp_path, monkeypatc
     catalogue = shipped_catalogue(0)
     specs = validity_study.split_specs(catalogue, "mini", ("2d",), 2)
     assert [s["dim"] for s in specs] == ["2d", "2d"]
-    metrics = vo.frame_metrics([get_registry().get("metrics", "spatiotemporal_iou")])
+    metrics = vo.frame_metrics([get_registry().get("metrics", "spatiotemporal_iou_tol")])
     summary, checkpoint = tmp_path / "validity" / "summary.json", tmp_path / "scenes.jsonl"
     kw = dict(metrics=metrics, variants=["pale", "swapped", "gravity_x0.5", "remove",
                                          "gravity"],
@@ -204,7 +204,7 @@ def test_a_small_study_on_the_mini_split_writes_the_summary(tmp_path, monkeypatc
     assert set(data["variants"]["right"]) <= {"pale", "swapped"}
     assert data["variants"]["series"] == ["gravity"]
     assert data["clips"]["dose"] >= 4 and data["goals"]["min_px"] == 20.0
-    assert set(data["scores"]) == {"headline", "spatiotemporal_iou"}
+    assert set(data["scores"]) == {"headline", "spatiotemporal_iou_tol"}
     for row in data["scores"].values():
         assert set(row) >= {"strict", "means", "monotone", "invariance", "physics_drop",
                             "goals_met"}
@@ -235,7 +235,8 @@ def test_a_headline_from_other_metrics_is_recomputed_from_the_stored_twin():
                                dose=0.1)])
     from visphy_core.api.scoring import Headline
 
-    (out,) = vo.rescored_headline([res], metrics, Headline(components=("err",)))
+    (out,) = vo.rescored_headline([res], metrics, Headline(components=("err",),
+                                                                    ceiling="twin"))
     assert out.clips[0].headline == pytest.approx(1.0)      # (10 − 1) / (10 − 2), clipped
     assert out.doses[0].headline == pytest.approx(0.5) and out.truth.headline == 1.0
 

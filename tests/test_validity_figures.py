@@ -18,7 +18,7 @@ def _summary(power_49: float = 0.02) -> dict:
                                     "means": {"share": 1.0}, "monotone": {"share": 0.95},
                                     "invariance": {"max_median": 0.04},
                                     "physics_drop": {"min_median": 0.25}}},
-            "discriminative_power": {"right": {"n_scenes": {"49": {"median": power_49}}}}}
+            "discriminative_power": {"wrong": {"n_scenes": {"49": {"median": power_49}}}}}
 
 
 def test_figures_come_from_the_summary_and_absent_scores_are_none():

@@ -419,7 +419,7 @@ def test_on_mini_scenes_the_headline_orders_the_four_kinds(jar, thrown):
     from visphy_core.api.registry import get_registry
 
     registry = get_registry()
-    names = ("psnr", "spatiotemporal_iou", "weighted_spatial_iou", "track_pos_err")
+    names = ("psnr", "spatiotemporal_iou_tol", "weighted_spatial_iou_tol", "track_pos_err")
     metrics = vo.frame_metrics(registry.get("metrics", n) for n in names)
     assert [m.name for m in metrics] == list(names)
     seven = [a for a in vo.APPEARANCES if a.name in ISSUE_21]   # issue 21's restyles

@@ -66,19 +66,24 @@ def scope(summary: dict | None = None) -> str:
     if not summary:
         return ""
     dims = ", ".join(f"{n} {d.upper()}" for d, n in sorted((summary.get("dims") or {}).items()))
-    every = summary.get("every") or 1
-    part = f"every {every}th scene of" if every and every > 1 else "the whole"
+    every = int(summary.get("every") or 1)
+    suffix = {1: "st", 2: "nd", 3: "rd"}.get(every % 10 if every % 100 not in (11, 12, 13)
+                                           else 0, "th")
+    part = f"every {every}{suffix} scene of" if every > 1 else "the whole"
     return (f"{part} the {summary.get('split', '?')} split: {summary.get('n_scenes', '?')} "
             f"scenes ({dims}), {summary.get('created', '')[:10]}")
 
 
 def power_at(n_scenes: int, summary: dict | None = None) -> float | None:
     """The discriminative power on ``n_scenes`` scenes: the smallest difference in mean
-    headline that a paired bootstrap over that many scenes separates at 95 %, given how much the
-    headline moves between physics-right redraws of one scene (the study's ``right`` spread:
-    its figure at 49 scenes, scaled by √(49 / n)). None without a study or for n < 2."""
+    headline that a paired bootstrap over that many scenes separates at 95 %, for two
+    simulators that are both wrong in different ways (the study's ``wrong`` block: the
+    half-width of the bootstrap interval between two of its physics interventions, median over
+    pairs, at 49 scenes, scaled by √(49 / n); redraws of right physics move the headline far
+    less, so two models differ mostly as two wrong physics do). None without a study or for
+    n < 2."""
     summary = load_summary() if summary is None else summary
-    block = (((summary or {}).get("discriminative_power") or {}).get("right") or {})
+    block = (((summary or {}).get("discriminative_power") or {}).get("wrong") or {})
     at = (block.get("n_scenes") or {})
     if n_scenes < 2 or not at:
         return None

@@ -25,7 +25,7 @@ from omegaconf import MISSING
 
 from visphy_core.api.config_schema import EngineConfig, JudgeConfig, ModelConfig
 from visphy_core.api.hookspecs import hookimpl
-from visphy_core.scoring.headline import DEFAULT_COMPONENTS, DEFAULT_NAME
+from visphy_core.scoring.headline import DEFAULT_CEILING, DEFAULT_COMPONENTS, DEFAULT_NAME
 
 
 class TrackingBackend(StrEnum):
@@ -139,12 +139,19 @@ class VisphyAlignConfig(PaperAlignConfig):
     dtw: bool = False
 
 
+class HeadlineCeiling(StrEnum):
+    ideal = "ideal"
+    twin = "twin"
+
+
 @dataclass
 class HeadlineConfig:
     enabled: bool = True
     name: str = DEFAULT_NAME
     components: list[str] = field(default_factory=lambda: list(DEFAULT_COMPONENTS))
     clip: list[float] = field(default_factory=lambda: [-1.0, 1.0])
+    # each component's 1: ideal (the metric's best value) or twin (the ground truth's twin)
+    ceiling: HeadlineCeiling = HeadlineCeiling[DEFAULT_CEILING]
 
 
 @dataclass

@@ -335,7 +335,7 @@ def study_summary(results: list[SceneOrder], metrics: list[Metric],
                   "physics_drop": DROP, "monotone_share": MONOTONE_SHARE,
                   "monotone_rho": MONOTONE_RHO},
         "headline": {"name": headline.name, "components": list(headline.components),
-                     "clip": list(headline.clip)},
+                     "clip": list(headline.clip), "ceiling": headline.ceiling},
         "variants": {"right": sorted({c.name for r in results for c in r.clips
                                       if c.kind == RIGHT}),
                      "wrong": sorted({c.name for r in results for c in r.clips
