@@ -340,8 +340,10 @@ def _headline_lines(head: dict) -> list[str]:
         interval = " (no interval)"
     return [f"[bold]headline {head['metric']} ↑ {mean}[/bold] over {n} scored "
             f"scene{'s' if n != 1 else ''}{interval}",
-            "  0 = no better than the first frame held still, 1 ≈ the ground truth's twin; "
-            "a fallback scores 0"]
+            "  0 = no better than the first frame held still, "
+            + ("1 ≈ the ground truth's twin" if head.get("ceiling") == "twin"
+               else "1 = moves as the ground truth does")
+            + "; a fallback scores 0"]
 
 
 def summary_width(full: bool = False) -> int:
