@@ -342,7 +342,7 @@ def _headline_lines(head: dict) -> list[str]:
             f"scene{'s' if n != 1 else ''}{interval}",
             "  0 = no better than the first frame held still, "
             + ("1 ≈ the ground truth's twin" if head.get("ceiling") == "twin"
-               else "1 = moves as the ground truth does")
+               else "1 = moves as the truth does")
             + "; a fallback scores 0"]
 
 
