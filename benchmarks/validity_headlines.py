@@ -69,8 +69,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-size", type=int, default=3)
     parser.add_argument("--top", type=int, default=15)
     parser.add_argument("--clip", default="-1,1", help="the headline's clip bounds: LO,HI")
-    parser.add_argument("--ceiling", choices=("twin", "ideal"), default="twin",
-                        help="each component's 1: the twin's value or the metric's ideal")
+    parser.add_argument("--ceiling", choices=("twin", "ideal"), default=None,
+                        help="each component's 1: the twin's value or the metric's ideal "
+                        "(default: the current headline's)")
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
 
@@ -88,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
         and all(r.twin.get(n) is not None or not r.twin for r in results[:3]))
     metrics = [registry.get("metrics", n) for n in names if n in registry.metrics]
     lo, hi = (float(v) for v in args.clip.split(","))
+    args.ceiling = args.ceiling or Headline().ceiling
     base = dataclasses.replace(Headline(), clip=(lo, hi))
     rows = []
     for size in range(1, args.max_size + 1):

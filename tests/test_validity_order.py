@@ -442,3 +442,14 @@ def test_on_mini_scenes_the_headline_orders_the_four_kinds(jar, thrown):
     # dB than a ball that lands elsewhere), so it orders neither
     assert table["psnr"]["share_means"] == 0.0, table["psnr"]
     assert table["psnr"]["mean_wrong"] > table["psnr"]["mean_right"]
+
+
+def test_a_left_out_body_counts_as_a_trajectory_error_only_when_it_moved():
+    import dataclasses
+
+    still = vo.ClipScore("remove", vo.WRONG, "", {}, 0.9, deviation=3.0, missing=["b"],
+                         missing_px=0.4)
+    assert not still.visible(20.0) and still.visible(2.0)
+    assert dataclasses.replace(still, missing_px=25.0).visible(20.0)      # its motion is lost
+    assert dataclasses.replace(still, deviation=30.0).visible(20.0)       # others depart
+    assert dataclasses.replace(still, missing_px=None).visible(20.0)      # an older checkpoint

@@ -742,6 +742,7 @@ class Clip:
     missing: list[str] | None = None  # (ii): bodies of the truth the clip does not draw
     series: str | None = None  # dose: its series (`validity_dose.SERIES`)
     dose: float | None = None  # dose: how far from the truth, in the series' own unit
+    missing_px: float | None = None  # (ii): how far the missing bodies move in the truth (px)
 
 
 def changed_share(frames: np.ndarray, truth: np.ndarray) -> float:
@@ -842,9 +843,11 @@ def resimulated(truth: Truth, spec: dict, what: str) -> Clip | str:
     if frames.shape == truth.frames.shape and np.array_equal(frames, truth.frames):
         return f"{what}: the clip equals the truth"
     ids = {b["id"] for b in spec["bodies"]}
+    missing = [b["id"] for b in truth.spec["bodies"] if b["id"] not in ids]
+    far = displacements(truth) if missing else {}
     return Clip("", WRONG, what, frames, changed_share(frames, truth.frames),
-                deviation(truth, spec, poses),
-                [b["id"] for b in truth.spec["bodies"] if b["id"] not in ids])
+                deviation(truth, spec, poses), missing,
+                missing_px=max((far.get(b, 0.0) for b in missing), default=None))
 
 
 def make_clips(truth: Truth, kinds: Iterable[str] = (RIGHT, WRONG, STATIC, FLOW),
@@ -920,13 +923,19 @@ class ClipScore:
     missing: list[str] | None = None
     series: str | None = None
     dose: float | None = None
+    missing_px: float | None = None
 
     def visible(self, min_px: float) -> bool:
-        """A (ii) clip whose motion differs from the truth's by at least ``min_px`` (or that
-        leaves a body out); other kinds always."""
+        """A (ii) clip whose trajectories differ from the truth's by at least ``min_px``: the
+        bodies it draws depart that far (``deviation``), or a body it leaves out moved that far
+        in the truth (``missing_px``: its whole motion is lost; a left-out body that never
+        moves changes no trajectory, only what is drawn; a clip scored before ``missing_px``
+        was recorded counts whenever it leaves a body out); other kinds always."""
         if self.kind != WRONG or min_px <= 0:
             return True
-        return bool(self.missing) or (self.deviation is not None and self.deviation >= min_px)
+        if self.missing and (self.missing_px is None or self.missing_px >= min_px):
+            return True
+        return self.deviation is not None and self.deviation >= min_px
 
 
 @dataclasses.dataclass
@@ -1051,7 +1060,8 @@ def score_truth(truth: Truth, metrics: list[Metric], headline: Headline | None =
             value = scene_headline(headline, metrics, values, floor, twin_values)[0] \
                 if components else None
             return ClipScore(clip.name, clip.kind, clip.what, values, value, clip.changed,
-                             clip.deviation, clip.missing, clip.series, clip.dose)
+                             clip.deviation, clip.missing, clip.series, clip.dose,
+                             clip.missing_px)
 
         # the static clip first: it is every other clip's floor
         (still,) = make_clips(truth, (STATIC,))
