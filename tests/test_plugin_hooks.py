@@ -82,7 +82,7 @@ def test_visphy_register_metrics(pm):
     assert metric.describe() == {"name": "inline_const", "direction": "higher",
                                  "range": [0.0, 1.0], "needs": ["frames"], "family": "pixel",
                                  "kind": "scene", "weights": None, "max_pairs": None,
-                                 "unavailable": None}
+                                 "unavailable": None, "validity": None}
 
 
 def test_visphy_register_judges(pm):

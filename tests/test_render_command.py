@@ -64,7 +64,7 @@ def test_render_of_one_generated_scene_builds_only_that_scene(visphy_home, tmp_p
     reply_file.write_text(reply("html"))
     out = tmp_path / "out"
     proc = run_cli("render", str(reply_file), "--engine", "threejs", "--scene", scene,
-                   "-o", str(out), *FAST, "metrics.names=[psnr,ssim,spatiotemporal_iou]",
+                   "-o", str(out), *FAST, "metrics.names=[psnr,ssim,spatiotemporal_iou_tol]",
                    home=visphy_home, check=False, timeout=600)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert {p.stem for p in (root / "meta").glob("*.json")} == built | {scene}

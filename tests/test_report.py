@@ -54,7 +54,8 @@ def _only_run(home: Path, model: str) -> Path:
 def oracle_run(home) -> Path:
     # the headline's components too (the plots show the headline and the tracked bodies)
     run_cli("model=oracle", "dataset.limit=2", "tracking=none", "run.progress=false",
-            "metrics.names=[psnr,ssim,spatiotemporal_iou,weighted_spatial_iou,track_pos_err]",
+            "metrics.names=[psnr,ssim,spatiotemporal_iou_tol,weighted_spatial_iou_tol,"
+            "track_pos_err]",
             "metrics.spec_track=false", "metrics.variance_norm=false", home=home)
     return _only_run(home, "oracle")
 
@@ -226,7 +227,7 @@ def test_run_report_plots_headline_family_bars_curve_and_track_overlay(
     # range, the best end longest (an error without an upper bound has no bar)
     assert shown["scale"] == "range"
     bars = {m: (fam, val, count) for m, fam, val, count in shown["bars"]}
-    assert set(bars) == {"psnr", "ssim", "spatiotemporal_iou", "weighted_spatial_iou",
+    assert set(bars) == {"psnr", "ssim", "spatiotemporal_iou_tol", "weighted_spatial_iou_tol",
                          "track_pos_err"}
     psnr = summary["metrics"]["psnr"]
     assert bars["psnr"] == ("pixel", repr(psnr["mean_model_success"] / 100.0),

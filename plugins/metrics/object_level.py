@@ -153,6 +153,7 @@ frames), after the metrics they share with: 65–95 ms and 15–45 ms. Each clip
 neighbourhoods and objects are made once per scene (`MetricInput.extra`), each pairing's values
 once.
 """
+# size: one family: the tolerant masks and the palette-free tracks share the bodies' sizes and blobs
 
 from __future__ import annotations
 
