@@ -41,18 +41,10 @@ SCENES = (0, 1, 3)  # ramp roll (2 tracked bodies), ball into jar (3), thrown ba
 
 # ------------------------------------------------------------------------------ drawing
 def scaled(spec: dict, f: float) -> dict:
-    """Every body drawn ``f`` times its size about its own origin."""
-    s = copy.deepcopy(spec)
-    for b in s["bodies"]:
-        shape = b["shape"]
-        if shape["type"] == "circle":
-            shape["radius_px"] *= f
-        elif shape["type"] == "box":
-            shape["length_px"] *= f
-            shape["thickness_px"] *= f
-        else:
-            shape["parts_px"] = [[[x * f, y * f] for x, y in part] for part in shape["parts_px"]]
-    return s
+    """Every body drawn ``f`` times its size about its own origin (the study's grow/shrink)."""
+    from visphy_plugins.datasets.visphybench.validity_order import resized_spec
+
+    return resized_spec(f)(copy.deepcopy(spec))
 
 
 def recoloured(spec: dict, fn) -> dict:
