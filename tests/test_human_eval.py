@@ -172,9 +172,12 @@ def test_rating_in_chromium_blind_resumable(oracle_run, tmp_path):
 def test_cli_prints_the_url_and_stops_cleanly(oracle_run):
     home, run_dir = oracle_run
     env = dict(os.environ, VISPHY_HOME=str(home))
+    # started as a background job of a script would be: with SIGINT ignored, which a child
+    # inherits; Ctrl-C must still stop it
     proc = subprocess.Popen([sys.executable, "-m", "visphy_core", "rate", str(home / "runs"),
                              "--rater", "bob", "--port", "0"], cwd=REPO, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     try:
         assert proc.stdout.readline().startswith("rating 2 clip(s) from 1 run(s) as bob")
         url = proc.stdout.readline().split()[1]

@@ -58,7 +58,10 @@ def rate_command(argv: list[str]) -> int:
         print(f"rating {len(items)} clip(s) from {len(run_dirs)} run(s) as {args.rater}: "
               f"{left} left to rate")
         print(f"open {server.url}  (Ctrl-C to stop)", flush=True)
-        signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops as cleanly as Ctrl-C
+        # Ctrl-C and `kill` stop cleanly even when the parent ignored SIGINT (a background job
+        # of a non-interactive shell, a test runner's worker): a child inherits SIG_IGN.
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, _interrupt)
         try:
             server.serve_forever()
         except KeyboardInterrupt:
