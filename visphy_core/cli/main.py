@@ -24,6 +24,8 @@ Commands:
                  analyse PATH... [-o OUT] [--study NAME] [--metrics a,b]
   report         HTML report that opens from disk: report RUN_DIR (a run) or
                  report RUN_DIR RUN_DIR... [-o OUT] [--title T] (a study)
+  leaderboard    static leaderboard site from runs and studies (ties, breakdowns, clips):
+                 leaderboard RUN_OR_STUDY... -o SITE [--reference FILE] [--labels FILE]
   merge          one run from its shards (dataset.shard=i/n), one MLflow parent run:
                  merge SHARD_RUN_DIR... -o MERGED_RUN_DIR [--partial]
   track          log finished runs to MLflow after the fact (a run whose tracking failed):
@@ -310,6 +312,12 @@ def cmd_report(argv: list[str]) -> int:
     return report_command(argv)
 
 
+def cmd_leaderboard(argv: list[str]) -> int:
+    from visphy_core.cli.leaderboard import main as leaderboard
+
+    return leaderboard(argv)
+
+
 def cmd_merge(argv: list[str]) -> int:
     from visphy_core.cli.merge import cmd_merge as merge
 
@@ -335,6 +343,7 @@ COMMANDS: dict[str, tuple[Callable[[list[str]], int], str]] = {
     "score": (cmd_score, "re-score a finished run with other metrics or judges, no model call"),
     "report": (cmd_report, "the HTML report of a run, or of several runs as a study"),
     "analyse": (cmd_analyse, "tables and figures from finished runs (leaderboard, CIs, ...)"),
+    "leaderboard": (cmd_leaderboard, "a static leaderboard site from runs and studies"),
     "merge": (cmd_merge, "one run from the shards of a sharded run (dataset.shard=i/n)"),
     "track": (cmd_track, "log finished runs to MLflow after the fact (tracking that failed)"),
     "render": (cmd_render, "render one model reply, and score it against a scene (--scene)"),
