@@ -30,6 +30,8 @@ Commands:
                  merge SHARD_RUN_DIR... -o MERGED_RUN_DIR [--partial]
   track          log finished runs to MLflow after the fact (a run whose tracking failed):
                  track RUN_DIR... [--uri URI] [--experiment NAME] [--again]
+  export         a run's scores as a tidy table: export RUN_DIR --format parquet|csv [-o OUT]
+  export-dataset a dataset as a Hugging Face folder: export-dataset --format hf -o DIR [dataset=…]
 Anything else is a Hydra run: ``python -m visphy_core engine=threejs model=oracle dataset=mini``.
 
 Bad input (a config value, a missing dataset, a plugin that does not load, Chromium missing) is
@@ -38,6 +40,8 @@ disk, a read-only or forbidden folder) likewise, exit status 74. ``--traceback``
 ``VISPHY_TRACEBACK=1``) shows the full traceback instead, for debugging.
 """
 
+# size: the command table and its lazy handlers (a few lines per command: each command's code is
+# in its own module), the top-level error reporting and the Hydra entry
 from __future__ import annotations
 
 import argparse
@@ -330,6 +334,12 @@ def cmd_track(argv: list[str]) -> int:
     return track(argv)
 
 
+def cmd_export(argv: list[str], dataset: bool = False) -> int:
+    from visphy_core.cli import export
+
+    return (export.cmd_export_dataset if dataset else export.cmd_export)(argv)
+
+
 def cmd_ground_truth(argv: list[str]) -> int:
     from visphy_core.cli.ground_truth import cmd_ground_truth as ground_truth
 
@@ -346,6 +356,9 @@ COMMANDS: dict[str, tuple[Callable[[list[str]], int], str]] = {
     "leaderboard": (cmd_leaderboard, "a static leaderboard site from runs and studies"),
     "merge": (cmd_merge, "one run from the shards of a sharded run (dataset.shard=i/n)"),
     "track": (cmd_track, "log finished runs to MLflow after the fact (tracking that failed)"),
+    "export": (cmd_export, "a run's scores as one tidy table (Parquet or CSV) for pandas/polars"),
+    "export-dataset": (lambda argv: cmd_export(argv, dataset=True),
+                       "a dataset as a Hugging Face `datasets` folder"),
     "render": (cmd_render, "render one model reply, and score it against a scene (--scene)"),
     "intervene": (cmd_intervene, "change physical parameters, re-simulate, render side by side"),
     "rate": (cmd_rate, "the model-blind human rating page on localhost"),
