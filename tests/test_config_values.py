@@ -22,7 +22,7 @@ BAD_INPUTS = [
     ("tracking.backend=mlfow",
      ["tracking.backend=mlfow is not a valid choice; valid: mlflow, none"]),
     ("dataset.source=orignal",
-     ["dataset.source=orignal is not an installed dataset; valid: generated, original, tiny"]),
+     ["dataset.source=orignal is not an installed dataset; valid: generated, hf, original, tiny"]),
     ("engine=blender engine.render_engine=cyclez",
      ["engine.render_engine=cyclez is not a valid choice; valid: workbench, cycles, eevee"]),
     ("engine=blender engine.timeout_s=0",

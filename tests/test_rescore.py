@@ -222,7 +222,8 @@ def test_the_spec_track_and_twin_clips_are_read_back_not_rendered(visphy_home, n
     from conftest import run_cli
 
     run_cli("model=oracle", "dataset=mini", "dataset.limit=1", "metrics.names=[psnr]",
-            "tracking=none", "run.progress=false", home=visphy_home)
+            "metrics.variance_norm=true", "tracking=none", "run.progress=false",
+            home=visphy_home)
     (run,) = (visphy_home / "runs").iterdir()
     run_cli("score", str(run), "metrics.names=[psnr,ssim]", "tracking=none",
             home=visphy_home, env=no_chromium)

@@ -170,8 +170,10 @@ class MetricsConfig:
     # program, scored under the same protocol (``spec.`` columns; visphy_core.spec.spec_track).
     spec_track: bool = True
     # Variance-normalised columns (``norm.<metric>``: 0 = the frozen first frame, 1 = the ground
-    # truth re-simulated with an imperceptible nudge; visphy_core.scoring.normalisation).
-    variance_norm: bool = True
+    # truth re-simulated with an imperceptible nudge; visphy_core.scoring.normalisation). Off by
+    # default: the twin's render and every metric on it and on the still clip were half of a
+    # first run's time (docs/performance.md); the headline needs only its components' floors.
+    variance_norm: bool = False
     device: str = "cpu"           # torch device of the learned metrics (cpu, cuda, cuda:1…)
     max_pairs: dict[str, int] = field(default_factory=dict)  # per metric: pairs scored at most
     # The headline physics score (visphy_core.scoring.headline): its components, each between the
