@@ -1,16 +1,19 @@
 """Every file visphy reads from a tree it did not write in this process, and every file it
 writes into a run directory, goes through this module.
 
-**Foreign files** (`read_bytes`, `read_text`, `read_json`, `open_binary`, `entry_kind`,
-`list_dir`): replay sources, run directories being replayed, re-scored, merged, reported or
-rated, dataset folders and cache payloads. A path is opened component by component below the
-root the user named, each component with ``O_NOFOLLOW`` (directories with ``O_DIRECTORY``), so
-no symbolic link below that root is ever followed, whatever it points at (``/proc/self/environ``,
-another user's file, a directory elsewhere). Only regular files are read (no FIFO, device or
-socket), and never more than the size cap of their kind (`LIMITS`). A violation raises
-`ForeignFileError`, whose one-line message names the path and why, never a byte of content; it
-is a `SceneDataError` (the scene's row is ``data_error``) and a `UserError` (the CLI prints one
-line, exit 2). The root itself may be a link: the user named it.
+**Foreign files** (`open_untrusted`, `read_bytes`, `read_text`, `read_json`, `open_binary`,
+`entry_kind`, `list_dir`): replay sources, run directories being replayed, re-scored, merged,
+reported or rated, dataset folders, cache payloads, and the files a sandboxed program wrote
+(`sandbox/process.py::read_untrusted`, the frame readers of `png.py` and `video.py` open them
+with `open_untrusted` and word its refusals their own way). A path is opened component by
+component below the root the user named, each component with ``O_NOFOLLOW`` (directories with
+``O_DIRECTORY``), so no symbolic link below that root is ever followed, whatever it points at
+(``/proc/self/environ``, another user's file, a directory elsewhere). Files are opened
+non-blocking and only regular files are read (no FIFO, device or socket), never more than the
+size cap of their kind (`LIMITS`), even when the file grows while it is read. A violation
+raises `ForeignFileError`, whose one-line message names the path and why, never a byte of
+content; it is a `SceneDataError` (the scene's row is ``data_error``) and a `UserError` (the CLI
+prints one line, exit 2). The root itself may be a link: the user named it.
 
 **Writes into a run directory** (`atomic_write`, `append_line`): every directory below the
 root is created or opened with ``O_NOFOLLOW``; a file is replaced atomically through a temporary
@@ -51,20 +54,27 @@ _FILE_FLAGS = os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC
 
 class ForeignFileError(SceneDataError, UserError):
     """A foreign file that visphy refuses to read (a link, not a regular file, too large, or
-    outside its root). The message names the path, never its content."""
+    outside its root). The message names the path, never its content; ``why`` says which
+    (``"link"``, ``"not_dir"``, ``"not_regular"``, ``"too_large"``, ``"outside"``) for callers
+    that word it their own way, and ``size`` is the file's size when it is too large."""
+
+    def __init__(self, message: str, why: str = "other", size: int | None = None):
+        super().__init__(message)
+        self.why, self.size = why, size
 
 
-def _violation(path: Path, why: str, verb: str = "read") -> ForeignFileError:
-    return ForeignFileError(f"refused to {verb} {path}: {why}")
+def _violation(path: Path, reason: str, verb: str = "read", *, why: str = "other",
+               size: int | None = None) -> ForeignFileError:
+    return ForeignFileError(f"refused to {verb} {path}: {reason}", why, size)
 
 
 def _parts(path: Path, root: Path) -> tuple[str, ...]:
     try:
         rel = Path(path).relative_to(root)
     except ValueError:
-        raise _violation(Path(path), f"it is not inside {root}") from None
+        raise _violation(Path(path), f"it is not inside {root}", why="outside") from None
     if any(p in ("..", "") for p in rel.parts):
-        raise _violation(Path(path), "the path climbs out of its root ('..')")
+        raise _violation(Path(path), "the path climbs out of its root ('..')", why="outside")
     return rel.parts
 
 
@@ -78,9 +88,10 @@ def _why_not_opened(dir_fd: int, name: str, shown: Path, exc: OSError,
         return exc
     if stat.S_ISLNK(st.st_mode):
         return _violation(shown, "it is a symbolic link (links are never followed in a tree "
-                          "visphy did not write)", verb)
+                          "visphy did not write)", verb, why="link")
     if exc.errno == errno.ENOTDIR:
-        return _violation(shown, "a component of the path is not a directory", verb)
+        return _violation(shown, "a component of the path is not a directory", verb,
+                          why="not_dir")
     return exc
 
 
@@ -118,14 +129,19 @@ def _root_of(path: Path, root: str | Path | None) -> Path:
     return Path(root) if root is not None else Path(path).parent
 
 
-def _open_file(path: str | Path, root: str | Path | None, kind: str) -> tuple[int, int]:
-    """(fd, size) of the regular file ``path`` below ``root`` (default: its own directory)."""
+def open_untrusted(path: str | Path, max_bytes: int, root: str | Path | None = None, *,
+                   what: str | None = None) -> tuple[int, int]:
+    """(fd, size) of the untrusted regular file ``path`` below ``root`` (default: its own
+    directory): no link below ``root`` followed, opened non-blocking (a FIFO cannot hang the
+    caller), a regular file of at most ``max_bytes`` (``what`` names that cap in the message).
+    Raises `FileNotFoundError` when it is missing and `ForeignFileError` on a violation, with
+    `ForeignFileError.why` saying which (``"link"``, ``"not_regular"``, ``"too_large"`` with
+    ``size``, ...); other `OSError` exceptions pass through. The caller closes the fd."""
     path = Path(path)
     base = _root_of(path, root)
     parts = _parts(path, base)
     if not parts:
-        raise _violation(path, "it is a directory, not a file")
-    limit = LIMITS[kind]
+        raise _violation(path, "it is a directory, not a file", why="not_regular")
     dfd = _open_dir(base, parts[:-1])
     try:
         try:
@@ -139,36 +155,47 @@ def _open_file(path: str | Path, root: str | Path | None, kind: str) -> tuple[in
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
-            raise _violation(path, "it is not a regular file")
-        if st.st_size > limit:
-            raise _violation(path, f"it is {st.st_size} bytes, over the {limit}-byte limit "
-                             f"for a {kind} file")
+            raise _violation(path, "it is not a regular file", why="not_regular")
+        if st.st_size > max_bytes:
+            raise _violation(path, f"it is {st.st_size} bytes, over "
+                             f"{what or f'the {max_bytes}-byte limit'}", why="too_large",
+                             size=st.st_size)
     except BaseException:
         os.close(fd)
         raise
     return fd, st.st_size
 
 
+def read_upto(fd: int, count: int) -> bytes:
+    """At most ``count`` bytes from ``fd``, fewer at end of file: a file that grows while it is
+    read is cut off at ``count``."""
+    chunks, left = [], count
+    while left > 0:
+        chunk = os.read(fd, min(left, MiB))
+        if not chunk:
+            break
+        chunks.append(chunk)
+        left -= len(chunk)
+    return b"".join(chunks)
+
+
+def _limit_of(kind: str) -> str:
+    return f"the {LIMITS[kind]}-byte limit for a {kind} file"
+
+
 def read_bytes(path: str | Path, root: str | Path | None = None, *, kind: str = "text") -> bytes:
     """The bytes of the foreign regular file ``path`` (see the module docstring). ``root``: the
     tree the user named (no link below it is followed); default ``path``'s own directory.
     Raises `FileNotFoundError` when it is missing, `ForeignFileError` on a violation."""
-    fd, size = _open_file(path, root, kind)
     limit = LIMITS[kind]
-    chunks, total = [], 0
+    fd, _ = open_untrusted(path, limit, root, what=_limit_of(kind))
     try:
-        while True:
-            chunk = os.read(fd, min(MiB, limit + 1 - total))
-            if not chunk:
-                break
-            chunks.append(chunk)
-            total += len(chunk)
-            if total > limit:  # the file grew while it was read
-                raise _violation(Path(path), f"it is over the {limit}-byte limit for a {kind} "
-                                 "file")
+        data = read_upto(fd, limit + 1)
     finally:
         os.close(fd)
-    return b"".join(chunks)
+    if len(data) > limit:  # the file grew while it was read
+        raise _violation(Path(path), f"it is over {_limit_of(kind)}", why="too_large")
+    return data
 
 
 def read_text(path: str | Path, root: str | Path | None = None, *, kind: str = "text",
@@ -193,7 +220,7 @@ def open_binary(path: str | Path, root: str | Path | None = None, *,
                 kind: str = "video") -> BinaryIO:
     """The foreign regular file ``path`` as an open binary file object (for decoders that read
     a stream, e.g. PyAV); the caller closes it."""
-    fd, _ = _open_file(path, root, kind)
+    fd, _ = open_untrusted(path, LIMITS[kind], root, what=_limit_of(kind))
     return io.open(fd, "rb", closefd=True)
 
 
@@ -221,8 +248,8 @@ def entry_kind(path: str | Path, root: str | Path | None = None) -> str | None:
         return "dir"
     if stat.S_ISLNK(st.st_mode):
         raise _violation(path, "it is a symbolic link (links are never followed in a tree "
-                         "visphy did not write)")
-    raise _violation(path, "it is not a regular file")
+                         "visphy did not write)", why="link")
+    raise _violation(path, "it is not a regular file", why="not_regular")
 
 
 def is_file(path: str | Path, root: str | Path | None = None) -> bool:

@@ -11,15 +11,15 @@ that matches is decoded, by Pillow's PNG plugin alone, into exactly that many pi
 
 from __future__ import annotations
 
-import errno
 import io
 import os
-import stat
 import struct
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from visphy_core.infra import files
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 #: Signature (8) + IHDR chunk (length 4, type 4, data 13, CRC 4).
@@ -152,42 +152,29 @@ def decode_untrusted_png(data: bytes, width: int, height: int,
 
 def open_untrusted(path: str | os.PathLike, max_bytes: int,
                    allowed: str | None = None) -> tuple[int, int]:
-    """(fd, size) of a file a sandboxed program could have replaced: opened without following a
-    symbolic link, a regular file only, at most ``max_bytes`` (``allowed`` says what that cap
-    is, for the message); else `FrameRejected` naming why. The caller closes the fd."""
+    """(fd, size) of a file a sandboxed program could have replaced, opened by
+    `visphy_core.infra.files.open_untrusted` (no symbolic link, non-blocking, a regular file
+    only, at most ``max_bytes``; ``allowed`` says what that cap is, for the message); else
+    `FrameRejected` naming why. The caller closes the fd."""
     name = Path(path).name
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | getattr(os, "O_NONBLOCK", 0)
-                     | getattr(os, "O_CLOEXEC", 0))
+        return files.open_untrusted(path, max_bytes)
     except FileNotFoundError:
         raise FrameRejected(f"{name} is missing") from None
+    except files.ForeignFileError as exc:
+        raise FrameRejected(_refusal(name, exc, max_bytes, allowed)) from None
     except OSError as exc:
-        if exc.errno == errno.ELOOP:
-            raise FrameRejected(f"{name} is a symbolic link, not a file the renderer wrote: "
-                                "refused") from None
         raise FrameRejected(f"{name} cannot be opened: {exc.strerror}") from None
-    try:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            raise FrameRejected(f"{name} is not a regular file: refused")
-        if info.st_size > max_bytes:
-            raise FrameRejected(f"{name} is {info.st_size} bytes, more than "
-                                f"{allowed or f'the {max_bytes} allowed'}: refused unread")
-    except BaseException:
-        os.close(fd)
-        raise
-    return fd, info.st_size
 
 
-def _read_exactly(fd: int, count: int) -> bytes:
-    chunks, left = [], count
-    while left > 0:
-        chunk = os.read(fd, min(left, 1 << 24))
-        if not chunk:
-            break
-        chunks.append(chunk)
-        left -= len(chunk)
-    return b"".join(chunks)
+def _refusal(name: str, exc: files.ForeignFileError, max_bytes: int,
+             allowed: str | None) -> str:
+    if exc.why == "link":
+        return f"{name} is a symbolic link, not a file the renderer wrote: refused"
+    if exc.why == "too_large":
+        return (f"{name} is {exc.size} bytes, more than "
+                f"{allowed or f'the {max_bytes} allowed'}: refused unread")
+    return f"{name} is not a regular file: refused"
 
 
 def read_untrusted_png(path: str | os.PathLike, width: int, height: int) -> np.ndarray:
@@ -199,11 +186,11 @@ def read_untrusted_png(path: str | os.PathLike, width: int, height: int) -> np.n
     cap = png_size_cap(width, height)
     fd, size = open_untrusted(path, cap, f"a {width}x{height} PNG can need ({cap} bytes)")
     try:
-        head = _read_exactly(fd, PNG_HEADER_BYTES)
+        head = files.read_upto(fd, PNG_HEADER_BYTES)
         header = parse_png_header(head, name)
         _refuse_size(name, header, width, height)
         # at most the size fstat saw (and the cap): a file that grows meanwhile is cut off
-        data = head + _read_exactly(fd, min(size, cap) - len(head))
+        data = head + files.read_upto(fd, min(size, cap) - len(head))
     finally:
         os.close(fd)
     return decode_untrusted_png(data, width, height, name)

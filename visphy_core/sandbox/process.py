@@ -1,90 +1,17 @@
 """Run an untrusted program as a sandboxed child process (shared by the Python engines).
 
 `run_sandboxed` is the one isolation primitive the Python engines (Manim, Blender) use for
-model-written code. It runs the program under **bubblewrap** (``bwrap``, Debian package
-``bubblewrap``) and treats every process the program can see as readable by the program.
+model-written code: bubblewrap (``bwrap``) with fresh network, PID, IPC, UTS and mount
+namespaces, uid/gid 65534 without capabilities, a seccomp filter (`syscall_filter`) that closes
+every way into a new namespace, a new read-only root holding only the interpreter, an
+allow-listed environment, rlimits with a work-dir quota, and a wall-clock kill of the whole PID
+namespace. Every process the program can see is treated as readable by the program. Limit hits
+are reported in ``ProcessResult.limit_hit``; without isolation the program is refused
+(``ProcessResult.refused``) unless the user opted out (``sandbox.allow_unisolated``).
+Files the program writes are read back with `read_untrusted` (`visphy_core.infra.files`).
 
-What is isolated
-----------------
-* **Namespaces.** Fresh network, PID, IPC, UTS and mount namespaces (and a cgroup namespace when
-  the kernel has one); the network namespace has only a down loopback, so every connect - TCP,
-  UDP, to 127.0.0.1 or anywhere - fails ("Network is unreachable"). In the PID namespace the
-  program sees only its own processes; ``/proc`` is a fresh procfs of that namespace.
-* **User.** The program runs as uid/gid 65534 (nobody) with no capabilities and
-  ``no_new_privs``: as root, bwrap itself sets up the namespaces (no user namespace) and the
-  command it starts inside is ``setpriv --reuid=65534 --regid=65534 --clear-groups
-  --no-new-privs``, so the program is *really* uid 65534 and cannot read the ``environ``,
-  ``mem`` or namespace links of bwrap (PID 1 of its namespace, root) nor ``setns()`` into them.
-  As a non-root user, bwrap uses an unprivileged user namespace (``--unshare-all --uid 65534``).
-  bwrap is started with the scrubbed environment below, so even its own ``/proc/1/environ``
-  holds no secret of the caller.
-* **System calls.** A seccomp filter (`visphy_core.sandbox.syscall_filter`, built with
-  libseccomp, loaded by bwrap right before it executes the command) makes the calls that create
-  or enter namespaces fail: ``unshare`` and ``setns`` (``EPERM``), ``clone`` with a
-  ``CLONE_NEW*`` flag (``EPERM``), ``clone3`` (``ENOSYS``: glibc falls back to ``clone``). So
-  the program cannot build a nested user namespace (where it would hold a full capability set)
-  or any other namespace. The same filter denies tracing (``ptrace``, ``process_vm_readv``/
-  ``writev``, ``pidfd_getfd``), mounts and root changes, kernel keyrings, ``bpf``,
-  ``perf_event_open``, ``userfaultfd``, ``io_uring``, module/kexec loading and
-  ``open_by_handle_at`` (``EPERM``); threads, ``fork``/``exec``, ``multiprocessing`` and
-  everything else Python, Manim and Blender do are unaffected. ``/proc/self/status`` of the
-  program shows ``Seccomp: 2`` and ``NoNewPrivs: 1``. As a non-root user bwrap also passes
-  ``--disable-userns`` (the kernel's own limit, on top of the filter). As root it does not:
-  ``--disable-userns`` needs ``--unshare-user``, and bwrap 0.8 then maps the sandbox's one uid
-  onto the caller's, so the program's kernel uid would be 0 (owner access to every root-owned
-  file in the binds) instead of a real 65534; the filter alone closes ``unshare``/``clone``/
-  ``setns``, the only ways into a new namespace.
-* **Filesystem.** A new root (tmpfs) holding read-only binds of ``/usr`` (with ``/bin``,
-  ``/lib``, ``/lib64`` symlinks), ``/etc/fonts``, ``/etc/ld.so.cache`` and the fontconfig cache
-  when present, and only the interpreter installation(s) the program needs (``ro_paths``: for a
-  Python program its venv and the venv's base installation, see `python_ro_paths`). The work dir
-  is the only writable place: it is bound read-write at its own path, ``/tmp`` inside the
-  sandbox is ``<workdir>/tmp``, and ``/dev/shm`` is a small size-limited tmpfs. There is no
-  ``/etc/passwd``, no home directory, no project tree and none of the caller's files.
-* **Environment.** bwrap and the program start from an allow-list: ``PATH`` (the bound
-  interpreters' ``bin`` dirs and ``/usr/bin:/bin``), ``LANG``/``LC_ALL`` (``C.UTF-8``),
-  ``TZ=UTC``, ``HOME=<workdir>``, ``TMPDIR=<workdir>/tmp``, ``PYTHONHASHSEED=0``, plus
-  ``env_extra`` minus every secret-looking name (`visphy_core.infra.secrets.is_secret_name`) unless
-  the caller names it in ``allow_secret_env`` (a deliberate, greppable opt-in).
-* **Resource limits** (``Limits``), set before ``exec`` and inherited through bwrap and setpriv:
-  ``RLIMIT_CPU`` (SIGXCPU at ``cpu_s``, SIGKILL one second later), ``RLIMIT_AS`` (address
-  space, ``memory_mb``), ``RLIMIT_FSIZE`` (largest file, ``file_size_mb``), ``RLIMIT_NPROC``
-  (counted by the kernel per real uid - 65534 as root, the caller's uid in a user namespace -
-  so it is set to that uid's current thread count plus ``processes``) and ``RLIMIT_CORE = 0``.
-  The work dir's total allocated size (``disk_mb``) and entry count (``max_files``) are watched
-  a few times a second; over either, the sandbox is killed (``limit_hit = "disk"``).
-* **Wall clock.** At ``wall_s`` bwrap's process group and bwrap are SIGKILLed; bwrap runs with
-  ``--die-with-parent`` and owns the PID namespace, so every process of the program dies with
-  it, including ``setsid``-detached grandchildren. A normal exit ends the namespace as well.
-  stdout and stderr are read with a size cap (`MAX_OUTPUT_BYTES` per stream: head and tail
-  kept, the middle replaced by a one-line marker) and never block past the kill.
-
-What is *not* isolated
-----------------------
-* The kernel is shared: a kernel exploit escapes any namespace sandbox (run visphy in a VM or a
-  container for that). The seccomp filter is a deny list: it narrows the kernel surface (no
-  new namespaces, no tracing, no BPF/perf/io_uring/keyrings) but every other system call of the
-  shared kernel stays reachable.
-* Everything under the read-only binds (``/usr``, the interpreter installations) is readable,
-  CPU time and memory bandwidth are shared, and the wall clock / CPU limits are the only
-  defence against a program that keeps the machine busy until then.
-* Files the program writes into its work dir are untrusted: callers must read them without
-  following symlinks (``O_NOFOLLOW``) and with size limits.
-
-When bwrap is missing, the kernel refuses namespaces or seccomp, or the seccomp filter cannot be
-built (libseccomp's Python binding, Debian ``python3-seccomp``, missing; an architecture the
-filter does not support), `run_sandboxed` **refuses** to run the
-program (``ProcessResult.refused``, the reason in ``stderr``), unless the user opted out
-explicitly: ``VISPHY_ALLOW_UNISOLATED=1`` or ``configure(allow_unisolated=True)`` (config key
-``sandbox.allow_unisolated``). An unisolated run keeps the scrubbed environment, the rlimits,
-the work dir as cwd and the process-group kill, and records ``isolation = "none"``.
-
-Limit hits are reported in ``ProcessResult.limit_hit``: ``"wall"`` (killed at ``wall_s``),
-``"cpu"`` (SIGXCPU, or SIGKILL after using the CPU budget), ``"memory"`` (the program died of
-an allocation failure: Python ``MemoryError``, ``std::bad_alloc``, "Cannot allocate memory" on
-stderr), ``"file_size"`` (SIGXFSZ, or ``EFBIG``/"File too large" on stderr; Python ignores
-SIGXFSZ), ``"disk"`` (the work dir quota) or ``"processes"`` (``fork``/``clone`` refused:
-"Resource temporarily unavailable" / ``BlockingIOError`` on stderr).
+What is and is not isolated, each limit and how it is tested: docs/security.md, "Python engines
+(Manim, Blender): the process sandbox".
 """
 # size: one isolation primitive: namespaces, seccomp, limits and read-back reviewed as one
 
@@ -97,7 +24,6 @@ import resource
 import select
 import shutil
 import signal
-import stat
 import subprocess
 import sys
 import tempfile
@@ -108,6 +34,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Iterable, Sequence
 
+from visphy_core.infra.files import ForeignFileError, open_untrusted, read_upto
 from visphy_core.infra.secrets import is_secret_name
 from visphy_core.sandbox import syscall_filter
 from visphy_core.sandbox.policy import (
@@ -543,25 +470,16 @@ def describe_limit(hit: str | None, limits: Limits, detail: str = "") -> str | N
 
 # ------------------------------------------------------------------------------ reading results
 def read_untrusted(path: str | os.PathLike, max_bytes: int) -> bytes | None:
-    """A regular file a sandboxed program could have tampered with: no symlinks (a link to a
-    file only the host may read must not leak into the run), no devices or FIFOs, at most
-    ``max_bytes``; None otherwise."""
+    """A regular file a sandboxed program could have tampered with, read by
+    `visphy_core.infra.files` (no symlinks: a link to a file only the host may read must not
+    leak into the run; no devices or FIFOs; at most ``max_bytes``, cut off at the size it had
+    when opened); None otherwise."""
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | getattr(os, "O_NONBLOCK", 0))
-    except OSError:
+        fd, size = open_untrusted(path, max_bytes)
+    except (OSError, ForeignFileError):
         return None
     try:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode) or info.st_size > max_bytes:
-            return None
-        chunks, left = [], info.st_size
-        while left > 0:
-            chunk = os.read(fd, min(left, 1 << 24))
-            if not chunk:
-                break
-            chunks.append(chunk)
-            left -= len(chunk)
-        return b"".join(chunks)
+        return read_upto(fd, size)
     finally:
         os.close(fd)
 
