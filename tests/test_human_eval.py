@@ -188,7 +188,12 @@ def test_cli_prints_the_url_and_stops_cleanly(oracle_run):
         assert not any(n in json.dumps(state) for n in ("oracle", "threejs", run_dir.name))
     finally:
         proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=30)
+        try:
+            _, err = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()  # no survivor when Ctrl-C did not stop it
+            proc.communicate()
+            raise
     assert proc.returncode == 0 and "stopped: 0 rating(s) saved" in err
 
 
