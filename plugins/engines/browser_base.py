@@ -56,6 +56,7 @@ from visphy_core.api.engine import (
 from visphy_core.api.extract import extract_code, extract_spec
 from visphy_core.api.sandbox import BrowserPool, PageCapture
 from visphy_core.api.spec import fill, replay_payload
+from visphy_plugins.engines.assets import BROWSER_ASSETS
 
 TEMPLATES = Path(__file__).with_name("templates")
 
@@ -279,12 +280,7 @@ _SERVED = (("/vendor/npm/three-esm/", "three", "three-esm"),
 @cache
 def _locked_versions() -> dict[str, str]:
     """Lock entry name (``three``, ``three-esm``...) -> the exact version vendored."""
-    from visphy_core.api.sandbox import ASSETS_SRC
-
-    lock = json.loads((ASSETS_SRC / "package-lock.json").read_text())
-    return {name.removeprefix("node_modules/"): str(info.get("version", "?"))
-            for name, info in lock.get("packages", {}).items()
-            if name.startswith("node_modules/")}
+    return BROWSER_ASSETS.locked_versions()
 
 
 def served_version(path: str) -> tuple[str, str] | None:
@@ -385,6 +381,7 @@ def _merge_import_maps(body: str, notes: list | None = None) -> tuple[str, dict]
 
 class BrowserEngine(Engine):
     language = "html"
+    js_assets = BROWSER_ASSETS
     #: <script> tags the trusted template puts before the program (vendor short names).
     preload: tuple[str, ...] = ()
     #: How frames are read: "canvas" (main canvas readback) or "screenshot" (viewport).
@@ -418,7 +415,7 @@ class BrowserEngine(Engine):
     def vendor(self):
         from visphy_core.api.sandbox import VendorFiles
 
-        return VendorFiles()
+        return VendorFiles(self.js_assets)
 
     @cached_property
     def assets(self):

@@ -1,5 +1,10 @@
 """Engine ``threejs``: HTML + three.js (r160 UMD global ``THREE`` or r187 ES module ``three``)
-with ``CANNON`` (cannon.js 0.6.2) or ``cannon-es``, run in headless Chromium in virtual time."""
+with ``CANNON`` (cannon.js 0.6.2) or ``cannon-es``, run in headless Chromium in virtual time.
+
+`replay_html_3d` fills ``templates/threejs_replay_3d.html`` with a scene's replay payload: the
+engine's reference program for 3D scenes, and the page the generated benchmark renders its 3D
+ground truth with (`visphy_plugins.datasets.visphybench.render3d`), so the two are one page.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +13,7 @@ from pathlib import Path
 from visphy_core.api.engine import Program
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.scene import Scene
-from visphy_core.api.spec import fill, replay_payload
+from visphy_core.api.spec import fill, payload_from, replay_payload
 from visphy_plugins.engines.browser_base import BrowserEngine
 from visphy_plugins.engines.native import native_payload
 
@@ -32,6 +37,14 @@ durationMs)` once to record a finite clip.
 """.strip()
 
 
+def replay_html_3d(spec: dict, frame_poses, fps: float, n_frames: int) -> str:
+    """The self-contained 3D replay page (loads /vendor/three.min.js, calls setupRecording);
+    ``frame_poses`` in the order of ``spec["bodies"]``."""
+    payload = payload_from(spec, [b["id"] for b in spec["bodies"]], frame_poses, fps=fps,
+                           n_frames=n_frames)
+    return fill((TEMPLATES / "threejs_replay_3d.html").read_text(), payload)
+
+
 class ThreeJsEngine(BrowserEngine):
     name = "threejs"
     version = "3"  # 3: flags (library_substituted, no_recording_call, canvas_resized, partial_clip)
@@ -47,8 +60,6 @@ class ThreeJsEngine(BrowserEngine):
             raise ValueError(f"{scene.scene_id}: the reference program needs the scene's spec and "
                              "trajectory (generated benchmarks have both)")
         if scene.dim == "3d":
-            from visphy_core.api.spec import replay_html_3d
-
             html = replay_html_3d(spec, traj["frame_poses"], scene.clip.fps, scene.clip.n_frames)
             return Program(language=self.language, source=html, spec=spec)
         html = fill((TEMPLATES / "threejs_replay_2d.html").read_text(), replay_payload(scene))

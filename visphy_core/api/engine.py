@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from visphy_core.api.scene import Scene
+from visphy_core.infra.js_assets import JsAssets
 
 
 class FailureClass(str, Enum):
@@ -53,7 +54,7 @@ class RenderFlag(str, Enum):
     #: (the render log names each requested URL/version and the file/version served instead).
     LIBRARY_SUBSTITUTED = "library_substituted"
     #: The program never made the recording call its engine's instructions ask for (browser
-    #: engines that expect ``setupRecording(canvas, durationMs)``: threejs, p5). Frames are
+    #: engines whose instructions ask for ``setupRecording(canvas, durationMs)``). Frames are
     #: still captured: the clock is virtual, so the call only names the canvas and the length.
     NO_RECORDING_CALL = "no_recording_call"
     #: The program's canvas or camera frame does not have the clip's size, so it was scaled to
@@ -143,12 +144,15 @@ class RenderResult:
 
 
 class Engine(ABC):
-    """Base class for engine plugins (see `plugins/engines/threejs.py`)."""
+    """Base class for engine plugins (the built-in ones are in ``plugins/engines/``)."""
 
     name: str = ""
     language: str = ""   # fence language the prompt asks for: "html" or "python"
     version: str = "0"   # bump when rendering changes: part of every cache key
     supports_3d: bool = False
+    #: The npm packages the engine's pages load (`visphy_core.api.assets`): ``visphy setup``
+    #: installs those of every registered engine class. None: the engine vendors nothing.
+    js_assets: JsAssets | None = None
 
     def __init__(self, cfg: Any = None):
         self.cfg = cfg

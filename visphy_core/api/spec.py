@@ -4,7 +4,7 @@ the replay payloads the reference programs draw from (`visphy_core.spec.replay`)
 
 from __future__ import annotations
 
-from visphy_core.spec.replay import fill, replay_html_3d, replay_payload
+from visphy_core.spec.replay import fill, payload_from, replay_payload
 from visphy_core.spec.spec2d import (
     CATEGORIES,
     PHYRE_PROFILE,
@@ -39,8 +39,8 @@ from visphy_core.spec.spec3d import (
 __all__ = [
     "body_mass", "bounding_radius", "box_corners", "CATEGORIES", "category_of", "category_of_3d",
     "contact_table", "fill", "FLOOR_ID", "IDENTITY_QUAT", "local_hull_points", "local_polygons",
-    "PHYRE_PROFILE", "primitive_volume", "PROFILE_3D", "PROFILE_NAME", "quat_from_axis_angle",
-    "quat_to_matrix", "RED_RGB", "replay_html_3d", "replay_payload", "shape_area_centroid",
+    "payload_from", "PHYRE_PROFILE", "primitive_volume", "PROFILE_3D", "PROFILE_NAME",
+    "quat_from_axis_angle", "quat_to_matrix", "RED_RGB", "replay_payload", "shape_area_centroid",
     "shape_parts", "transform_points", "transform_points_3d", "validate_spec", "validate_spec_3d",
     "WALL_IDS", "wedge_vertices",
 ]

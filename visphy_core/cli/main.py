@@ -192,10 +192,10 @@ def cmd_setup(argv: list[str]) -> int:
     no_options("setup", "Install the vendored JavaScript libraries the browser engines and "
                "the 3D physics need (npm ci of the pinned lock file into the asset cache; "
                "needs node and npm).", argv)
-    from visphy_core.infra.js_assets import install_assets
+    from visphy_core.api.assets import install_assets
 
-    path = install_assets()
-    print(f"browser engine libraries ready in {path}")
+    for path in install_assets():
+        print(f"browser engine libraries ready in {path}")
     return 0
 
 

@@ -1,98 +1,108 @@
-"""The JavaScript libraries of the browser engines, installed from npm into a local cache.
+"""JavaScript libraries a plugin's pages load, installed from npm into a local cache.
 
-`visphy_core/infra/js_vendor/package-lock.json` pins every library with its integrity hash; `npm ci`
-installs exactly those files into ``$VISPHY_ASSETS`` (default ``~/.cache/visphy/js``), in a folder
-named after the lock file's hash, so a changed pin never mixes with an old install. Pages load
-them from the fake origin ``/vendor/<package>/<file>`` and never from a CDN.
+A plugin declares a `JsAssets`: a folder holding ``package.json`` and a ``package-lock.json`` that
+pins every library with its integrity hash, and the short names its pages use. `npm ci` installs
+exactly those files into ``$VISPHY_ASSETS`` (default ``~/.cache/visphy/js``), in a folder named
+after the lock file's hash, so a changed pin never mixes with an old install. Pages load them
+from the fake origin ``/vendor/<name>`` and ``/vendor/npm/<package>/<file>``, never from a CDN.
+Which plugins declare assets, and so what ``visphy setup`` installs, the registry says
+(`visphy_core.api.assets`).
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import shutil
 import subprocess
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
-
-ASSETS_SRC = Path(__file__).with_name("js_vendor")
-
-#: Short names the engines' templates use, and the package file each one is.
-LIBRARIES = {
-    "three.min.js": "three/build/three.min.js",            # r160 UMD: global THREE
-    "three.module.js": "three-esm/build/three.module.js",  # r187 ES module
-    "cannon.min.js": "cannon/build/cannon.min.js",        # cannon.js 0.6.2 UMD: global CANNON
-    "cannon-es.js": "cannon-es/dist/cannon-es.js",          # cannon-es ES module
-    "p5.min.js": "p5/lib/p5.min.js",
-    "matter.min.js": "matter-js/build/matter.min.js",
-}
 
 
 class AssetsMissing(RuntimeError):
     """The vendored JavaScript libraries are not installed."""
 
 
-def lock_digest() -> str:
-    return hashlib.sha256((ASSETS_SRC / "package-lock.json").read_bytes()).hexdigest()[:16]
+def assets_base() -> Path:
+    """Where every lock file's install lives: ``$VISPHY_ASSETS``, else ``~/.cache/visphy/js``."""
+    return Path(os.environ.get("VISPHY_ASSETS", Path.home() / ".cache" / "visphy" / "js"))
 
 
-def assets_root() -> Path:
-    base = Path(os.environ.get("VISPHY_ASSETS", Path.home() / ".cache" / "visphy" / "js"))
-    return base / lock_digest()
+@dataclass(frozen=True)
+class JsAssets:
+    """npm packages pinned by the lock file in ``source``; ``libraries`` maps each short name a
+    page loads as ``/vendor/<name>`` to its file inside ``node_modules``."""
 
+    source: Path
+    libraries: Mapping[str, str] = field(default_factory=dict, hash=False, compare=False)
 
-def node_modules() -> Path:
-    return assets_root() / "node_modules"
+    def lock_digest(self) -> str:
+        return hashlib.sha256((self.source / "package-lock.json").read_bytes()).hexdigest()[:16]
 
+    def root(self) -> Path:
+        return assets_base() / self.lock_digest()
 
-def assets_installed() -> bool:
-    nm = node_modules()
-    return all((nm / rel).is_file() for rel in LIBRARIES.values())
+    def node_modules(self) -> Path:
+        return self.root() / "node_modules"
 
+    def locked_versions(self) -> dict[str, str]:
+        """Lock entry name (a package, or an alias such as ``three-esm``) -> exact version."""
+        lock = json.loads((self.source / "package-lock.json").read_text())
+        return {name.removeprefix("node_modules/"): str(info.get("version", "?"))
+                for name, info in lock.get("packages", {}).items()
+                if name.startswith("node_modules/")}
 
-def install_assets(quiet: bool = True) -> Path:
-    """Run `npm ci` on the pinned lock file into the cache; return node_modules."""
-    if assets_installed():
-        return node_modules()
-    npm = shutil.which("npm")
-    if npm is None:
-        raise AssetsMissing("npm not found: install Node.js (Debian `nodejs npm`) to vendor the "
-                            "browser engines' libraries")
-    root = assets_root()
-    root.mkdir(parents=True, exist_ok=True)
-    for name in ("package.json", "package-lock.json"):
-        shutil.copyfile(ASSETS_SRC / name, root / name)
-    cmd = [npm, "ci", "--ignore-scripts", "--no-audit", "--no-fund"]
-    proc = subprocess.run(cmd, cwd=root, capture_output=quiet, text=True)
-    if proc.returncode != 0 or not assets_installed():
-        tail = (proc.stderr or "").strip().splitlines()[-3:] if quiet else []
-        raise AssetsMissing(f"`npm ci` in {root} failed: {' | '.join(tail)}")
-    return node_modules()
+    def installed(self) -> bool:
+        nm = self.node_modules()
+        return all((nm / rel).is_file() for rel in self.libraries.values())
 
+    def install(self, quiet: bool = True) -> Path:
+        """Run `npm ci` on the pinned lock file into the cache; return node_modules."""
+        if self.installed():
+            return self.node_modules()
+        npm = shutil.which("npm")
+        if npm is None:
+            raise AssetsMissing("npm not found: install Node.js (Debian `nodejs npm`) to vendor "
+                                "the browser engines' libraries")
+        root = self.root()
+        root.mkdir(parents=True, exist_ok=True)
+        for name in ("package.json", "package-lock.json"):
+            shutil.copyfile(self.source / name, root / name)
+        cmd = [npm, "ci", "--ignore-scripts", "--no-audit", "--no-fund"]
+        proc = subprocess.run(cmd, cwd=root, capture_output=quiet, text=True)
+        if proc.returncode != 0 or not self.installed():
+            tail = (proc.stderr or "").strip().splitlines()[-3:] if quiet else []
+            raise AssetsMissing(f"`npm ci` in {root} failed: {' | '.join(tail)}")
+        return self.node_modules()
 
-def require_assets() -> Path:
-    if not assets_installed():
-        raise AssetsMissing(
-            f"browser engine libraries are not installed in {assets_root()}: run "
-            "`python -m visphy_core setup` (or `make setup`)"
-        )
-    return node_modules()
+    def require(self) -> Path:
+        """node_modules, or `AssetsMissing` saying how to install it."""
+        if not self.installed():
+            raise AssetsMissing(
+                f"browser engine libraries are not installed in {self.root()}: run "
+                "`python -m visphy_core setup` (or `make setup`)"
+            )
+        return self.node_modules()
 
 
 class VendorFiles(Mapping[str, Path]):
-    """URL path → file for the fake origin: ``vendor/<name>`` (short names) and
-    ``vendor/npm/<package>/<file>`` (any file inside a pinned package, for ES module imports)."""
+    """URL path → file for the fake origin: ``vendor/<name>`` (the short names of ``assets``)
+    and ``vendor/npm/<package>/<file>`` (any file inside a pinned package, for ES module
+    imports)."""
 
-    def __init__(self, root: Path | None = None):
-        self.root = (root or require_assets()).resolve()
+    def __init__(self, assets: JsAssets, root: Path | None = None):
+        self.libraries = dict(assets.libraries)
+        self.root = (root or assets.require()).resolve()
 
     def _resolve(self, key: str) -> Path | None:
         if not key.startswith("vendor/"):
             return None
         rel = key[len("vendor/"):]
-        if rel in LIBRARIES:
-            rel = LIBRARIES[rel]
+        if rel in self.libraries:
+            rel = self.libraries[rel]
         elif rel.startswith("npm/"):
             rel = rel[len("npm/"):]
         else:
@@ -112,7 +122,7 @@ class VendorFiles(Mapping[str, Path]):
         return isinstance(key, str) and self._resolve(key) is not None
 
     def __iter__(self) -> Iterator[str]:
-        return (f"vendor/{name}" for name in LIBRARIES)
+        return (f"vendor/{name}" for name in self.libraries)
 
     def __len__(self) -> int:
-        return len(LIBRARIES)
+        return len(self.libraries)

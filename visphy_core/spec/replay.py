@@ -1,10 +1,9 @@
 """The replay payload: one JSON description of a scene's ground truth that every reference
-program draws from, and the 3D replay page.
+program draws from.
 
 `replay_payload` is built once from a scene (its spec and trajectory) and read by every engine's
-reference program (`Engine.program_from_spec`: the three.js, p5 and SVG 2D pages, the Manim and
-Blender scripts, the three.js 3D page) and by the generated benchmark's 3D ground-truth renderer,
-so they cannot disagree on what is drawn:
+reference program (`Engine.program_from_spec`: each engine fills its own templates with it, 2D
+and 3D) and by a dataset's ground-truth renderer, so they cannot disagree on what is drawn:
 
 * ``scene_id``, ``dim``, ``width``, ``height``, ``fps``, ``n_frames``, ``background_rgb``;
 * ``bodies``: in the spec's order, each ``{id, color_rgb, shape}`` (the spec's own shape) and,
@@ -16,15 +15,11 @@ so they cannot disagree on what is drawn:
 * 3D only: ``camera`` (fov, near, far, position, look_at, up), ``lighting``, ``shadows``,
   ``antialias``, ``floor`` (y, colour, size) and, per body, ``opacity`` when the spec gives one
   (a translucent body).
-
-`replay_html_3d` fills ``visphy_core/spec/replay3d.html`` with the payload: the threejs engine's
-reference program for 3D scenes and the 3D ground-truth renderer are that same page.
 """
 
 from __future__ import annotations
 
 import json
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -113,10 +108,3 @@ def fill(template: str, payload: dict) -> str:
     """A program template with its ``__SCENE_JSON__`` placeholder replaced by the payload."""
     return template.replace("__SCENE_JSON__", json.dumps(payload, separators=(",", ":")))
 
-
-def replay_html_3d(spec: dict, frame_poses, fps: float, n_frames: int) -> str:
-    """The self-contained 3D replay page (loads /vendor/three.min.js, calls setupRecording);
-    ``frame_poses`` in the order of ``spec["bodies"]``."""
-    payload = payload_from(spec, [b["id"] for b in spec["bodies"]], frame_poses, fps=fps,
-                           n_frames=n_frames)
-    return fill(Path(__file__).with_name("replay3d.html").read_text(), payload)

@@ -1,10 +1,9 @@
 """The reference clip of a 3D scene: the ground-truth poses replayed by three.js in Chromium.
 
-`visphy_core.spec.replay.replay_html_3d` fills ``visphy_core/spec/replay3d.html`` with a JSON
-payload
-(camera, lights, floor, bodies' shapes and colours, per-frame poses); it is a pure function of
-(spec, poses, fps, n_frames), and the threejs engine's reference program for 3D scenes is the
-same page. `render_clip_3d` renders it in the sandbox's virtual time (frame k captured at
+`visphy_plugins.engines.threejs.replay_html_3d` fills the threejs engine's 3D replay page with
+a JSON payload (camera, lights, floor, bodies' shapes and colours, per-frame poses); it is a pure
+function of (spec, poses, fps, n_frames), and the engine's reference program for 3D scenes is
+the same page. `render_clip_3d` renders it in the sandbox's virtual time (frame k captured at
 k / fps s, animation ticks every 1/60 s): the spec's fixed perspective camera, Lambert-shaded
 colours under a hemisphere + directional light (shadow-mapped shadows only when
 ``render.shadows``; the generated scenes have none), translucent bodies (``opacity``) blended,
@@ -17,7 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from visphy_core.api.spec import replay_html_3d
+from visphy_plugins.engines.assets import BROWSER_ASSETS
+from visphy_plugins.engines.threejs import replay_html_3d
 
 
 def render_clip_3d(spec: dict, frame_poses, pool, timeout_s: float = 180.0) -> np.ndarray:
@@ -29,7 +29,7 @@ def render_clip_3d(spec: dict, frame_poses, pool, timeout_s: float = 180.0) -> n
     n = len(poses)
     width, height = int(spec["camera"]["width"]), int(spec["camera"]["height"])
     html = replay_html_3d(spec, poses, fps, n)
-    cap = pool.render_page(html, VendorFiles(), [k / fps * 1000.0 for k in range(n)],
+    cap = pool.render_page(html, VendorFiles(BROWSER_ASSETS), [k / fps * 1000.0 for k in range(n)],
                            width=width, height=height, timeout_s=timeout_s, seed=0,
                            tick_ms=1000.0 / 60.0)
     sid = spec.get("scene_id")
