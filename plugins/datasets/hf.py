@@ -24,12 +24,13 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
-from visphy_core.api.dataset import Dataset
+from visphy_core.api.dataset import Dataset, FinishedRun, GroundTruth
 from visphy_core.api.errors import ConfigError, UserError
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.media import ClipInfo
 from visphy_core.api.scene import Scene
 from visphy_core.api.storage import atomic_write, files
+from visphy_plugins.datasets.layout import locate_in_layout
 
 KEY_FRAMES = (1, 10)
 #: One row per scene: name → (Hugging Face feature, what it holds).
@@ -308,6 +309,9 @@ class HFDataset(Dataset):
 
     def check(self, cfg: Any) -> None:
         self._root_split(OmegaConf.select(cfg, "dataset"))
+
+    def locate_ground_truth(self, run: FinishedRun, scene_ids: list[str]) -> dict[str, GroundTruth]:
+        return locate_in_layout(run, scene_ids)
 
     def export(self, scenes: list[Scene], root: Path, *, split: str) -> Path:
         """Write ``scenes`` as ``split`` of the folder ``root`` (that split replaced, the

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 from fractions import Fraction
 from pathlib import Path
@@ -33,12 +34,13 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
-from visphy_core.api.dataset import Dataset
+from visphy_core.api.dataset import Dataset, FinishedRun, GroundTruth
 from visphy_core.api.errors import ConfigError
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.media import ClipInfo
 from visphy_core.api.scene import Scene, read_json, scene_dim
 from visphy_core.api.storage import files
+from visphy_plugins.datasets.layout import locate_in_layout
 
 #: Keys under which a metadata line or a difficulty-table item names its scene, in priority order.
 ID_KEYS = ("scene_id", "id", "video_id", "video")
@@ -343,6 +345,11 @@ class OriginalLayout(Dataset):
             raise ConfigError(f"dataset.split={split}: no folder {Path(str(root)) / str(split)}; "
                               f"folders in dataset.root: "
                               f"{', '.join(present[:12]) + more if present else 'none'}")
+
+
+    def locate_ground_truth(self, run: FinishedRun, scene_ids: list[str]) -> dict[str, GroundTruth]:
+        env = os.environ.get("VISPHYBENCH_ROOT")
+        return locate_in_layout(run, scene_ids, [Path(env)] if env else [])
 
 
 @hookimpl

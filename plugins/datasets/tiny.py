@@ -17,10 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from visphy_core.api.dataset import Dataset
+from visphy_core.api.dataset import Dataset, FinishedRun, GroundTruth
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.media import encode_video
 from visphy_core.api.scene import Scene
+from visphy_plugins.datasets.layout import locate_in_layout
 
 SIZE, N_FRAMES, FPS = 64, 17, 5
 
@@ -77,6 +78,9 @@ class TinyDataset(Dataset):
         if not (root / split / "metadata.jsonl").is_file():
             make_tiny_dataset(root, self.n_scenes, split=split)
         return load_original(root, split=split, scene_ids=cfg.scenes, strict=False)
+
+    def locate_ground_truth(self, run: FinishedRun, scene_ids: list[str]) -> dict[str, GroundTruth]:
+        return locate_in_layout(run, scene_ids)
 
 
 @hookimpl

@@ -1,22 +1,47 @@
 """What a dataset plugin is: the scenes a run evaluates, from the ``dataset`` config node.
 
 A plugin registers a factory under the name that ``dataset.source`` selects
-(``visphy_register_datasets``: ``register("generated", VisPhyBench)``). The built-in ones are
-``generated`` (VisPhyBench regenerated from its templates), ``original`` (the published
-VisPhyBench-Data layout on disk) and ``tiny`` (a three-scene fixture for plugin authors).
+(``visphy_register_datasets``: ``register(name, factory)``); the built-in ones are in
+``plugins/datasets/`` (``visphy plugins`` lists every installed one). A dataset also tells the
+report where a finished run's ground truth lies (`Dataset.locate_ground_truth`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from visphy_core.api.scene import Scene
 
 
+@dataclass
+class GroundTruth:
+    """Where one scene's ground truth lies (paths that exist), or why it was not found."""
+
+    scene_id: str
+    root: Path | None = None
+    video: Path | None = None
+    keyframes: dict[int, Path] = field(default_factory=dict)
+    spec: Path | None = None
+    detection: Path | None = None
+    missing: str | None = None
+
+
+@dataclass(frozen=True)
+class FinishedRun:
+    """What a dataset reads of a finished run to find its ground truth: ``cfg`` reads a dotted
+    key of the run's config (``cfg("dataset.root", None)``); ``paths`` turns a path the config
+    names into the folders it may be (a relative one is relative to where the run was started,
+    or to the current directory)."""
+
+    cfg: Callable[[str, Any], Any]
+    paths: Callable[[object], list[Path]]
+
+
 class Dataset:
     """One source of scenes. Subclasses set ``name`` and ``description`` and implement `load`;
-    `check` and `build` are optional."""
+    `check`, `build` and `locate_ground_truth` are optional."""
 
     name: str = ""
     description: str = ""
@@ -44,3 +69,10 @@ class Dataset:
         """Generate the data under ``data_dir`` (``build-dataset``); returns its root. Only
         generated datasets implement it; ``options`` are their own (``lossless=True``)."""
         raise NotImplementedError(f"dataset {self.name!r} is not generated: nothing to build")
+
+    def locate_ground_truth(self, run: FinishedRun, scene_ids: list[str]) -> dict[str, GroundTruth]:
+        """Where each scene's ground truth lies on disk, for the report of a finished ``run``,
+        found without loading or building anything (a report must not regenerate a
+        benchmark). A scene left out, or returned with ``missing`` (the reason: where it
+        looked), is reported as not found. Default: none is found."""
+        return {}

@@ -1,44 +1,22 @@
-"""Find a run's ground truth on disk without loading, building or touching the dataset.
+"""Find a run's ground truth on disk by asking its dataset plugin, without loading, building or
+touching the dataset.
 
-A report must not regenerate a benchmark (loading the generated dataset builds what is missing:
-minutes of simulation for a page), so it looks for the files instead, in the layout every
-VisPhyBench dataset shares (the published one, the generated one, ``tiny``): a folder holding
-``videos/<scene_id>.mp4``, with ``keyframes/<scene_id>_frame_NN.png``,
-``specs/<scene_id>.json`` and ``detection_json/<scene_id>_frame_01.json`` beside it when the
-dataset has them. It searches ``dataset.root`` and ``paths.data_dir`` of the run's config (a
-relative path is relative to where the run was started, found from where its run directory is).
-Where several folders hold a scene (a lossless and a published-style build of the same
-benchmark), the one matching the config (``dataset.split``, ``dataset.lossless``, the seed) wins.
-A scene found nowhere gets the reason, and the report says so.
+A report must not regenerate a benchmark (loading a generated dataset builds what is missing:
+minutes of simulation for a page), so it asks the plugin of the run's ``dataset.source`` where
+the files are (`visphy_core.api.dataset.Dataset.locate_ground_truth`), handing it the run's
+config and how a path the config names resolves (a relative path is relative to where the run
+was started, found from where its run directory is). A config that names no source asks every
+installed dataset. A scene found nowhere gets the reason, and the report says so.
 """
 
 from __future__ import annotations
 
-import os
-import re
-from dataclasses import dataclass, field
 from pathlib import Path
 
+from visphy_core.api.dataset import FinishedRun, GroundTruth
 from visphy_core.results.load import RunData
 
-#: How deep under a search root a dataset folder (the parent of ``videos/``) may be.
-MAX_DEPTH = 3
-#: Folders of a dataset that never hold another dataset: not descended into.
-LEAVES = {"videos", "keyframes", "specs", "trajectories", "detection_json", "meta", "cache",
-          "runs", "mlartifacts", "scenes"}
-
-
-@dataclass
-class GroundTruth:
-    """Where one scene's ground truth lies (paths that exist), or why it was not found."""
-
-    scene_id: str
-    root: Path | None = None
-    video: Path | None = None
-    keyframes: dict[int, Path] = field(default_factory=dict)
-    spec: Path | None = None
-    detection: Path | None = None
-    missing: str | None = None
+__all__ = ["GroundTruth", "locate_ground_truth"]
 
 
 def _run_base(run: RunData) -> Path | None:
@@ -56,103 +34,47 @@ def _run_base(run: RunData) -> Path | None:
     return Path(*parent.parts[:-len(parts)]) if len(parent.parts) > len(parts) else Path("/")
 
 
-def _resolve(run: RunData, value: object) -> list[Path]:
-    if not value:
-        return []
-    path = Path(str(value)).expanduser()
-    if path.is_absolute():
-        return [path]
+def _resolver(run: RunData):
     base = _run_base(run)
-    out = [base / path] if base is not None else []
-    return out + [Path.cwd() / path]
+
+    def paths(value: object) -> list[Path]:
+        if not value:
+            return []
+        path = Path(str(value)).expanduser()
+        if path.is_absolute():
+            return [path]
+        return ([base / path] if base is not None else []) + [Path.cwd() / path]
+
+    return paths
 
 
-def search_candidates(run: RunData) -> list[Path]:
-    """Every folder the config names for its data (``dataset.root``, ``$VISPHYBENCH_ROOT`` for
-    the original layout, ``paths.data_dir``), whether it exists or not."""
-    candidates = _resolve(run, run.cfg("dataset.root"))
-    if str(run.cfg("dataset.source", "")) == "original" and os.environ.get("VISPHYBENCH_ROOT"):
-        candidates.append(Path(os.environ["VISPHYBENCH_ROOT"]))
-    return candidates + _resolve(run, run.cfg("paths.data_dir"))
+def _datasets(run: RunData) -> tuple[list[tuple[str, object]], str | None]:
+    """(name, dataset) to ask, and the reason when there is none."""
+    from visphy_core.api.registry import get_registry
 
-
-def search_roots(run: RunData) -> list[Path]:
-    """The `search_candidates` that exist, each once."""
-    roots: list[Path] = []
-    for path in search_candidates(run):
-        if path.is_dir() and path.resolve() not in [r.resolve() for r in roots]:
-            roots.append(path)
-    return roots
-
-
-def _searched(run: RunData) -> str:
-    """Where the search looked, for a scene not found: every named folder, a missing one
-    marked as such."""
-    named = list(dict.fromkeys(search_candidates(run)))
-    return ", ".join(str(p) if p.is_dir() else f"{p} (missing)" for p in named) \
-        or "nowhere (the config names no data folder)"
-
-
-def _dataset_folders(root: Path) -> list[Path]:
-    """Folders under ``root`` (itself included) that hold a ``videos/`` folder."""
-    found: list[Path] = []
-    stack = [(root, 0)]
-    while stack:
-        folder, depth = stack.pop()
-        if (folder / "videos").is_dir():
-            found.append(folder)
-        if depth >= MAX_DEPTH:
-            continue
-        try:
-            entries = sorted(os.scandir(folder), key=lambda e: e.name, reverse=True)
-        except OSError:
-            continue
-        stack += [(Path(e.path), depth + 1) for e in entries
-                  if e.is_dir(follow_symlinks=False) and e.name not in LEAVES
-                  and not e.name.startswith(".")]
-    return found
-
-
-def _preference(folder: Path, run: RunData, primary: Path | None) -> tuple[int, ...]:
-    """Higher is better: under ``dataset.root``, then the split, losslessness and seed that
-    the config names."""
-    name = folder.name
-    split = run.cfg("dataset.split")
-    lossless = bool(run.cfg("dataset.lossless", False))
-    seed = run.cfg("dataset.seed")
-    under_root = primary is not None and primary.resolve() in [folder.resolve(),
-                                                               *folder.resolve().parents]
-    return (int(under_root),
-            int(split is not None and name == str(split)),
-            int(("lossless" in name) == lossless),
-            int(seed is not None and re.search(rf"seed{seed}(\D|$)", name) is not None))
+    table = get_registry().datasets
+    source = run.cfg("dataset.source")
+    if not source:
+        return [(name, table[name][0]()) for name in sorted(table)], None
+    if str(source) not in table:
+        return [], f"dataset.source={source} is not an installed dataset"
+    return [(str(source), table[str(source)][0]())], None
 
 
 def locate_ground_truth(run: RunData, scene_ids: list[str]) -> dict[str, GroundTruth]:
     """Each scene's ground truth, or a `GroundTruth` with ``missing`` saying where it looked."""
-    roots = search_roots(run)
-    primary = roots[0] if run.cfg("dataset.root") and roots else None
-    folders = [f for root in roots for f in _dataset_folders(root)]
-    hits = {f: {sid for sid in scene_ids if (f / "videos" / f"{sid}.mp4").is_file()}
-            for f in folders}
-    ranked = sorted((f for f in folders if hits[f]),
-                    key=lambda f: (len(hits[f]), *_preference(f, run, primary)), reverse=True)
-    where = _searched(run)
+    finished = FinishedRun(cfg=run.cfg, paths=_resolver(run))
+    datasets, why = _datasets(run)
+    answers = [(name, ds.locate_ground_truth(finished, list(scene_ids))) for name, ds in datasets]
     out: dict[str, GroundTruth] = {}
     for sid in scene_ids:
-        folder = next((f for f in ranked if sid in hits[f]), None)
-        if folder is None:
-            out[sid] = GroundTruth(sid, missing=f"ground truth not found: no videos/{sid}.mp4 "
-                                                f"under {where} (dataset moved or deleted?)")
-            continue
-        frames = {}
-        for path in (folder / "keyframes").glob(f"{sid}_frame_*.png"):
-            match = re.fullmatch(rf"{re.escape(sid)}_frame_(\d+)\.png", path.name)
-            if match:
-                frames[int(match.group(1))] = path
-        spec = folder / "specs" / f"{sid}.json"
-        detection = folder / "detection_json" / f"{sid}_frame_01.json"
-        out[sid] = GroundTruth(sid, root=folder, video=folder / "videos" / f"{sid}.mp4",
-                               keyframes=frames, spec=spec if spec.is_file() else None,
-                               detection=detection if detection.is_file() else None)
+        found = [a[sid] for _, a in answers if sid in a]
+        hit = next((g for g in found if g.missing is None), None)
+        if hit is None and found:
+            hit = found[0]
+        if hit is None:
+            said = why or (f"dataset {datasets[0][0]} does not say where its ground truth lies"
+                           if len(datasets) == 1 else "no installed dataset knows this scene")
+            hit = GroundTruth(sid, missing=f"ground truth not found: {said}")
+        out[sid] = hit
     return out

@@ -8,11 +8,12 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
-from visphy_core.api.dataset import Dataset
+from visphy_core.api.dataset import Dataset, FinishedRun, GroundTruth
 from visphy_core.api.errors import ConfigError
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.scene import Scene
 from visphy_core.api.settings import cfg_get
+from visphy_plugins.datasets.layout import locate_in_layout
 from visphy_plugins.datasets.visphybench.catalogue import GENERATOR_VERSION
 
 
@@ -172,6 +173,11 @@ class VisPhyBench(Dataset):
                 where = f"split {split!r}" if split is not None else "the generated benchmark"
                 raise ConfigError(f"dataset.scenes: {where} has no scene(s) "
                                   f"{', '.join(missing)}; valid: {_listing(valid)}")
+
+    def locate_ground_truth(self, run: FinishedRun, scene_ids: list[str]) -> dict[str, GroundTruth]:
+        """In the build folders under ``paths.data_dir`` (``visphybench-v3-seed0`` and the
+        like), without building anything."""
+        return locate_in_layout(run, scene_ids)
 
 
 @hookimpl
