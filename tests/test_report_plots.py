@@ -118,7 +118,7 @@ def test_frame_data_psnr_per_frame_and_each_body_located_in_both_clips(tmp_path)
     data = compute(truth, generated, SPEC, None)
     assert data["size"] == [128, 96] and data["n_truth"] == data["n_generated"] == 6
     assert len(data["psnr"]) == len(data["still"]) == 6
-    assert data["still"][0] is None                  # the first frame against itself: exact
+    assert data["still"][0] == 100.0   # the first frame against itself: the psnr metric's cap
     assert data["psnr"][0] is not None and data["psnr"][0] > 15
     tracks = data["tracks"]
     assert tracks["ids"] == ["red_ball", "blue_ball"]      # dynamic bodies of their own colour
@@ -148,7 +148,7 @@ def test_scene_plots_draw_one_point_per_frame_and_one_path_per_body_and_clip(tmp
     assert curve == [{"data-frames": "6"}]
     series = _attrs(html, "g", "series")
     assert [s["data-series"] for s in series] == ["still clip (first frame held)", "generated"]
-    assert series[0]["data-values"].startswith("inf,")
+    assert series[0]["data-values"].startswith("100.0,")
     assert "key frame 4" in html
     # the spec is unknown here: the overlay says why
     assert "no track overlay: no ground-truth spec with bodies" in html
@@ -179,10 +179,10 @@ def test_track_overlay_splits_a_path_where_the_body_is_not_found():
     assert "generated 3/4" in html
 
 
-@pytest.mark.parametrize("values,note", [([None, None], "identical frames"),
+@pytest.mark.parametrize("values,note", [([100.0, 100.0], "identical frames"),
                                          ([20.0, 25.0], None)])
 def test_psnr_curve_marks_each_frame_and_says_when_frames_are_identical(values, note):
-    html = psnr_curve({"psnr": values, "still": [None, 21.0], "n_truth": 2,
+    html = psnr_curve({"psnr": values, "still": [100.0, 21.0], "n_truth": 2,
                        "n_generated": 2}, [1], fallback=True)
     assert html.count('<circle') == 4 and "generated (fallback clip)" in html
     assert (note in html) if note else "identical frames" not in html
@@ -212,4 +212,4 @@ def test_frame_data_finds_a_shaded_3d_body_by_its_chromaticity(tmp_path):
     data = compute(clip, clip, spec, None)
     assert data["tracks"]["ids"] == ["ball"]
     assert np.allclose(data["tracks"]["truth"][0], centres, atol=1.5)
-    assert data["psnr"] == [None] * 4                     # a clip against itself
+    assert data["psnr"] == [100.0] * 4     # a clip against itself: the psnr metric's cap

@@ -2,7 +2,7 @@
 
 SSIM follows Wang et al. 2004 (11-tap Gaussian window, σ = 1.5, K1 = 0.01, K2 = 0.03, L = 255,
 borders of the filter radius cropped), computed on the luma Y (BT.601) and on R, G and B, and
-averaged over those four channels (MISSION §6: "mean over Y and R,G,B").
+averaged over those four channels (the paper's "mean over Y and R,G,B").
 
 Cost. SSIM is five separable 11-tap blurs per channel (OpenCV float32), twenty per pair, and
 eight of them (each channel's mean and mean square) depend on one frame only. `SSIM` computes
@@ -24,9 +24,11 @@ about 0.64 s of one core before, 0.43 s now. The moments take 8 MiB per 512² fr
 kept only when its frames fit in the cache (a 2D pairing's 17 pairs: 270 MiB); a larger one (a
 3D scene's 75 pairs, whose frames no later pairing asks for again) is computed pair by pair
 into reused arrays. The values are bit for bit those of `ssim_frame` either way (the same
-float32 operations in the same order). PSNR is a mean of squared differences: nothing to share.
+float32 operations in the same order). PSNR is `visphy_core.api.psnr.psnr`, the one per-frame
+PSNR the ``paper`` protocol and the report's per-frame curve use too: a mean of squared
+differences, with nothing to share between pairs.
 
-Fast path (issue 22): each frame's Y, R, G, B planes and its moments are computed into reused
+Fast path: each frame's Y, R, G, B planes and its moments are computed into reused
 work arrays (`_Planes`: a fresh megabyte array per operation cost as much in page faults as
 the arithmetic; ``0.299 * r + …`` alone allocated five), bit for bit the previous per-frame
 moments (`_reference_moments_into`, compared by tests/test_metric_fast_paths.py). What is left
@@ -42,19 +44,13 @@ import numpy as np
 
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.metrics import HIGHER, PAIRS, Metric
+from visphy_core.api.psnr import PSNR_CAP_DB
+from visphy_core.api.psnr import psnr as psnr_frame
 from visphy_plugins.metrics import _torch
 
-PSNR_CAP_DB = 100.0  # identical frames: report the cap instead of infinity
 PAIR_CHUNK = 8  # SSIM pairs whose frames' moments are held at once
 _SIGMA, _RADIUS = 1.5, 5
 _C1, _C2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
-
-
-def psnr_frame(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    if mse <= 255.0**2 * 10 ** (-PSNR_CAP_DB / 10):
-        return PSNR_CAP_DB
-    return 10.0 * np.log10(255.0**2 / mse)
 
 
 _TAPS = np.exp(-np.arange(-_RADIUS, _RADIUS + 1) ** 2 / (2 * _SIGMA**2))

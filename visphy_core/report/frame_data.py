@@ -4,7 +4,8 @@ already shows and cached beside its media (``media/.plots.json``, keyed like
 
 * **PSNR per frame** (dB) of the generated clip against the ground truth, frames paired by index
   (the plain ``visphy`` pairing), and of the *still clip* (the ground truth's first frame held:
-  what the fallback clip and the ``static`` baseline show) against it, for scale.
+  what the fallback clip and the ``static`` baseline show) against it, for scale. Each value is
+  the ``psnr`` metric's own (`visphy_core.api.psnr.psnr`): a perfect match is its 100 dB cap.
 * **Body centroids per frame** in both clips: each tracked body (``metric_details.json``'s
   ``tracks.tracked``, else the spec's dynamic bodies of a colour no other body shares) is the
   set of pixels nearest to its spec colour among every colour of the scene (2D: RGB distance
@@ -28,14 +29,15 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from visphy_core.api.psnr import psnr
 from visphy_core.report.media import av_errors, file_stamp, read_index, write_index
 
 #: Bumped when what is computed changes: older cache entries are recomputed.
-VERSION = 1
+VERSION = 2
 CACHE = ".plots.json"
 #: Frames compared at most (longer clips: the first ones, and the report says so).
 MAX_FRAMES = 600
-#: PSNR of identical frames is infinite: stored as None (drawn at the chart's top).
+#: How near a pixel must be to a body's colour (see the module docstring).
 FLAT_MAX_DIST = 90.0
 SHADED_MAX_DEG = 10.0
 SHADED_MIN_BRIGHTNESS = 24
@@ -150,20 +152,13 @@ def _frames(path: Path) -> Iterator[np.ndarray]:
             yield frame.to_ndarray(format="rgb24")
 
 
-def _psnr(a: np.ndarray, b: np.ndarray) -> float | None:
-    import cv2
-
-    mse = cv2.norm(a, b, cv2.NORM_L2SQR) / a.size
-    return None if mse == 0 else round(10.0 * math.log10(255.0 ** 2 / mse), 3)
-
-
 def compute(truth: Path, generated: Path, spec: Any, details: Any) -> dict:
     """The per-frame data of one scene (see the module docstring); ``tracks`` holds a reason
     string instead of centroids when the bodies cannot be located."""
     pal = palette(spec, details)
     locate = Locator(pal[0], pal[2], pal[3]) if not isinstance(pal, str) else None
-    psnr: list[float | None] = []
-    still: list[float | None] = []
+    psnr_gen: list[float] = []
+    still: list[float] = []
     ref_c: list[list] = []
     gen_c: list[list] = []
     first = None
@@ -183,8 +178,8 @@ def compute(truth: Path, generated: Path, spec: Any, details: Any) -> dict:
                 if locate is not None:
                     gen_c.append(locate(g))
             if t is not None and g is not None and t.shape == g.shape:
-                psnr.append(_psnr(g, t))
-                still.append(_psnr(first, t))
+                psnr_gen.append(psnr(g, t))
+                still.append(psnr(first, t))
     except (OSError, ValueError, av_errors()) as exc:
         return {"error": f"cannot decode the clips: {type(exc).__name__}: {exc}"}
     out: dict[str, Any] = {"size": size, "n_truth": n_truth, "n_generated": n_gen,
@@ -193,7 +188,7 @@ def compute(truth: Path, generated: Path, spec: Any, details: Any) -> dict:
         out["psnr_error"] = (f"frame sizes differ (ground truth {size}, generated "
                              f"{gen_size}): no per-frame PSNR")
     else:
-        out |= {"psnr": psnr, "still": still}
+        out |= {"psnr": psnr_gen, "still": still}
     if isinstance(pal, str):
         out["tracks"] = pal
     else:

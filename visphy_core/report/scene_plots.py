@@ -10,6 +10,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from visphy_core.api.psnr import PSNR_CAP_DB
 from visphy_core.report.frame_data import MAX_FRAMES, FrameData
 from visphy_core.report.markup import attr, esc, fmt, url
 from visphy_core.report.plots import PSNR_CAP, _why
@@ -25,9 +26,10 @@ def psnr_curve(data: dict, key_frames: list[int], fallback: bool) -> str:
     gen, still = data.get("psnr") or [], data.get("still") or []
     if not gen:
         return _why("no per-frame curve: the clips have no frame in common", "psnr-curve")
-    finite = [v for v in gen + still if v is not None]
-    hi = min(PSNR_CAP, max(finite, default=PSNR_CAP))
-    lo = min(finite, default=hi - 10.0)
+    hi = min(PSNR_CAP, max(gen + still))
+    lo = min(gen + still)
+    if lo >= PSNR_CAP:  # every frame a (near-)perfect match: the chart's top band
+        lo = hi - 10.0
     step = 10.0 if hi - lo > 25 else 5.0 if hi - lo > 8 else 1.0
     lo, hi = math.floor(lo / step) * step, max(math.ceil(hi / step) * step, lo + step)
     left, top, width, height = 44.0, 24.0, 380.0, 150.0
@@ -36,8 +38,8 @@ def psnr_curve(data: dict, key_frames: list[int], fallback: bool) -> str:
     def x(i: int) -> float:
         return left + (i / max(count - 1, 1)) * width
 
-    def y(v: float | None) -> float:
-        v = hi if v is None else min(max(v, lo), hi)
+    def y(v: float) -> float:
+        v = min(max(v, lo), hi)
         return top + (hi - v) / (hi - lo) * height
 
     body = []
@@ -61,7 +63,7 @@ def psnr_curve(data: dict, key_frames: list[int], fallback: bool) -> str:
         pts = [(x(i), y(v)) for i, v in enumerate(series)]
         marks = "".join(f'<circle cx="{n(px)}" cy="{n(py)}" r="{2.5 if not dash else 1.5}" '
                         f'fill="{colour}"/>' for px, py in pts)
-        values = ",".join("inf" if v is None else repr(v) for v in series)
+        values = ",".join(repr(v) for v in series)
         body.append(f'<g class="series" data-series={attr(name)} data-values={attr(values)}>'
                     f'<polyline points="{points(pts)}" fill="none" stroke="{colour}" '
                     f'stroke-width="{1.5 if dash else 2}"'
@@ -73,8 +75,9 @@ def psnr_curve(data: dict, key_frames: list[int], fallback: bool) -> str:
                      ' stroke-dasharray="5 4"'))
     body.append(text(left + 180, legend_y, "still clip (first frame held)"))
     note = ""
-    if None in gen:
-        note += f" · identical frames (infinite PSNR) drawn at the top, {fmt(hi, 3)} dB"
+    if PSNR_CAP_DB in gen:
+        note += (f" · identical frames ({fmt(PSNR_CAP_DB, 3)} dB, the psnr metric's cap) drawn "
+                 f"at the top, {fmt(hi, 3)} dB")
     if data.get("n_truth") != data.get("n_generated"):
         note += (f" · ground truth {data.get('n_truth')} frames, generated "
                  f"{data.get('n_generated')}: {count} compared")

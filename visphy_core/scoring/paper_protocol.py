@@ -5,7 +5,7 @@ Upstream is TIGER-AI-Lab/VisPhyWorld, ``utils/evaluate_video_metrics.py``; its
 defaults ``alignment_max_offset=30``, ``alignment_window=3``, ``alignment_offset_penalty=0.05``)
 is what the paper's tables were computed with. Every function here implements one of its rules,
 and names the upstream function it follows; none of upstream's code is copied. Its quirks are
-kept on purpose (MISSION §6): this protocol exists so numbers compare with the paper's. The
+kept on purpose: this protocol exists so numbers compare with the paper's. The
 time-honest pairings (the ``visphy`` protocol) are `visphy_core.scoring.alignment.align` with
 ``rules="visphy"``.
 
@@ -39,11 +39,13 @@ The rules, in the order upstream applies them:
    ``dtw`` off (not upstream's default) the trimmed clips are paired index by index
    (`dtw_features`, `dtw_path`).
 6. Frame scores (``compute_psnr``, ``compute_ssim``, ``compute_ssim_single_channel``): PSNR on
-   all three 8-bit channels, 100 dB when the MSE is ≤ 1e-10; SSIM as the mean of four channels
-   (Y of OpenCV's YCrCb, uint8, and R, G, B), each with OpenCV's 11×11 Gaussian blur σ = 1.5
-   (default border: reflect-101), K1 = 0.01, K2 = 0.03, L = 255, +1e-12 in the denominator,
-   averaged over the WHOLE map (no border cropped); per-scene means over the pairs that gave a
-   number (``statistics.fmean`` of the non-NaN values) (`psnr`, `ssim`, `mean_of_numbers`).
+   all three 8-bit channels, 100 dB when the MSE is ≤ 1e-10 (`visphy_core.api.psnr.psnr` with
+   upstream's perfect-match rule; visphy's caps every frame at 100 dB); SSIM as the mean of
+   four channels (Y of OpenCV's YCrCb, uint8, and R, G, B), each with OpenCV's 11×11 Gaussian
+   blur σ = 1.5 (default border: reflect-101), K1 = 0.01, K2 = 0.03, L = 255, +1e-12 in the
+   denominator, averaged over the WHOLE map (no border cropped); per-scene means over the pairs
+   that gave a number (``statistics.fmean`` of the non-NaN values) (`psnr`, `ssim`,
+   `mean_of_numbers`).
 
 Frames are RGB here (upstream decodes BGR with OpenCV): every conversion uses the matching
 RGB code, so each grayscale or Y value is the one upstream computes. Costs are accumulated in
@@ -59,6 +61,8 @@ import cv2
 import numpy as np
 
 from visphy_core.api.metrics import Alignment
+from visphy_core.api.psnr import PAPER_PERFECT_MSE
+from visphy_core.api.psnr import psnr as frame_psnr
 from visphy_core.scoring.pairing import AlignParams
 
 #: Where the rules come from.
@@ -67,7 +71,6 @@ UPSTREAM = "TIGER-AI-Lab/VisPhyWorld utils/evaluate_video_metrics.py::evaluate_p
 FIXED_RADIUS = 2
 #: Identifies this implementation of the rules in cache keys (bump when a rule changes).
 RULES_VERSION = "upstream-1"
-PSNR_CAP_DB = 100.0
 
 
 # ----------------------------------------------------------------------------- 1. frames
@@ -291,14 +294,9 @@ def align_paper(reference: np.ndarray, generated: np.ndarray, p: AlignParams) ->
 
 # ----------------------------------------------------------------------------- 6. scores
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """Upstream ``compute_psnr``: over all three 8-bit channels, 100 dB at MSE ≤ 1e-10."""
-    d = a.astype(np.float64) - b.astype(np.float64)
-    if d.size == 0:
-        return 0.0
-    mse = float(np.sum(d * d)) / d.size
-    if mse <= 1e-10:
-        return PSNR_CAP_DB
-    return float(10.0 * np.log10(255.0 ** 2 / mse))
+    """Upstream ``compute_psnr``: over all three 8-bit channels, 100 dB at MSE ≤ 1e-10 (the
+    one PSNR with upstream's perfect-match rule)."""
+    return frame_psnr(a, b, PAPER_PERFECT_MSE)
 
 
 _C1, _C2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
