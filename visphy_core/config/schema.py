@@ -24,8 +24,8 @@ from typing import Any, Optional
 from omegaconf import MISSING
 
 from visphy_core.api.config_schema import EngineConfig, JudgeConfig, ModelConfig
+from visphy_core.api.headline import DEFAULT_CEILING, DEFAULT_COMPONENTS, DEFAULT_NAME
 from visphy_core.api.hookspecs import hookimpl
-from visphy_core.scoring.headline import DEFAULT_CEILING, DEFAULT_COMPONENTS, DEFAULT_NAME
 
 
 class TrackingBackend(StrEnum):

@@ -33,21 +33,9 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from visphy_core.api.headline import CEILINGS, DEFAULT_CEILING, DEFAULT_COMPONENTS, DEFAULT_NAME
 from visphy_core.api.metrics import HIGHER, Metric
 
-#: The default components, chosen by the validity study's goals (issue 32;
-#: ``benchmarks/validity_headlines.py`` on the study's checkpoint of the whole test split,
-#: docs/metrics.md): where and when things move, compared with a tolerance of 15 % of the moving
-#: bodies' size (`visphy_plugins.metrics.object_level`), so how a body is drawn (size, outline,
-#: colours) does not move the score while a path 20 px off does. Of every set of at most three
-#: candidates it orders the most scenes strictly (44/49; with `weighted_spatial_iou_tol`, the
-#: 17-scene choice, 38/49), as monotone in the dose and as invariant to the drawing.
-DEFAULT_COMPONENTS = ("spatiotemporal_iou_tol",)
-DEFAULT_NAME = "physics_score"
-#: Where each component's 1 comes from: ``"ideal"`` (the metric's best value) or ``"twin"`` (what
-#: the ground truth's twin scores, where the scene has one; the ideal elsewhere).
-CEILINGS = ("ideal", "twin")
-DEFAULT_CEILING = "ideal"
 BOOTSTRAP_RESAMPLES = 2000
 BOOTSTRAP_SEED = 0
 
