@@ -38,7 +38,7 @@ def install_assets(quiet: bool = True, registry=None) -> list[Path]:
 
 
 def vendored_file(rel: str, registry=None) -> Path:
-    """A file inside ``node_modules`` (``cannon-es/dist/cannon-es.js``) from the registered
+    """A file inside ``node_modules`` (``<package>/dist/<file>.js``) from the registered
     engines' installed assets; `AssetsMissing` when none of them has it."""
     sets = engine_assets(registry)
     for assets in sets:

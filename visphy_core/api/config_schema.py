@@ -24,7 +24,7 @@ class EngineConfig:
 
 @dataclass
 class JudgeConfig:
-    """One selected judge: ``judge=gemini`` puts it at ``judge.gemini``; several judges with
-    ``judge=[gemini,gpt_frames]``; none with ``judge=none`` (the default)."""
+    """One selected judge: ``judge=<name>`` puts it at ``judge.<name>``; several judges with
+    ``judge=[<name>,<other>]``; none with ``judge=none`` (the default)."""
 
     name: str = MISSING

@@ -175,12 +175,13 @@ class Engine(ABC):
 
     @abstractmethod
     def program_from_spec(self, scene: Scene) -> Program:
-        """A trusted reference program for a ground-truth scene (oracle, fallback, conformance)."""
+        """A trusted reference program for a ground-truth scene (a privileged model's answer,
+        the spec track, conformance checks)."""
 
     def native_program_from_spec(self, scene: Scene) -> Program:
         """Optional: a trusted reference program that draws the same ground truth with the
         engine's own primitives and default anti-aliasing, as a correct model program would
-        (the oracle's ``model.style=native``: the engine's intrinsic ceiling). Raises
+        (a privileged model's ``model.style=native``: the engine's intrinsic ceiling). Raises
         ``NotImplementedError`` where the engine has none (the default)."""
         raise NotImplementedError(f"the {self.name} engine has no native reference program")
 

@@ -4,10 +4,10 @@ Privilege is structural. A `ModelRequest` holds exactly what the paper gives a m
 text, the key frames the prompt mode allows, the detection context (already pasted into the
 prompt; kept apart for adapters that send it as structured data), and the clip contract the
 output must meet (fps, frame count, size: the same numbers every render gets). It has no field
-for the scene's ground truth. Only a model that declares ``privileged = True`` (the oracle) is
-handed a `PrivilegedRequest`, which adds the `Scene` and the `Engine`; the pipeline builds one or
-the other from that flag (`build_model_request`), so an API adapter cannot reach a spec, a
-trajectory or a later frame even by mistake.
+for the scene's ground truth. Only a model that declares ``privileged = True`` (one answering
+from the ground truth) is handed a `PrivilegedRequest`, which adds the `Scene` and the `Engine`;
+the pipeline builds one or the other from that flag (`build_model_request`), so an API adapter
+cannot reach a spec, a trajectory or a later frame even by mistake.
 """
 
 from __future__ import annotations
@@ -121,7 +121,7 @@ def config_identity(name: str, version: str, cfg: Any) -> str:
 
 
 class Model(ABC):
-    """Base class for model plugins (see `plugins/models/oracle.py`).
+    """Base class for model plugins (the built-in ones are in ``plugins/models/``).
 
     Implement ``generate`` (blocking) or ``agenerate`` (async; API adapters). Neither raises for
     a provider's failure: the response carries ``error`` and ``error_kind``.
@@ -131,7 +131,7 @@ class Model(ABC):
     version: str = "0"
     #: Environment variable holding the API key (None: no key needed).
     needs_key: str | None = None
-    #: True only for models allowed to see the ground truth (the oracle).
+    #: True only for models allowed to see the ground truth (a reference that replays it).
     privileged: bool = False
     #: "program" (a reply with code) or "video" (a pixel-space baseline hands over a clip).
     output_kind: str = "program"

@@ -49,7 +49,7 @@ class JsAssets:
         return self.root() / "node_modules"
 
     def locked_versions(self) -> dict[str, str]:
-        """Lock entry name (a package, or an alias such as ``three-esm``) -> exact version."""
+        """Lock entry name (a package, or an npm alias of one) -> exact version."""
         lock = json.loads((self.source / "package-lock.json").read_text())
         return {name.removeprefix("node_modules/"): str(info.get("version", "?"))
                 for name, info in lock.get("packages", {}).items()
