@@ -221,7 +221,7 @@ def test_detection_schema_and_projection(valid_scenes):
 # ------------------------------------------------------------------------------ rendering
 @pytest.fixture(scope="module")
 def pool():
-    from visphy_core.infra.js_assets import assets_installed
+    from visphy_core.api.assets import assets_installed
 
     if not assets_installed():
         pytest.skip("browser engine libraries not installed (`python -m visphy_core setup`)")
@@ -244,7 +244,7 @@ def _red_centroid(frame: np.ndarray) -> tuple[np.ndarray, int]:
 @pytest.mark.browser
 def test_replay_is_deterministic_and_matches_the_projection(valid_scenes, pool):
     from visphy_core.infra.video import frame_digest
-    from visphy_core.spec.replay import replay_html_3d
+    from visphy_plugins.engines.threejs import replay_html_3d
     from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
 
     spec, rollout, _ = valid_scenes[4]  # sphere collision: the red ball is never hidden
@@ -275,7 +275,7 @@ def test_threejs_engine_runs_the_replay_page_unchanged(valid_scenes, pool):
     """The engine's reference program for 3D scenes (same page, engine's trusted template)
     reproduces the ground-truth frames exactly."""
     from visphy_core.api.engine import Program, RenderContract
-    from visphy_core.spec.replay import replay_html_3d
+    from visphy_plugins.engines.threejs import replay_html_3d
     from visphy_plugins.datasets.visphybench.render3d import render_clip_3d
     from visphy_plugins.engines.threejs import ThreeJsEngine
 

@@ -65,10 +65,10 @@ def test_requested_versions_are_read_from_cdn_urls():
 
 
 def test_vendored_versions_come_from_the_lock_file():
-    from visphy_core.infra.js_assets import ASSETS_SRC
+    from visphy_plugins.engines.assets import BROWSER_ASSETS
     from visphy_plugins.engines.browser_base import THREE_ESM, served_version
 
-    lock = json.loads((ASSETS_SRC / "package-lock.json").read_text())["packages"]
+    lock = json.loads((BROWSER_ASSETS.source / "package-lock.json").read_text())["packages"]
     assert served_version("/vendor/three.min.js") == ("three", lock["node_modules/three"]
                                                       ["version"])
     assert served_version(THREE_ESM) == ("three", lock["node_modules/three-esm"]["version"])

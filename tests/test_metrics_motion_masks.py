@@ -278,7 +278,7 @@ def reference_3d(mini_root, tmp_path_factory):
     writes it, decoded as a run reads it."""
     import shutil
 
-    from visphy_core.infra.js_assets import assets_installed
+    from visphy_core.api.assets import assets_installed
     from visphy_core.sandbox.browser import BrowserPool
     from visphy_plugins.datasets.visphybench.build import (
         dataset_root,

@@ -556,7 +556,7 @@ def _check_3d(scene, frames: np.ndarray, poses: np.ndarray | None) -> None:
 def test_3d_rendered_clip_segments_every_dynamic_body(tmp_path):
     import shutil
 
-    from visphy_core.infra.js_assets import assets_installed
+    from visphy_core.api.assets import assets_installed
 
     if shutil.which("node") is None or not assets_installed():
         pytest.skip("Node.js or the browser engine libraries are missing")
@@ -601,7 +601,7 @@ def built_3d(mini_root, tmp_path_factory) -> Path:
     catalogue, the scene re-simulated against its digest and rendered, and its metadata."""
     import shutil
 
-    from visphy_core.infra.js_assets import assets_installed
+    from visphy_core.api.assets import assets_installed
     from visphy_core.sandbox.browser import BrowserPool
     from visphy_plugins.datasets.visphybench.build import (
         dataset_root,

@@ -37,8 +37,8 @@ def test_wheel_contains_configs_assets_and_templates(wheel):
     for required in ("visphy_conf/config.yaml", "visphy_conf/engine/threejs.yaml",
                      "visphy_conf/hydra/launcher/local.yaml",
                      "visphy_core/sandbox/virtual_time.js", "visphy_core/calls/prompts/default.txt",
-                     "visphy_core/infra/js_vendor/package-lock.json",
-                     "visphy_core/spec/replay3d.html",
+                     "visphy_plugins/engines/js_vendor/package-lock.json",
+                     "visphy_plugins/engines/templates/threejs_replay_3d.html",
                      "visphy_plugins/engines/templates/threejs_replay_2d.html",
                      # the shipped catalogue (a fresh home simulates nothing) and its digest
                      "visphy_plugins/datasets/visphybench/data/catalogue-v3-seed0.json.gz",

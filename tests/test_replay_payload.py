@@ -7,7 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from visphy_core.spec.replay import fill, payload_from, replay_html_3d, replay_payload
+from visphy_core.spec.replay import fill, payload_from, replay_payload
+from visphy_plugins.engines.threejs import replay_html_3d
 
 
 def _spec_2d() -> dict:
