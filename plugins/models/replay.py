@@ -39,6 +39,7 @@ from visphy_core.api.extract import fenced_blocks
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.model import Model, ModelRequest, ModelResponse
 from visphy_core.api.storage import files
+from visphy_core.results.layout import MANIFEST, RESULTS_JSONL
 
 TEXT_SUFFIXES = (".txt", ".md", ".html", ".py")
 FENCE_FOR = {".html": "html", ".py": "python"}
@@ -66,13 +67,13 @@ class ReplayModel(Model):
         if not hasattr(self, "_run_dir"):
             self._run_dir = self.source.is_dir() \
                 and files.entry_kind(self.source / "scenes", self.root) == "dir" \
-                and files.is_file(self.source / "manifest.json", self.root)
+                and files.is_file(self.source / MANIFEST, self.root)
         return self._run_dir
 
     def _detect_output(self) -> str:
         if self._is_run_dir():
             try:
-                manifest = files.read_json(self.source / "manifest.json", self.root)
+                manifest = files.read_json(self.source / MANIFEST, self.root)
                 return ((manifest or {}).get("model") or {}).get("output", "program")
             except (OSError, ValueError, AttributeError):
                 return "program"
@@ -145,7 +146,7 @@ class ReplayModel(Model):
         if not hasattr(self, "_rows"):
             self._rows = {}
             try:
-                text = files.read_text(self.source / "results.jsonl", self.root, kind="jsonl")
+                text = files.read_text(self.source / RESULTS_JSONL, self.root, kind="jsonl")
                 for line in text.splitlines():
                     try:
                         row = json.loads(line)

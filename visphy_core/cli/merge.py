@@ -47,8 +47,7 @@ def _merge_one(shards: list[Path], out: Path, partial: bool) -> None:
     if merged.linked:
         note += f"; their {len(merged.linked)} MLflow run(s) are children of the merged run"
     print(note)
-    print_where_to_look(write_report(merged.run_dir),
-                        (summary.get("mlflow") or {}).get("tracking_uri"))
+    print_where_to_look(write_report(merged.run_dir), merged.where_to_look)
 
 
 def _merge_study(sweep_dir: Path, out_dir: Path, partial: bool) -> int:

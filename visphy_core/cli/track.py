@@ -35,8 +35,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def cmd_track(argv: list[str]) -> int:
     from visphy_core.results.load import load_run
-    from visphy_core.results.run_dir import FINISHED
-    from visphy_core.results.write import write_summary
+    from visphy_core.results.run_dir import FINISHED, RunDir
     from visphy_core.tracking import log_finished_run, mlflow_command
 
     args = _parser().parse_args(argv)
@@ -59,7 +58,7 @@ def cmd_track(argv: list[str]) -> int:
                             f"{' '.join(f'{type(exc).__name__}: {exc}'.split())[:300]}") from None
         summary = dict(run.summary, mlflow=entry)
         summary.pop("tracking_failed", None)
-        write_summary(run.run_dir, summary)
+        RunDir(run.run_dir).write_summary(summary)
         uris.add(entry["tracking_uri"])
         print(f"{run.run_dir}: logged as MLflow run {entry['run_id']}")
     for uri in sorted(uris):

@@ -31,7 +31,6 @@ from visphy_core.calls.retry import RETRYABLE, kind_of_description
 from visphy_core.infra.events import STAGES, StageEvents
 from visphy_core.infra.numbers import number
 from visphy_core.infra.progress import EVERY, PlainLines, duration, output_columns, rate_and_eta
-from visphy_core.tracking import mlflow_command
 
 #: A pipe or a log file has no width: lines and tables are written whole, however wide (rich
 #: would cut them at 80 columns).
@@ -262,15 +261,15 @@ def stage_progress(total: int, stages: tuple[str, ...] | list[str], enabled: boo
             print(stages_progress.final_line(), file=sys.stderr, flush=True)
 
 
-def print_where_to_look(report: Path | None, tracking_uri: str | None) -> None:
-    """After the summary table: the HTML report and the command that opens the run in MLflow
-    (one line each; each only when there is one)."""
+def print_where_to_look(report: Path | None, lines: list[str]) -> None:
+    """After the summary table: the HTML report, then what the run's observers point to
+    (`visphy_core.api.run_context.RunContext.where_to_look`: the command that opens the run in
+    MLflow), one line each."""
     console = summary_console()
     if report is not None:
         console.print(f"report: {report}", markup=False, soft_wrap=True)
-    if tracking_uri:
-        console.print(f"MLflow: {mlflow_command(tracking_uri)}", markup=False,
-                      soft_wrap=True)
+    for line in lines:
+        console.print(line, markup=False, soft_wrap=True)
 
 
 def _fmt(value) -> str:

@@ -9,8 +9,8 @@ on purpose), and writes one run directory as the unsharded run would have: ``con
 (``dataset.shard: null``), ``results.jsonl`` / ``results.parquet`` in the unsharded scene order,
 ``calls.jsonl``, ``scenes/<id>/`` (hard links to the shards' files, copies across file
 systems), a ``manifest.json`` that records ``merged_from``, and a ``summary.json`` computed
-afresh from all rows by `visphy_core.execute.run.summarise` (so the means are over every scene,
-never means of shard means).
+afresh from all rows by `visphy_core.results.summary.summarise` (so the means are over every
+scene, never means of shard means).
 
 The merged run goes through the tracking hooks like any run (one MLflow run, its metrics and
 files), and each shard's MLflow run in the same store becomes its child (``mlflow.parentRunId``);
@@ -21,28 +21,27 @@ child.
 from __future__ import annotations
 
 import datetime as dt
-import json
 import logging
 import os
 import shutil
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from visphy_core.api.run_context import RunContext
 from visphy_core.infra import files
 from visphy_core.infra.errors import UserError
-from visphy_core.infra.secrets import public_yaml
 from visphy_core.infra.shard import interleave, parse_shard
-from visphy_core.results.layout import RESULTS_JSONL
+from visphy_core.results.layout import FINISHED_FILES
+from visphy_core.results.load import flatten
 from visphy_core.results.row import SceneResult
-from visphy_core.results.rows import read_jsonl, write_results
-from visphy_core.results.run_dir import FINISHED, config_hash
+from visphy_core.results.run_dir import FINISHED, RunDir, config_hash
+from visphy_core.results.summary import summarise
 from visphy_core.scoring.headline import Headline
 
 log = logging.getLogger("visphy.merge")
-RUN_FILES = ("config.yaml", "manifest.json", "summary.json", "results.jsonl")
 
 
 @dataclass
@@ -78,26 +77,28 @@ class Merged:
     summary: dict
     results: list[SceneResult]
     linked: list[str]               # the shards' MLflow runs made children of the merged one
+    where_to_look: list[str] = field(default_factory=list)  # RunContext.where_to_look
 
 
 def read_shard(run_dir: Path) -> Shard:
     """A finished run directory's config, manifest, summary and rows (`UserError` otherwise)."""
     run_dir = Path(run_dir).resolve()
-    missing = [name for name in RUN_FILES if not (run_dir / name).is_file()]
+    run = RunDir(run_dir)
+    missing = run.missing(FINISHED_FILES)
     if missing:
         raise UserError(f"merge: {run_dir} is not a finished visphy run directory (no "
                         f"{', '.join(missing)})")
     files.refuse_tree(run_dir, "run directory")
-    manifest = json.loads((run_dir / "manifest.json").read_text())
-    summary = json.loads((run_dir / "summary.json").read_text())
+    manifest = run.read_manifest()
+    summary = run.read_summary()
     status = summary.get("status") or manifest.get("status")
     if status != FINISHED:
         raise UserError(f"merge: {run_dir} is {status or 'unfinished'}: rerun its command to "
                         "finish it (it resumes where it stopped), then merge")
-    config = OmegaConf.load(run_dir / "config.yaml")
-    results, skipped = read_jsonl(run_dir / RESULTS_JSONL)
+    config = run.read_config()
+    results, skipped = run.read_rows()
     if skipped:
-        raise UserError(f"merge: {run_dir / RESULTS_JSONL}: {skipped} line(s) are not rows")
+        raise UserError(f"merge: {run.rows_file}: {skipped} line(s) are not rows")
     rows = {r.scene_id: r.row() for r in results}
     index = parse_shard(OmegaConf.select(config, "dataset.shard", default=None))
     return Shard(run_dir, config, manifest, summary, rows, index)
@@ -110,8 +111,6 @@ def _unsharded(config: DictConfig) -> DictConfig:
 
 
 def _differences(a: DictConfig, b: DictConfig, limit: int = 4) -> str:
-    from visphy_core.tracking import flatten
-
     fa = flatten(OmegaConf.to_container(a, resolve=True))
     fb = flatten(OmegaConf.to_container(b, resolve=True))
     keys = sorted(k for k in set(fa) | set(fb)
@@ -164,6 +163,7 @@ def check_shards(shards: list[Shard], partial: bool = False) -> list[Shard]:
 def study_groups(sweep_dir: Path) -> list[list[Path]]:
     """The run directories of a study's completed jobs that are shards, one list per run they
     are shards of (their config without ``dataset.shard``), in job order."""
+    from visphy_core.results.layout import CONFIG
     from visphy_core.results.study_records import COMPLETED, read_jobs
 
     jobs = read_jobs(Path(sweep_dir))
@@ -172,13 +172,13 @@ def study_groups(sweep_dir: Path) -> list[list[Path]]:
                         "sweep folder a multirun printed ('study …: FOLDER')")
     groups: dict[str, list[Path]] = {}
     for job in jobs:
-        run_dir = Path(job.get("run_dir") or "")
-        if job.get("status") != COMPLETED or not (run_dir / "config.yaml").is_file():
+        run = RunDir(Path(job.get("run_dir") or ""))
+        if job.get("status") != COMPLETED or run.missing([CONFIG]):
             continue
-        config = OmegaConf.load(run_dir / "config.yaml")
+        config = run.read_config()
         if OmegaConf.select(config, "dataset.shard", default=None) is None:
             continue
-        groups.setdefault(config_hash(_unsharded(config)), []).append(run_dir)
+        groups.setdefault(config_hash(_unsharded(config)), []).append(run.path)
     return list(groups.values())
 
 
@@ -235,33 +235,34 @@ def _write_merged(out: Path, cfg: DictConfig, shards: list[Shard],
                   results: list[SceneResult], partial: bool) -> Merged:
     from visphy_core.api.registry import get_plugin_manager, get_registry
     from visphy_core.calls.usage import UsageLedger
-    from visphy_core.execute.run import RunContext, summarise
+    from visphy_core.execute.run import headline_column
     from visphy_core.infra.cache import Cache
-    from visphy_core.results.write import write_json
-    from visphy_core.scoring.score import ScoringProtocol, select_metrics
+    from visphy_core.scoring.score import ScoringProtocol, score_columns, select_metrics
 
+    run = RunDir(out)
     for shard in shards:
         for scene_id in shard.rows:
-            src = shard.run_dir / "scenes" / scene_id
+            src = RunDir(shard.run_dir).scene_dir(scene_id)
             if src.is_dir():
-                shutil.copytree(src, out / "scenes" / scene_id, copy_function=_link_or_copy)
-    with open(out / "calls.jsonl", "w") as fh:
+                shutil.copytree(src, run.scene_dir(scene_id), copy_function=_link_or_copy)
+    with open(run.calls_file, "w") as fh:
         for shard in shards:
-            calls = shard.run_dir / "calls.jsonl"
+            calls = RunDir(shard.run_dir).calls_file
             if calls.is_file():
                 text = calls.read_text()
                 fh.write(text if not text or text.endswith("\n") else text + "\n")
-    files.atomic_write(out / "config.yaml", public_yaml(cfg))  # no credentials in URLs
-    write_results(out, results)
+    run.write_config(cfg)  # no credentials in URLs
+    run.write_rows(results)
     chash = config_hash(cfg)
     merged_from = _merged_from(shards)
     judges = list(shards[0].manifest.get("judges") or [])
     metrics = select_metrics(get_registry(), cfg.metrics)
-    ledger = UsageLedger(out / "calls.jsonl")
+    ledger = UsageLedger(run.calls_file)
     cache = Cache(Path(str(cfg.paths.cache_dir)), enabled=False)
-    summary = summarise(results, metrics, cache, judges=judges, ledger=ledger,
-                        protocol=ScoringProtocol.from_cfg(cfg.metrics),
-                        headline=Headline.for_run(cfg.metrics, metrics))
+    summary = summarise(results, metrics,
+                        score_columns(metrics, ScoringProtocol.from_cfg(cfg.metrics)),
+                        cache_stats=cache.stats(), judges=judges, usage=ledger.totals(),
+                        headline=headline_column(Headline.for_run(cfg.metrics, metrics)))
     summary.update({
         "status": FINISHED, "run_dir": str(out), "model": cfg.model.name,
         **{key: shards[0].summary[key] for key in ("model_output", "model_baseline")
@@ -282,23 +283,24 @@ def _write_merged(out: Path, cfg: DictConfig, shards: list[Shard],
                      "config_hash": chash, "scenes": [r.scene_id for r in results],
                      "merged_from": merged_from,
                      "resumed_rows": summary["resumed_rows"]})
-    write_json(out / "manifest.json", manifest)
-    write_json(out / "summary.json", summary)
+    run.write_manifest(manifest)
+    run.write_summary(summary)
     ctx = RunContext(cfg=cfg, run_dir=out, root=Path(str(cfg.paths.root)).resolve(), scenes=[],
                      model_name=str(cfg.model.name), engine_name=str(cfg.engine.name),
-                     metrics=metrics, results=list(results), cache=cache,
-                     extra={"config_hash": chash, "merged_from": merged_from}, ledger=ledger,
-                     judges=judges)
+                     metrics=metrics, results=list(results), cache=cache, judges=judges,
+                     config_hash=chash, merged_from=merged_from)
     pm = get_plugin_manager()
     pm.hook.visphy_run_start(run=ctx)
     linked: list[str] = []
-    if ctx.extra.get("mlflow"):
-        manifest["tracking"] = {"mlflow": ctx.extra["mlflow"]}
-        write_json(out / "manifest.json", manifest)
-        linked = adopt_shard_runs(ctx.extra["mlflow"], shards)
+    if ctx.tracking:
+        manifest["tracking"] = dict(ctx.tracking)
+        run.write_manifest(manifest)
+    if ctx.tracking.get("mlflow"):
+        linked = adopt_shard_runs(ctx.tracking["mlflow"], shards)
     pm.hook.visphy_run_end(run=ctx, summary=summary)
-    write_json(out / "summary.json", summary)
-    return Merged(run_dir=out, summary=summary, results=results, linked=linked)
+    run.write_summary(summary)
+    return Merged(run_dir=out, summary=summary, results=results, linked=linked,
+                  where_to_look=ctx.where_to_look)
 
 
 def adopt_shard_runs(merged: dict, shards: list[Shard]) -> list[str]:

@@ -28,6 +28,7 @@ from visphy_core.execute.render_program import (
     render_alone,
 )
 from visphy_core.infra.errors import UserError
+from visphy_core.results.layout import CALLS
 from visphy_core.scoring.headline import Headline
 from visphy_core.scoring.score import ScoringProtocol, select_metrics
 
@@ -113,7 +114,7 @@ def render_reply(argv: list[str]) -> int:
     out = Path(args.out) if args.out else Path(cfg.paths.root) / "render" / (
         f"{scene.scene_id}_{args.engine}_{dt.datetime.now():%Y-%m-%d_%H-%M-%S}")
     out.mkdir(parents=True, exist_ok=True)
-    ledger = UsageLedger(out / "calls.jsonl")
+    ledger = UsageLedger(out / CALLS)
     engine = registry.get("engines", cfg.engine.name)(cfg.engine)
     metrics = select_metrics(registry, cfg.metrics)
     services = SceneServices(

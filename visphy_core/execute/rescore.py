@@ -28,10 +28,11 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from visphy_core.api.engine import FailureClass, Program, RenderContract
 from visphy_core.api.extract import extract_analysis, extract_spec
+from visphy_core.api.run_context import RunContext
 from visphy_core.api.scene import Scene
 from visphy_core.calls.generation import ModelCaller
 from visphy_core.calls.judging import JudgeCaller
@@ -43,13 +44,18 @@ from visphy_core.execute.pipeline import mark_not_evaluable
 from visphy_core.infra import files
 from visphy_core.infra.cache import Cache
 from visphy_core.infra.errors import SceneDataError, UserError
-from visphy_core.infra.files import atomic_write
-from visphy_core.infra.secrets import public_yaml
 from visphy_core.infra.video import decode_video, load_clip_for
-from visphy_core.results.layout import RESULTS_JSONL
+from visphy_core.results.layout import CALLS, DERIVED_FILES, LOCK, SCORABLE_FILES
 from visphy_core.results.row import SceneResult
-from visphy_core.results.rows import read_jsonl, write_results
-from visphy_core.results.run_dir import FINISHED, INTERRUPTED, RUNNING, RunLock, config_hash
+from visphy_core.results.run_dir import (
+    FINISHED,
+    INTERRUPTED,
+    RUNNING,
+    RunDir,
+    RunLock,
+    config_hash,
+)
+from visphy_core.results.summary import summarise
 from visphy_core.scoring.ground_truth import open_store, store_path
 from visphy_core.scoring.headline import Headline
 from visphy_core.scoring.paper_protocol import frames_needed
@@ -60,11 +66,8 @@ from visphy_core.scoring.scene_scores import (
     score_outputs,
     write_scores,
 )
-from visphy_core.scoring.score import ScoringProtocol, select_metrics
+from visphy_core.scoring.score import ScoringProtocol, score_columns, select_metrics
 
-#: Written anew by re-scoring (the rest of a run directory is carried over as it is).
-REWRITTEN = ("config.yaml", "manifest.json", "summary.json", "results.jsonl",
-             "results.parquet")
 #: Per-scene files scoring writes: removed before a row is scored again, so none is stale.
 SCORE_FILES = ("scores.json", "metric_details.json", "verdicts.json", "normalisation.json",
                "reference.txt")
@@ -124,8 +127,7 @@ def check_run_dir(path: Path) -> Path:
     path = Path(path)
     if not path.exists():
         raise UserError(f"score: no run directory at {path}")
-    missing = [n for n in ("config.yaml", "manifest.json", "results.jsonl")
-               if not (path / n).is_file()]
+    missing = RunDir(path).missing(SCORABLE_FILES)
     if not path.is_dir() or missing:
         raise UserError(f"score: {path} is not a visphy run directory (missing "
                         f"{', '.join(missing) or 'everything'}); pass a folder under "
@@ -264,10 +266,10 @@ def _new_copy(src: Path) -> Path:
         out = src.parent / f"{base}.rescored-{_stamp()}.{n}"
     out.mkdir(parents=True)
     for path in src.iterdir():
-        if path.is_file() and path.name not in REWRITTEN and path.name != ".lock":
+        if path.is_file() and path.name not in DERIVED_FILES and path.name != LOCK:
             shutil.copy2(path, out / path.name)
-    if (src / "scenes").is_dir():
-        _link_tree(src / "scenes", out / "scenes")
+    if RunDir(src).scenes.is_dir():
+        _link_tree(RunDir(src).scenes, RunDir(out).scenes)
     return out
 
 
@@ -275,12 +277,11 @@ def _backup(run_dir: Path) -> Path:
     """Everything an in-place re-scoring rewrites, under ``rescore-backup-<time>/``."""
     backup = run_dir / f"rescore-backup-{_stamp()}"
     backup.mkdir()
-    for name in (*REWRITTEN, "calls.jsonl"):
-        if (run_dir / name).is_file():
-            shutil.copy2(run_dir / name, backup / name)
-    for path in sorted((run_dir / "scenes").glob("*/*")):
+    for path in RunDir(run_dir).present((*DERIVED_FILES, CALLS)):
+        shutil.copy2(path, backup / path.name)
+    for path in sorted(RunDir(run_dir).scenes.glob("*/*")):
         if path.name in SCORE_FILES:
-            target = backup / "scenes" / path.parent.name / path.name
+            target = RunDir(backup).scene_dir(path.parent.name) / path.name
             target.parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(path, target)
     return backup
@@ -302,7 +303,7 @@ def rescore_run(run_dir: Path, overrides: list[str], in_place: bool = False) -> 
     from visphy_core.execute.run import build_judges, reference_model_of
 
     src = check_run_dir(run_dir)
-    run_cfg = OmegaConf.load(src / "config.yaml")
+    run_cfg = RunDir(src).read_config()
     registry = get_registry()
     cfg, changed = rescore_config(run_cfg, overrides)
     judges = build_judges(cfg, registry)
@@ -338,10 +339,10 @@ def _rescore_into(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, ch
 
     registry = get_registry()
     cache = Cache(Path(str(cfg.paths.cache_dir)).resolve(), enabled=bool(cfg.run.cache))
-    ledger = UsageLedger(out / "calls.jsonl")
+    ledger = UsageLedger(RunDir(out).calls_file)
     scenes = load_dataset(cfg.dataset, _data_dir(cfg), progress=bool(cfg.run.progress))
     by_id = {s.scene_id: s for s in scenes}
-    before = [r for r in read_jsonl(src / RESULTS_JSONL)[0] if r.scene_id in by_id]
+    before = [r for r in RunDir(src).read_rows()[0] if r.scene_id in by_id]
     order = {s.scene_id: i for i, s in enumerate(scenes)}
     before.sort(key=lambda r: order[r.scene_id])
     metrics = select_metrics(registry, cfg.metrics)
@@ -363,7 +364,7 @@ def _rescore_into(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, ch
             services.progress = progress
             for row in before:
                 results.append(rescore_row(row, by_id[row.scene_id],
-                                           out / "scenes" / row.scene_id, services, cfg,
+                                           RunDir(out).scene_dir(row.scene_id), services, cfg,
                                            columns))
                 progress.scene_finished(row.scene_id)
     finally:
@@ -381,23 +382,23 @@ def _write_run(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, chang
                judge_keys: list[str], made: dict[str, int]) -> Rescored:
 
     from visphy_core.api.registry import get_plugin_manager
-    from visphy_core.execute.run import RunContext, summarise, write_report
-    from visphy_core.results.write import write_json
+    from visphy_core.execute.run import headline_column, write_report
 
-    manifest = json.loads((src / "manifest.json").read_text())
-    old_summary = {}
-    if (src / "summary.json").is_file():
-        old_summary = json.loads((src / "summary.json").read_text())
+    source, run = RunDir(src), RunDir(out)
+    manifest = source.read_manifest()
+    old_summary = source.read_summary() if source.summary_file.is_file() else {}
     status = manifest.get("status") or FINISHED
     status = INTERRUPTED if status == RUNNING else status  # killed: no process holds it
     chash = config_hash(cfg)
     previous_mlflow = ((manifest.get("tracking") or {}).get("mlflow") or {}).get("run_id")
     rescored_from = {"run_dir": str(src), "mlflow_run_id": previous_mlflow,
                      "at": dt.datetime.now().isoformat(timespec="seconds")}
-    atomic_write(out / "config.yaml", public_yaml(cfg))  # no credentials in URLs
-    write_results(out, results)
-    summary = summarise(results, services.metrics, services.cache, judge_keys, ledger,
-                        services.protocol, services.headline)
+    run.write_config(cfg)  # no credentials in URLs
+    run.write_rows(results)
+    summary = summarise(results, services.metrics,
+                        score_columns(services.metrics, services.protocol),
+                        cache_stats=services.cache.stats(), judges=judge_keys,
+                        usage=ledger.totals(), headline=headline_column(services.headline))
     summary.update({
         "status": status, "run_dir": str(out), "model": run_cfg.model.name,
         "engine": run_cfg.engine.name, "dataset": run_cfg.dataset.name,
@@ -414,25 +415,24 @@ def _write_run(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, chang
                     "in_place": out == src, "backup": str(backup) if backup else None},
         "metrics": [m.describe() for m in services.metrics], "judges": judge_keys})
     manifest.pop("tracking", None)
-    write_json(out / "summary.json", summary)
-    write_json(out / "manifest.json", manifest)
+    run.write_summary(summary)
+    run.write_manifest(manifest)
     ctx = RunContext(cfg=cfg, run_dir=out, root=Path(str(cfg.paths.root)).resolve(),
                      scenes=scenes, model_name=str(run_cfg.model.name),
                      engine_name=str(run_cfg.engine.name), metrics=services.metrics,
-                     cache=services.cache, extra={"config_hash": chash,
-                                                  "rescored_from": rescored_from},
-                     ledger=ledger, judges=judge_keys)
+                     cache=services.cache, judges=judge_keys, config_hash=chash,
+                     rescored_from=rescored_from)
     pm = get_plugin_manager()
     pm.hook.visphy_run_start(run=ctx)
-    if ctx.extra.get("mlflow"):
-        manifest["tracking"] = {"mlflow": ctx.extra["mlflow"]}
-        write_json(out / "manifest.json", manifest)
+    if ctx.tracking:
+        manifest["tracking"] = dict(ctx.tracking)
+        run.write_manifest(manifest)
     by_id = {s.scene_id: s for s in scenes}
     for result in results:
         ctx.results.append(result)
         pm.hook.visphy_scene_done(run=ctx, scene=by_id[result.scene_id], result=result)
     pm.hook.visphy_run_end(run=ctx, summary=summary)
-    write_json(out / "summary.json", summary)
+    run.write_summary(summary)
     print_summary(summary, results, calls_heading=(
         f"calls recorded in {out.name} (the original run's included; the calls made by this "
         "re-score are counted below):"))
@@ -441,5 +441,5 @@ def _write_run(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, chang
     if status != FINISHED:
         note += f" (the run was {status}: its finished rows only)"
     print(note + ("; backup of what changed in " + str(backup) if backup else ""))
-    print_where_to_look(write_report(out), (summary.get("mlflow") or {}).get("tracking_uri"))
+    print_where_to_look(write_report(out), ctx.where_to_look)
     return Rescored(run_dir=out, summary=summary, results=results)

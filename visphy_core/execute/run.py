@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import datetime as dt
 import errno
-import json
 import logging
 import os
 import platform
@@ -26,15 +25,15 @@ import sys
 import threading
 import time
 from contextlib import contextmanager, nullcontext
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any, Iterator
 
-import numpy as np
 from omegaconf import DictConfig
 
-from visphy_core.api.metrics import Metric
 from visphy_core.api.registry import get_plugin_manager, get_registry
+from visphy_core.api.run_context import RunContext
 from visphy_core.api.scene import Scene
 from visphy_core.calls.generation import ModelCaller, get_service
 from visphy_core.calls.judging import JudgeCaller
@@ -53,32 +52,24 @@ from visphy_core.execute.scheduler import (
 )
 from visphy_core.infra.cache import Cache
 from visphy_core.infra.errors import ConfigError, HostFault, describe_host_fault, host_fault
-from visphy_core.infra.files import atomic_write
 from visphy_core.infra.heap import release_free_memory
-from visphy_core.infra.secrets import install_log_redaction, public_yaml
+from visphy_core.infra.secrets import install_log_redaction
 from visphy_core.results.row import SceneResult
-from visphy_core.results.rows import jsonl_line, write_results
+from visphy_core.results.rows import jsonl_line
 from visphy_core.results.run_dir import (
     COST_CAP,
     FAILED,
     FINISHED,
     INTERRUPTED,
     RUNNING,
+    RunDir,
     RunLock,
     claim_run_dir,
     config_hash,
     find_resumable,
     new_run_dir,
-    read_rows,
 )
-from visphy_core.results.summary import (
-    counts,
-    metric_means,
-    prompt_versions,
-    spec_counts,
-    stage_seconds,
-)
-from visphy_core.results.write import write_json
+from visphy_core.results.summary import HeadlineColumn, summarise
 from visphy_core.scoring.ground_truth import open_store, store_path
 from visphy_core.scoring.headline import Headline, summary_entry
 from visphy_core.scoring.score import ScoringProtocol, score_columns, select_metrics
@@ -97,21 +88,21 @@ class RunInterrupted(SystemExit):
 
 
 @dataclass
-class RunContext:
-    """What lifecycle hooks receive: the config, where things go, and what runs."""
+class RunSetup:
+    """How the run was set up, as its manifest and summary record it."""
 
-    cfg: DictConfig
-    run_dir: Path
-    root: Path
-    scenes: list[Scene]
-    model_name: str
-    engine_name: str
-    metrics: list[Metric]
-    results: list[SceneResult] = field(default_factory=list)
-    cache: Cache | None = None
-    extra: dict[str, Any] = field(default_factory=dict)
-    ledger: UsageLedger | None = None
-    judges: list[str] = field(default_factory=list)
+    config_hash: str
+    isolation: dict[str, Any]
+    model: dict[str, Any]
+    workers: dict[str, int]
+    #: A resumed run: where the killed process's run was tracked (its manifest's ``tracking``).
+    resumed_from: dict[str, dict[str, Any]]
+
+
+def headline_column(headline: Headline | None) -> HeadlineColumn | None:
+    """The run's headline as its summary reports it (`visphy_core.results.summary.summarise`)."""
+    return HeadlineColumn(headline.name, partial(summary_entry, headline)) \
+        if headline is not None else None
 
 
 def _isolation(cfg: DictConfig) -> dict[str, Any]:
@@ -130,7 +121,7 @@ def _isolation(cfg: DictConfig) -> dict[str, Any]:
             "process": process.isolation_level(), "browser": browser.browser_isolation_level()}
 
 
-def _manifest(ctx: RunContext) -> dict:
+def _manifest(ctx: RunContext, setup: RunSetup) -> dict:
     pm = get_plugin_manager()
     from visphy_core.api.registry import describe_plugins
 
@@ -141,17 +132,17 @@ def _manifest(ctx: RunContext) -> dict:
         "argv": sys.argv,
         "started": dt.datetime.now().isoformat(timespec="seconds"),
         "status": RUNNING,
-        "config_hash": ctx.extra.get("config_hash"),
-        "isolation": ctx.extra.get("isolation"),
+        "config_hash": setup.config_hash,
+        "isolation": setup.isolation,
         "plugins": {p.name: {"distribution": p.distribution, "version": p.version}
                     for p in describe_plugins(pm)},
         "scenes": [s.scene_id for s in ctx.scenes],
         "datasets": sorted({s.dataset for s in ctx.scenes if s.dataset}),
         "metrics": [m.describe() for m in ctx.metrics],
-        "model": ctx.extra.get("model"),
+        "model": setup.model,
         "judges": ctx.judges,
         "cost_cap_usd": ctx.cfg.run.get("cost_cap_usd"),
-        "workers": ctx.extra.get("workers"),
+        "workers": setup.workers,
     }
 
 
@@ -190,73 +181,6 @@ def _version() -> str:
         return version("visphy")
     except PackageNotFoundError:
         return "source"
-
-
-def _judge_columns(results: list[SceneResult], judges: list[str]) -> dict[str, dict]:
-    """Per judge: mean score over valid verdicts, and the invalid ones counted by reason."""
-    out = {}
-    for key in judges:
-        column = f"judge_{key}"
-        valid = [r.scores[column] for r in results if r.scores.get(column) is not None]
-        invalid: dict[str, int] = {}
-        for r in results:
-            if key in r.judge_errors:
-                reason = r.judge_errors[key].split(":")[0][:80]
-                invalid[reason] = invalid.get(reason, 0) + 1
-        out[key] = {"mean": float(np.mean(valid)) if valid else None, "n_valid": len(valid),
-                    "n_invalid": sum(invalid.values()), "invalid": invalid}
-    return out
-
-
-def summarise(results: list[SceneResult], metrics: list[Metric], cache: Cache,
-              judges: list[str] | None = None, ledger: UsageLedger | None = None,
-              protocol: ScoringProtocol | None = None,
-              headline: Headline | None = None) -> dict:
-    """Means with honest denominators: model successes only, and all scenes with fallbacks.
-
-    Success rates are given over all scenes and over the evaluable ones (scenes that ended in
-    ``infra_error`` or ``data_error`` say nothing about the model); ``failures`` splits the
-    model's failures from infrastructure/data failures.
-    """
-    ok = [r for r in results if r.model_success]
-    scored = [r for r in results if r.system_success]
-    columns = [(headline.name, "higher")] if headline is not None else []
-    columns += score_columns(metrics, protocol)
-    columns += [(f"judge_{key}", "higher") for key in judges or []]
-    per_metric = metric_means(results, columns)
-    head = None
-    if headline is not None:
-        def values(rows):
-            return [r.scores[headline.name] for r in rows
-                    if r.scores.get(headline.name) is not None]
-
-        head = summary_entry(headline, values(ok), values(scored))
-    return {
-        "headline": head,
-        **counts(results),
-        "isolation": sorted({r.isolation for r in results if r.isolation}),
-        "metrics": per_metric,
-        # what each metric is and loads (weights, the BERTScore model…), as declared
-        "metric_info": {m.name: m.describe() for m in metrics},
-        "cache": cache.stats(),
-        "model_calls": sum(r.model_calls for r in results),
-        "renders_done": sum(1 for r in results if r.render_wall_s is not None
-                            and not r.render_cached),
-        "spec": spec_counts(results),
-        "prompt_versions": prompt_versions(results),
-        "spec_track": _count_states(r.spec_track for r in results),
-        "judges": _judge_columns(results, judges or []),
-        "usage": ledger.totals() if ledger is not None else {},
-        "stage_seconds": stage_seconds(results),
-    }
-
-
-def _count_states(states) -> dict[str, int]:
-    out: dict[str, int] = {}
-    for state in states:
-        if state is not None:
-            out[state] = out.get(state, 0) + 1
-    return out
 
 
 @contextmanager
@@ -366,18 +290,14 @@ def run_experiment(cfg: DictConfig) -> dict:
     resume = str(cfg.run.get("resume") or "auto")
     found = (None if resume == "never" else find_resumable(runs_dir, chash)
              if resume == "auto" else claim_run_dir(Path(resume), chash))
-    extra: dict[str, Any] = {"config_hash": chash, "isolation": isolation,
-                             "model": model.describe(),
-                             "workers": {"workers": workers, "torch_threads": torch_threads}}
+    setup = RunSetup(config_hash=chash, isolation=isolation, model=model.describe(),
+                     workers={"workers": workers, "torch_threads": torch_threads},
+                     resumed_from={})
     if found is not None:
         run_dir, lock = found
-        restored = read_rows(run_dir / "results.jsonl", [s.scene_id for s in scenes])
-        try:  # tracking plugins close the killed process's run (left RUNNING by SIGKILL)
-            previous = json.loads((run_dir / "manifest.json").read_text()).get("tracking")
-        except (OSError, ValueError, AttributeError):
-            previous = None
-        if previous:
-            extra["resumed_from"] = previous
+        restored = RunDir(run_dir).restore_rows([s.scene_id for s in scenes])
+        # tracking plugins close the killed process's run (left RUNNING by SIGKILL)
+        setup.resumed_from = RunDir(run_dir).tracking()
         print(f"resuming {run_dir} ({len(restored)}/{len(scenes)} scenes already done)",
               file=sys.stderr)
     else:
@@ -385,7 +305,7 @@ def run_experiment(cfg: DictConfig) -> dict:
         lock = RunLock(run_dir)
         lock.acquire()
         restored = []
-    ledger = UsageLedger(run_dir / "calls.jsonl", cap_usd=cfg.run.get("cost_cap_usd"),
+    ledger = UsageLedger(RunDir(run_dir).calls_file, cap_usd=cfg.run.get("cost_cap_usd"),
                          first_call_usd=call_cost_bound(cfg.model))
     settings = PipelineSettings(prompt=PromptSettings.from_cfg(cfg.prompt), retry=cfg.run.retry,
                                 fallback=cfg.run.fallback, timeout_s=cfg.engine.timeout_s,
@@ -401,7 +321,7 @@ def run_experiment(cfg: DictConfig) -> dict:
                                    ModelCaller(reference_model, cache, ledger)
                                    if reference_model is not None else None))
     try:
-        return _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledger)
+        return _run(cfg, pm, root, cache, scenes, services, run_dir, restored, setup, ledger)
     finally:
         lock.release()
 
@@ -623,7 +543,7 @@ def _host_fault_line(fault: OSError, run_dir: Path, results: list[SceneResult],
     left = len(scenes) - len(results)
     need = ""
     if results and left and fault.errno in (errno.ENOSPC, errno.EDQUOT):
-        per_scene = sum(_tree_bytes(run_dir / "scenes" / r.scene_id) for r in results) \
+        per_scene = sum(_tree_bytes(RunDir(run_dir).scene_dir(r.scene_id)) for r in results) \
             / len(results)
         need = (f"; the {left} scene(s) left need about "
                 f"{max(per_scene * left, 1) / 2**20:.1f} MB in the run directory, plus the "
@@ -633,45 +553,49 @@ def _host_fault_line(fault: OSError, run_dir: Path, results: list[SceneResult],
             f"{run_dir}{need}: {what}, then rerun the same command to resume")
 
 
-def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledger) -> dict:
+def _run(cfg: DictConfig, pm, root: Path, cache: Cache, scenes: list[Scene],
+         services: SceneServices, run_dir: Path, restored: list[SceneResult], setup: RunSetup,
+         ledger: UsageLedger) -> dict:
     started = time.monotonic()  # the summary's wall time
 
     metrics, engine = services.metrics, services.engine
     judge_keys = [k for k, _ in services.judges.judges] if services.judges else []
-    atomic_write(run_dir / "config.yaml", public_yaml(cfg))  # no credentials in URLs
+    files = RunDir(run_dir)
+    files.write_config(cfg)  # no credentials in URLs
     ctx = RunContext(cfg=cfg, run_dir=run_dir, root=root, scenes=scenes,
                      model_name=cfg.model.name, engine_name=cfg.engine.name, metrics=metrics,
-                     cache=cache, extra=dict(extra), ledger=ledger, judges=judge_keys)
-    manifest = _manifest(ctx)
+                     cache=cache, judges=judge_keys, config_hash=setup.config_hash,
+                     resumed_from=dict(setup.resumed_from))
+    manifest = _manifest(ctx, setup)
     if restored:
         manifest["resumed_rows"] = len(restored)
-    write_json(run_dir / "manifest.json", manifest)
+    files.write_manifest(manifest)
     ctx.results.extend(restored)
     done = {r.scene_id for r in restored}
     pending = work_order([s for s in scenes if s.scene_id not in done])
     prefetch = _Prefetch(pending, services, int(cfg.run.get("prefetch", 0)))
     status, raised, cost_stop = FINISHED, None, None
-    rows_path = run_dir / "results.jsonl"
+    ground_truth: dict[str, Any] | None = None
     gates: StageGates | None = None
     scheduler: SceneScheduler | None = None
     try:
         with _signals_close_the_run():
             pm.hook.visphy_run_start(run=ctx)
-            if ctx.extra.get("mlflow"):  # so a resumed run can close this one if it is killed
-                manifest["tracking"] = {"mlflow": ctx.extra["mlflow"]}
-                write_json(run_dir / "manifest.json", manifest)
-            filled = _ground_truth_stage(cfg, services, pending, int(extra["workers"]["workers"]))
+            if ctx.tracking:  # so a resumed run can close this one if it is killed
+                manifest["tracking"] = dict(ctx.tracking)
+                files.write_manifest(manifest)
+            filled = _ground_truth_stage(cfg, services, pending, setup.workers["workers"])
             if filled is not None:
-                ctx.extra["ground_truth"] = filled.as_dict()
+                ground_truth = filled.as_dict()
             with stage_progress(len(pending), run_stages(services),
                                 enabled=bool(cfg.run.progress)) as progress, \
-                    rows_path.open("a") as rows:
-                gates = StageGates(progress, int(extra["workers"]["workers"]),
+                    files.open_rows() as rows:
+                gates = StageGates(progress, setup.workers["workers"],
                                    serial_calls=prefetch.window == 0)
                 services.progress = gates
 
                 def process(scene: Scene) -> SceneResult:
-                    result = process_scene(scene, services, run_dir / "scenes" / scene.scene_id)
+                    result = process_scene(scene, services, files.scene_dir(scene.scene_id))
                     progress.scene_finished(scene.scene_id)
                     release_free_memory()  # the scene's clips and buffers, back to the system
                     return result
@@ -712,18 +636,19 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
         ctx.results.sort(key=lambda r: order.get(r.scene_id, len(order)))
         faults: list[OSError] = [f for f in [host_fault(raised)] if f is not None]
         closing = _ClosingWrites(faults)
-        closing.do(write_results, run_dir, ctx.results, jsonl=False)  # lines written as it went
-        summary = summarise(ctx.results, metrics, cache, judge_keys, ledger,
-                            services.protocol, services.headline)
+        closing.do(files.write_rows, ctx.results, jsonl=False)  # lines written as it went
+        summary = summarise(ctx.results, metrics, score_columns(metrics, services.protocol),
+                            cache_stats=cache.stats(), judges=judge_keys, usage=ledger.totals(),
+                            headline=headline_column(services.headline))
         summary.update({"status": status, "run_dir": str(run_dir), "model": cfg.model.name,
                         "model_output": services.model.output_kind,
                         "model_baseline": services.model.baseline,
                         "engine": cfg.engine.name, "dataset": cfg.dataset.name,
                         "n_selected": len(scenes), "resumed_rows": len(restored),
-                        "config_hash": extra["config_hash"],
-                        "isolation_levels": extra["isolation"]})
-        if ctx.extra.get("ground_truth"):
-            summary["ground_truth"] = ctx.extra["ground_truth"]
+                        "config_hash": setup.config_hash,
+                        "isolation_levels": setup.isolation})
+        if ground_truth:
+            summary["ground_truth"] = ground_truth
         if cost_stop is not None:
             done_ids = {r.scene_id for r in ctx.results}
             summary["cost_cap"] = {
@@ -738,26 +663,25 @@ def _run(cfg, pm, root, cache, scenes, services, run_dir, restored, extra, ledge
             summary["interrupted_by"] = signal.Signals(raised.signum).name
         elif status == FAILED:
             summary["error"] = f"{type(raised).__name__}: {raised}"
-        closing.do(write_json, run_dir / "summary.json", summary)
+        closing.do(files.write_summary, summary)
         if faults and status == FINISHED:  # the run's files are not all written: not finished
             status = summary["status"] = FAILED
         manifest.update(status=status, ended=dt.datetime.now().isoformat(timespec="seconds"))
-        closing.do(write_json, run_dir / "manifest.json", manifest)
+        closing.do(files.write_manifest, manifest)
         try:
             pm.hook.visphy_run_end(run=ctx, summary=summary)
         except Exception as exc:  # noqa: BLE001
             if raised is None and not faults:
                 raise
             log.warning("visphy_run_end failed while closing a %s run: %s", status, exc)
-        closing.do(write_json, run_dir / "summary.json", summary)
+        closing.do(files.write_summary, summary)
     if faults:
         raise HostFault(_host_fault_line(faults[0], run_dir, ctx.results, scenes)) \
             from (raised if raised is not None else faults[0])
     if status in (FINISHED, COST_CAP):
         print_summary(summary, ctx.results, mode=str(cfg.run.get("summary", "short")),
                       wall_s=time.monotonic() - started)
-        print_where_to_look(write_report(run_dir), (summary.get("mlflow") or {}).get(
-            "tracking_uri"))
+        print_where_to_look(write_report(run_dir), ctx.where_to_look)
     if summary.get("tracking_failed"):
         print(summary["tracking_failed"], file=sys.stderr)
     if status == COST_CAP:

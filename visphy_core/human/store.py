@@ -18,8 +18,8 @@ from pathlib import Path
 from visphy_core.human.items import RatingItem
 from visphy_core.infra import files
 from visphy_core.infra.errors import UserError
+from visphy_core.results.layout import RATINGS as RATINGS_FILE
 
-RATINGS_FILE = "human_ratings.jsonl"
 RATINGS = range(1, 6)
 MAX_COMMENT = 2000
 RATER_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.@+-]{0,63}$")

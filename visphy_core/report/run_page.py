@@ -7,6 +7,7 @@ from visphy_core.report.columns import HEADINGS, PRIMARY, direction_of, grouped,
 from visphy_core.report.markup import arrow, attr, details, esc, fmt, rate, table
 from visphy_core.report.plots import family_bars, headline_plot
 from visphy_core.report.scene_section import SceneView, anchor, outcome_of
+from visphy_core.results.layout import RESULTS_JSONL, SUMMARY
 from visphy_core.results.load import RunData
 
 #: Primary score columns shown in the scene list.
@@ -56,9 +57,9 @@ def header(run: RunData) -> str:
              ("judges", ", ".join(m.get("judges") or []) or "none")]
     meta = "".join(f"<span>{esc(k)}: <b>{esc(v)}</b></span>" for k, v in items if v)
     notes = [f'<p class="note warn">{esc(run.summary_source)}</p>'] \
-        if run.summary_source != "summary.json" else []
+        if run.summary_source != SUMMARY else []
     if run.skipped_lines:
-        notes.append(f'<p class="note warn">{run.skipped_lines} line(s) of results.jsonl could '
+        notes.append(f'<p class="note warn">{run.skipped_lines} line(s) of {RESULTS_JSONL} could '
                      "not be read (a half-written last line of a killed run)</p>")
     if run.pending:
         notes.append(f'<p class="note warn">{len(run.pending)} selected scene(s) have no '

@@ -21,6 +21,7 @@ from visphy_core.report.markup import arrow, attr, details, esc, fmt, page, rate
 from visphy_core.report.run_report import write_run_report
 from visphy_core.results.layout import is_run_dir
 from visphy_core.results.load import RunData, load_run
+from visphy_core.results.run_dir import RunDir
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -38,9 +39,9 @@ def _safe(name: str) -> str:
 def run_report_of(run_dir: Path) -> Path:
     """``<run_dir>/report/index.html``, written when missing or older than the run's results."""
     index = run_dir / "report" / "index.html"
-    newest = max((p.stat().st_mtime for p in (run_dir / "results.jsonl",
-                                              run_dir / "summary.json") if p.is_file()),
-                  default=0.0)
+    run = RunDir(run_dir)
+    newest = max((p.stat().st_mtime for p in (run.rows_file, run.summary_file) if p.is_file()),
+                 default=0.0)
     if not index.is_file() or index.stat().st_mtime < newest:
         index = write_run_report(run_dir)
     return index

@@ -15,7 +15,12 @@ holds:
 * ``human_ratings.jsonl``: ratings added later by the rating page (`visphy_core.human`);
 * ``.lock``: held by the process working in the folder.
 
-Every file is written through `visphy_core.infra.files` (atomic, never through a link).
+A study (a multirun, `visphy_core.results.study_records`) adds ``study.json`` to its sweep
+folder and ``visphy_job.json`` to each job's folder.
+
+Every file is written through `visphy_core.infra.files` (atomic, never through a link), and
+read and written through `visphy_core.results.run_dir.RunDir`: no module outside
+`visphy_core.results` spells one of these names (tests/test_layering.py).
 """
 
 from __future__ import annotations
@@ -31,6 +36,19 @@ CALLS = "calls.jsonl"
 SCENES = "scenes"
 RATINGS = "human_ratings.jsonl"
 LOCK = ".lock"
+STUDY_FILE = "study.json"
+JOB_FILE = "visphy_job.json"
+
+#: A run's own files at its top level (its scenes aside), in the order tracking logs them.
+RUN_FILES = (CONFIG, MANIFEST, SUMMARY, RESULTS_PARQUET, RESULTS_JSONL, CALLS)
+#: What a finished run has: the files merging a shard reads.
+FINISHED_FILES = (CONFIG, MANIFEST, SUMMARY, RESULTS_JSONL)
+#: What re-scoring reads (a run killed before its summary can be re-scored).
+SCORABLE_FILES = (CONFIG, MANIFEST, RESULTS_JSONL)
+#: What a run's config and rows make: the files re-scoring writes anew.
+DERIVED_FILES = (CONFIG, MANIFEST, SUMMARY, RESULTS_JSONL, RESULTS_PARQUET)
+#: Every file name the format owns.
+FILE_NAMES = (*RUN_FILES, RATINGS, STUDY_FILE, JOB_FILE)
 
 #: Files only a run writes: a folder holding any of them is a run directory, finished or not
 #: (a killed run may have no summary). ``config.yaml`` alone is not one (Hydra writes one in

@@ -11,18 +11,16 @@ runs through it.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 from visphy_core.infra import files
 from visphy_core.infra.errors import UserError
 from visphy_core.results.layout import (
     COMPLETE,
     CONFIG,
-    MANIFEST,
     RESULTS_JSONL,
     RESULTS_PARQUET,
     RUN_MARKERS,
@@ -31,7 +29,7 @@ from visphy_core.results.layout import (
     is_run_dir,
 )
 from visphy_core.results.row import SceneResult
-from visphy_core.results.rows import read_results
+from visphy_core.results.run_dir import RunDir
 from visphy_core.results.summary import summarise_rows
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -112,25 +110,31 @@ class RunData:
         return df
 
 
-def _read_json(path: Path) -> dict[str, Any]:
-    if not path.is_file():
-        return {}
+def flatten(config: Any, prefix: str = "") -> dict[str, Any]:
+    """A config (nested dicts) as dotted keys: ``{"dataset": {"split": "x"}}`` →
+    ``{"dataset.split": "x"}``."""
+    out: dict[str, Any] = {}
+    if isinstance(config, dict):
+        for key, value in config.items():
+            out.update(flatten(value, f"{prefix}{key}."))
+    else:
+        out[prefix[:-1]] = config
+    return out
+
+
+def _or_empty(read: Callable[[], Any]) -> dict[str, Any]:
+    """What ``read`` gives, as a dict; empty when the file is missing or damaged (a run being
+    read as it is, whatever state it is in)."""
     try:
-        data = json.loads(path.read_text(encoding="utf-8", errors="replace"))
-    except ValueError:
+        data = read()
+    except (OSError, ValueError):
         return {}
-    return data if isinstance(data, dict) else {}
-
-
-def _read_config(path: Path) -> dict[str, Any]:
-    if not path.is_file():
+    except Exception:  # noqa: BLE001 - a damaged config (OmegaConf's own errors) reads as none
         return {}
-    from omegaconf import OmegaConf
+    if hasattr(data, "_metadata"):  # a DictConfig
+        from omegaconf import OmegaConf
 
-    try:
-        data = OmegaConf.to_container(OmegaConf.load(path), resolve=False)
-    except Exception:  # noqa: BLE001 - a damaged config leaves the reader without it
-        return {}
+        data = OmegaConf.to_container(data, resolve=False)
     return data if isinstance(data, dict) else {}
 
 
@@ -145,8 +149,9 @@ def load_run(run_dir: str | Path, *, finished: bool = False) -> RunData:
             f"beside {SCENES}/)")
         raise UserError(f"{run_dir} {what}; pass a folder under <VISPHY_HOME>/runs/")
     files.refuse_tree(run_dir, "run directory")
-    manifest = _read_json(run_dir / MANIFEST)
-    summary = _read_json(run_dir / SUMMARY)
+    files_of = RunDir(run_dir)
+    manifest = _or_empty(files_of.read_manifest)
+    summary = _or_empty(files_of.read_summary)
     if finished and not summary:
         raise UserError(f"{run_dir}: no readable {SUMMARY} (not a finished run directory: "
                         "rerun its command to finish it)")
@@ -157,7 +162,7 @@ def load_run(run_dir: str | Path, *, finished: bool = False) -> RunData:
     if finished and status != COMPLETE:
         raise UserError(f"{run_dir}: the run is {status}, not {COMPLETE}: rerun its command "
                         "to finish it (it resumes where it stopped)")
-    results, skipped = read_results(run_dir)
+    results, skipped = files_of.read_rows()
     order = [str(s) for s in manifest.get("scenes") or []]
     position = {sid: i for i, sid in enumerate(order)}
     results.sort(key=lambda r: position.get(r.scene_id, len(position)))
@@ -169,6 +174,6 @@ def load_run(run_dir: str | Path, *, finished: bool = False) -> RunData:
         summary = summarise_rows(results, manifest)
         source = (f"recomputed from {RESULTS_JSONL}: the run has no {SUMMARY} (it was killed "
                   "or is still running)")
-    return RunData(run_dir=run_dir, config=_read_config(run_dir / CONFIG), manifest=manifest,
+    return RunData(run_dir=run_dir, config=_or_empty(files_of.read_config), manifest=manifest,
                    summary=summary, summary_source=source, results=results, pending=pending,
                    skipped_lines=skipped)

@@ -24,6 +24,18 @@ def jsonl_line(result: SceneResult) -> str:
     return json.dumps(result.row(), default=str) + "\n"
 
 
+def parse_line(line: str) -> SceneResult | None:
+    """The row a line of ``results.jsonl`` holds; None for a line that is not a row (the
+    half-written last line of a killed run)."""
+    try:
+        row = json.loads(line)
+        if not isinstance(row, dict) or not isinstance(row.get("scene_id"), str):
+            raise ValueError("not a row")
+        return SceneResult.from_row(row)
+    except (ValueError, TypeError, KeyError):
+        return None
+
+
 def parse_lines(text: str) -> tuple[list[SceneResult], int]:
     """The rows in the text of a ``results.jsonl``, first per scene, and the number of lines
     that were not a row (blank lines aside)."""
@@ -32,12 +44,8 @@ def parse_lines(text: str) -> tuple[list[SceneResult], int]:
     for line in text.splitlines():
         if not line.strip():
             continue
-        try:
-            row = json.loads(line)
-            if not isinstance(row, dict) or not isinstance(row.get("scene_id"), str):
-                raise ValueError("not a row")
-            result = SceneResult.from_row(row)
-        except (ValueError, TypeError, KeyError):
+        result = parse_line(line)
+        if result is None:
             skipped += 1
             continue
         rows.setdefault(result.scene_id, result)

@@ -1,22 +1,153 @@
-"""Run directories: naming, the lock a live run holds, and resuming an unfinished one.
+"""Run directories: the typed `RunDir` (where each file of a run is, with the one reader and
+the one writer of each), naming, the lock a live run holds, and resuming an unfinished one.
 
 A run directory is named ``<date>_<model>_<engine>_<hash>``; its manifest records the full config
 hash and a status. Rerunning a command resumes the newest unfinished run directory with the same
 config hash that no live process holds (`find_resumable`), keeping the rows it already wrote
-(`read_rows`).
+(`RunDir.restore_rows`).
 """
 
 from __future__ import annotations
 
 import datetime as dt
 import json
+from dataclasses import dataclass
 from pathlib import Path
+from typing import IO, Any, Iterable
 
 from omegaconf import DictConfig, OmegaConf
 
 from visphy_core.infra.cache import content_key
 from visphy_core.infra.files import atomic_write
+from visphy_core.infra.secrets import public_yaml
+from visphy_core.results import layout
 from visphy_core.results.row import SceneResult
+from visphy_core.results.rows import parse_line, read_results, write_results
+from visphy_core.results.write import write_json
+
+@dataclass(frozen=True)
+class RunDir:
+    """A run directory's files (`visphy_core.results.layout`): where each is, and the one reader
+    and the one writer of each. Readers raise `OSError` for a missing or unreadable file and
+    `ValueError` for one that is not what it should be; callers that read what a run has so far
+    (`visphy_core.results.load.load_run`) catch them."""
+
+    path: Path
+
+    @property
+    def config_file(self) -> Path:
+        return self.path / layout.CONFIG
+
+    @property
+    def manifest_file(self) -> Path:
+        return self.path / layout.MANIFEST
+
+    @property
+    def summary_file(self) -> Path:
+        return self.path / layout.SUMMARY
+
+    @property
+    def rows_file(self) -> Path:
+        """``results.jsonl``: the rows as the run goes."""
+        return self.path / layout.RESULTS_JSONL
+
+    @property
+    def parquet_file(self) -> Path:
+        return self.path / layout.RESULTS_PARQUET
+
+    @property
+    def calls_file(self) -> Path:
+        """The call ledger (`visphy_core.calls.usage.UsageLedger`)."""
+        return self.path / layout.CALLS
+
+    @property
+    def scenes(self) -> Path:
+        return self.path / layout.SCENES
+
+    def scene_dir(self, scene_id: str) -> Path:
+        return self.scenes / scene_id
+
+    def missing(self, names: Iterable[str]) -> list[str]:
+        """Those of ``names`` (`layout.FINISHED_FILES`, …) that are not files of the run."""
+        return [name for name in names if not (self.path / name).is_file()]
+
+    def present(self, names: Iterable[str] = layout.RUN_FILES) -> list[Path]:
+        """The files of ``names`` the run has, in that order."""
+        return [self.path / name for name in names if (self.path / name).is_file()]
+
+    def read_config(self) -> DictConfig:
+        """``config.yaml``, as written (interpolations unresolved)."""
+        cfg = OmegaConf.load(self.config_file)
+        if not isinstance(cfg, DictConfig):
+            raise ValueError(f"{self.config_file}: not a mapping")
+        return cfg
+
+    def write_config(self, cfg: DictConfig) -> None:
+        """``config.yaml`` without credentials (`visphy_core.infra.secrets.public_yaml`)."""
+        atomic_write(self.config_file, public_yaml(cfg))
+
+    def read_manifest(self) -> dict[str, Any]:
+        return _read_json(self.manifest_file)
+
+    def write_manifest(self, manifest: dict[str, Any]) -> None:
+        write_json(self.manifest_file, manifest)
+
+    def read_summary(self) -> dict[str, Any]:
+        return _read_json(self.summary_file)
+
+    def write_summary(self, summary: dict[str, Any]) -> None:
+        write_json(self.summary_file, summary)
+
+    def tracking(self) -> dict[str, Any]:
+        """Where tracking plugins recorded the run (the manifest's ``tracking``, by plugin);
+        empty when the manifest says nothing or cannot be read."""
+        try:
+            tracking = self.read_manifest().get("tracking")
+        except (OSError, ValueError):
+            return {}
+        return tracking if isinstance(tracking, dict) else {}
+
+    def read_rows(self) -> tuple[list[SceneResult], int]:
+        """The rows, first per scene (`visphy_core.results.rows.read_results`), with the number
+        of lines that could not be read."""
+        return read_results(self.path)
+
+    def write_rows(self, results: list[SceneResult], *, jsonl: bool = True) -> None:
+        """``results.parquet`` (and, with ``jsonl``, ``results.jsonl``) holding ``results``."""
+        write_results(self.path, results, jsonl=jsonl)
+
+    def open_rows(self) -> IO[str]:
+        """``results.jsonl`` opened for appending (a row per line, `rows.jsonl_line`)."""
+        return self.rows_file.open("a")
+
+    def restore_rows(self, scene_ids: list[str]) -> list[SceneResult]:
+        """Finished rows of an interrupted run, one per selected scene (first wins). A line that
+        is not a row (the half-written last line of a killed run) is dropped and the file is
+        rewritten without it."""
+        path = self.rows_file
+        if not path.is_file():
+            return []
+        wanted = set(scene_ids)
+        kept: dict[str, tuple[str, SceneResult]] = {}
+        raw = path.read_bytes()
+        dirty = bool(raw) and not raw.endswith(b"\n")
+        for line in raw.decode("utf-8", errors="replace").splitlines():
+            result = parse_line(line) if line.strip() else None
+            if result is None or result.scene_id not in wanted or result.scene_id in kept:
+                dirty = True
+                continue
+            kept[result.scene_id] = (line, result)
+        if dirty:
+            atomic_write(path, "".join(line + "\n" for line, _ in kept.values()), fsync=True)
+        return [result for _, result in kept.values()]
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    data = json.loads(path.read_bytes().decode("utf-8", errors="replace"))
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: not a JSON object")
+    return data
+
 
 #: Manifest statuses; every one but "finished" can be resumed by rerunning the same command
 #: ("cost_cap": stopped by run.cost_cap_usd; raise the cap and rerun to continue).
@@ -72,7 +203,7 @@ class RunLock:
     so a run still going in another process is never resumed under its feet."""
 
     def __init__(self, run_dir: Path):
-        self.path = run_dir / ".lock"
+        self.path = run_dir / layout.LOCK
         self.fh = None
 
     def acquire(self) -> bool:
@@ -100,10 +231,10 @@ def find_resumable(runs_dir: Path, chash: str) -> tuple[Path, RunLock] | None:
         return None
     for run_dir in sorted((p for p in runs_dir.iterdir() if p.is_dir()), reverse=True):
         try:
-            manifest = json.loads((run_dir / "manifest.json").read_text())
+            manifest = RunDir(run_dir).read_manifest()
         except (OSError, ValueError):
             continue
-        if not isinstance(manifest, dict) or manifest.get("config_hash") != chash:
+        if manifest.get("config_hash") != chash:
             continue
         if manifest.get("status", FINISHED) == FINISHED:
             continue
@@ -120,11 +251,11 @@ def claim_run_dir(run_dir: Path, chash: str) -> tuple[Path, RunLock]:
 
     run_dir = Path(run_dir).expanduser().resolve()
     try:
-        manifest = json.loads((run_dir / "manifest.json").read_text())
+        manifest = RunDir(run_dir).read_manifest()
     except (OSError, ValueError):
         raise ConfigError(f"run.resume={run_dir}: not a run directory with a readable "
-                          "manifest.json") from None
-    if not isinstance(manifest, dict) or manifest.get("config_hash") != chash:
+                          f"{layout.MANIFEST}") from None
+    if manifest.get("config_hash") != chash:
         raise ConfigError(f"run.resume={run_dir}: that run's config differs from this "
                           "command's; resume it with its own command (its config.yaml)")
     if manifest.get("status", FINISHED) == FINISHED:
@@ -133,34 +264,3 @@ def claim_run_dir(run_dir: Path, chash: str) -> tuple[Path, RunLock]:
     if not lock.acquire():
         raise ConfigError(f"run.resume={run_dir}: another process is working in it")
     return run_dir, lock
-
-
-def read_rows(path: Path, scene_ids: list[str]) -> list[SceneResult]:
-    """Finished rows of an interrupted run, one per selected scene (first wins). A line that
-    does not parse (the half-written last line of a killed run) is dropped and the file is
-    rewritten without it."""
-    if not path.is_file():
-        return []
-    wanted = set(scene_ids)
-    kept: dict[str, tuple[str, SceneResult]] = {}
-    dirty = False
-    raw = path.read_bytes()
-    for line in raw.decode("utf-8", errors="replace").splitlines():
-        if not line.strip():
-            dirty = True
-            continue
-        try:
-            row = json.loads(line)
-            result = SceneResult.from_row(row)
-        except (ValueError, TypeError, KeyError):
-            dirty = True
-            continue
-        if result.scene_id not in wanted or result.scene_id in kept:
-            dirty = True
-            continue
-        kept[result.scene_id] = (line, result)
-    if not raw.endswith(b"\n") and raw:
-        dirty = True
-    if dirty:
-        atomic_write(path, "".join(line + "\n" for line, _ in kept.values()), fsync=True)
-    return [result for _, result in kept.values()]

@@ -14,8 +14,8 @@ import os
 from pathlib import Path
 from typing import Any
 
-STUDY_FILE = "study.json"
-JOB_FILE = "visphy_job.json"
+from visphy_core.results.layout import JOB_FILE, STUDY_FILE
+
 #: Set in a job's process while the job runs: its Hydra job dir.
 JOB_ENV = "VISPHY_STUDY_JOB"
 

@@ -1,7 +1,7 @@
 """A run's summary from its rows: counts with honest denominators and each score column's means.
 
-`visphy_core.execute.run.summarise` writes ``summary.json`` with these counts and means plus
-what only the live run knows (cache statistics, usage, metric descriptions); a report of a run
+`summarise` makes ``summary.json``'s counts and means plus what only the live run knows (cache
+statistics, usage, metric descriptions); a report of a run
 that never wrote its summary (killed, or still going) recomputes the same counts and means here
 from ``results.jsonl`` (`summarise_rows`). Both use one rule:
 
@@ -15,11 +15,12 @@ from ``results.jsonl`` (`summarise_rows`). Both use one rule:
 
 from __future__ import annotations
 
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable, NamedTuple
 
 import numpy as np
 
-from visphy_core.results.columns import SPEC_PREFIX, column_direction
+from visphy_core.api.metrics import Metric
+from visphy_core.results.columns import JUDGE_PREFIX, SPEC_PREFIX, column_direction
 from visphy_core.results.row import NOT_EVALUABLE, SceneResult
 
 #: Per-stage wall seconds of a row, summed in the summary (``stage_seconds``).
@@ -111,3 +112,80 @@ def summarise_rows(results: list[SceneResult], manifest: dict[str, Any]) -> dict
     return {**counts(results),
             "metrics": metric_means(results, [(c, column_direction(c, base)) for c in columns]),
             "prompt_versions": prompt_versions(results), "spec": spec_counts(results)}
+
+
+class HeadlineColumn(NamedTuple):
+    """The run's headline column and how its summary entry is made from its values over the
+    model's successes and over every scored scene
+    (`visphy_core.scoring.headline.summary_entry`)."""
+
+    name: str
+    entry: Callable[[list[float], list[float]], dict]
+
+
+def judge_columns(results: list[SceneResult], judges: list[str]) -> dict[str, dict]:
+    """Per judge: mean score over valid verdicts, and the invalid ones counted by reason."""
+    out = {}
+    for key in judges:
+        column = JUDGE_PREFIX + key
+        valid = [r.scores[column] for r in results if r.scores.get(column) is not None]
+        invalid: dict[str, int] = {}
+        for r in results:
+            if key in r.judge_errors:
+                reason = r.judge_errors[key].split(":")[0][:80]
+                invalid[reason] = invalid.get(reason, 0) + 1
+        out[key] = {"mean": float(np.mean(valid)) if valid else None, "n_valid": len(valid),
+                    "n_invalid": sum(invalid.values()), "invalid": invalid}
+    return out
+
+
+def _count_states(states: Iterable[str | None]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for state in states:
+        if state is not None:
+            out[state] = out.get(state, 0) + 1
+    return out
+
+
+def summarise(results: list[SceneResult], metrics: list[Metric],
+              columns: list[tuple[str, str]], *, cache_stats: dict[str, Any],
+              judges: list[str] | None = None, usage: dict[str, Any] | None = None,
+              headline: HeadlineColumn | None = None) -> dict[str, Any]:
+    """A run's summary (``summary.json`` before the run adds its status and identity): means
+    with honest denominators, model successes only and all scenes with fallbacks, over the
+    run's score ``columns`` (name, direction: `visphy_core.scoring.score.score_columns`), the
+    headline's and the judges' first and last.
+
+    Success rates are given over all scenes and over the evaluable ones (scenes that ended in
+    ``infra_error`` or ``data_error`` say nothing about the model); ``failures`` splits the
+    model's failures from infrastructure/data failures.
+    """
+    ok = [r for r in results if r.model_success]
+    scored = [r for r in results if r.system_success]
+    columns = ([(headline.name, "higher")] if headline is not None else []) + list(columns)
+    columns += [(JUDGE_PREFIX + key, "higher") for key in judges or []]
+    head = None
+    if headline is not None:
+        def values(rows: list[SceneResult]) -> list[float]:
+            return [r.scores[headline.name] for r in rows
+                    if r.scores.get(headline.name) is not None]
+
+        head = headline.entry(values(ok), values(scored))
+    return {
+        "headline": head,
+        **counts(results),
+        "isolation": sorted({r.isolation for r in results if r.isolation}),
+        "metrics": metric_means(results, columns),
+        # what each metric is and loads (weights, the BERTScore model…), as declared
+        "metric_info": {m.name: m.describe() for m in metrics},
+        "cache": cache_stats,
+        "model_calls": sum(r.model_calls for r in results),
+        "renders_done": sum(1 for r in results if r.render_wall_s is not None
+                            and not r.render_cached),
+        "spec": spec_counts(results),
+        "prompt_versions": prompt_versions(results),
+        "spec_track": _count_states(r.spec_track for r in results),
+        "judges": judge_columns(results, judges or []),
+        "usage": usage if usage is not None else {},
+        "stage_seconds": stage_seconds(results),
+    }

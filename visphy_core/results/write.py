@@ -23,9 +23,3 @@ def write_json(path: Path, data: Any) -> None:
     with no secret value and no credentials in URLs (the manifest records the command line)."""
     atomic_write(path, json.dumps(public_config(data), indent=1, default=str), fsync=True)
 
-
-def write_summary(run_dir: Path, summary: dict) -> None:
-    """A run's ``summary.json`` (`write_json`)."""
-    from visphy_core.results.layout import SUMMARY
-
-    write_json(Path(run_dir) / SUMMARY, summary)

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from visphy_core.results import study_records as records
+from visphy_core.results.run_dir import RunDir
 
 
 def _status(jobs: list[dict], ended_early: bool) -> str:
@@ -82,8 +83,6 @@ def comparison_rows(jobs: list[dict], sweep) -> list[dict[str, Any]]:
     """The study's comparison table: per job its number, label, swept values, status, MLflow run
     and, when it completed, its headline with interval, family means and success rates
     (`visphy_core.tracking.study_row`)."""
-    from omegaconf import OmegaConf
-
     from visphy_core.tracking import headline_clip, study_row
 
     rows = []
@@ -93,11 +92,14 @@ def comparison_rows(jobs: list[dict], sweep) -> list[dict[str, Any]]:
                                "status": job.get("run_status") or job.get("status"),
                                "mlflow_run_id": job.get("mlflow_run_id")}
         run_dir = Path(job["run_dir"]) if job.get("run_dir") else None
-        if job.get("status") == records.COMPLETED and run_dir and \
-                (run_dir / "summary.json").is_file():
-            summary = records.read_json(run_dir / "summary.json") or {}
-            config = run_dir / "config.yaml"
-            clip = headline_clip(OmegaConf.load(config)) if config.is_file() else (-1.0, 1.0)
+        run = RunDir(run_dir) if run_dir else None
+        if job.get("status") == records.COMPLETED and run and run.summary_file.is_file():
+            try:
+                summary = run.read_summary()
+            except (OSError, ValueError):
+                summary = {}
+            clip = headline_clip(run.read_config()) if run.config_file.is_file() \
+                else (-1.0, 1.0)
             row.update(study_row(summary, clip))
         rows.append(row)
     return rows
@@ -174,7 +176,7 @@ def finish_study(sweep_dir: Path, *, ended_early: bool = False) -> dict[str, Any
                       artifacts=[(sweep_dir / "analysis", "analysis"),
                                  (sweep_dir / "report", "report"),
                                  (sweep_dir / "study_summary.json", None),
-                                 (sweep_dir / "study.json", None)],
+                                 (sweep_dir / records.STUDY_FILE, None)],
                       tags={"visphy.study_status": status.lower(),
                             **({"visphy.best_job": str(best["label"])} if best else {})},
                       table=rows)

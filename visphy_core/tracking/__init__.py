@@ -44,7 +44,6 @@ from visphy_core.tracking.hooks import (
 from visphy_core.tracking.store import mlflow_command, open_store, store_lock, tracking_uris
 from visphy_core.tracking.values import (
     family_means,
-    flatten,
     headline_clip,
     headline_metrics,
     run_params,
@@ -55,7 +54,7 @@ from visphy_core.tracking.values import (
 )
 
 __all__ = [
-    "FinishedRun", "end_study_run", "family_means", "flatten", "headline_clip",
+    "FinishedRun", "end_study_run", "family_means", "headline_clip",
     "headline_metrics", "log_finished_run", "mlflow_command", "open_store", "run_display_name",
     "run_params", "scene_table", "start_study_run", "store_lock", "study_row",
     "summary_metrics", "table_column", "track_command", "tracking_uris", "visphy_run_end",

@@ -11,15 +11,17 @@ import shlex
 import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 from omegaconf import OmegaConf
 
 from visphy_core.api.hookspecs import hookimpl
+from visphy_core.results.layout import RUN_FILES
+from visphy_core.results.run_dir import RunDir
 from visphy_core.tracking.store import (
     log_metrics,
     log_params,
+    mlflow_command,
     open_store,
     sqlite_file,
     store_lock,
@@ -36,14 +38,14 @@ from visphy_core.tracking.values import (
 log = logging.getLogger("visphy.tracking")
 
 
+#: The MLflow run (client, run id) of each visphy run in progress, by ``id(run)``.
 _ACTIVE: dict[int, Any] = {}
+#: Why tracking a run in progress failed at its start (one line for its end), by ``id(run)``.
+_FAILED: dict[int, str] = {}
 #: visphy run status (``summary["status"]``) → MLflow run status. An interrupted run (SIGINT,
 #: SIGTERM) ends KILLED, a run that raised ends FAILED: never left RUNNING.
 _MLFLOW_STATUS = {"finished": "FINISHED", "interrupted": "KILLED", "failed": "FAILED",
                   "cost_cap": "KILLED"}
-#: The run's own files logged as artifacts (when present).
-RUN_FILES = ("config.yaml", "manifest.json", "summary.json", "results.parquet", "results.jsonl",
-             "calls.jsonl")
 #: The per-scene table (one row per scene, a column per score) and a study's comparison table,
 #: logged with `MlflowClient.log_table`: the UI shows them as tables.
 SCENE_TABLE, STUDY_TABLE = "scenes.json", "comparison.json"
@@ -73,12 +75,12 @@ def source_tags() -> dict[str, str]:
 def benchmark_version(run) -> str:
     """The dataset config's name and the benchmark build the scenes come from (a generated
     build's folder names its generator version and seed: ``visphybench-v3-seed0``)."""
-    builds = sorted({s.dataset for s in run.scenes if s.dataset})
+    builds = run.datasets
     return f"{run.cfg.dataset.name}:{','.join(builds)}" if builds else str(run.cfg.dataset.name)
 
 
 def _run_tags(run) -> dict[str, str]:
-    rescored = run.extra.get("rescored_from") or {}  # `score`: the run this one re-scores
+    rescored = run.rescored_from or {}  # `score`: the run this one re-scores
     return {"visphy.run_dir": str(run.run_dir), "visphy.model": run.model_name,
             "visphy.engine": run.engine_name, "visphy.benchmark_version": benchmark_version(run),
             "visphy.dataset": str(OmegaConf.select(run.cfg, "dataset.name", default="")),
@@ -170,8 +172,8 @@ def visphy_run_start(run):
     try:
         _start(run)
     except Exception as exc:  # noqa: BLE001 - tracking is a record of the run, not the run
-        run.extra["tracking_failed"] = _problem(run, exc)
-        log.warning("%s", run.extra["tracking_failed"])
+        _FAILED[id(run)] = _problem(run, exc)
+        log.warning("%s", _FAILED[id(run)])
         _close_failed(_ACTIVE.pop(id(run), None))
 
 
@@ -195,7 +197,7 @@ def _start(run) -> None:
 def _start_locked(run) -> None:
     client, uri, exp_id = open_store(run.cfg, run.root)
     tags, run_name = _run_tags(run), run_display_name(run.cfg)
-    if run.extra.get("rescored_from"):  # `score`: its own run, beside the one it re-scores
+    if run.rescored_from:  # `score`: its own run, beside the one it re-scores
         run_name += " · re-scored"
     study = _study_parent(uri)
     if study is not None:
@@ -208,7 +210,7 @@ def _start_locked(run) -> None:
     _ACTIVE[id(run)] = (client, mlrun.info.run_id)
     log_params(client, mlrun.info.run_id,
                run_params(run.cfg, study[1].get("sweep", ()) if study else ()))
-    previous = (run.extra.get("resumed_from") or {}).get("mlflow") or {}
+    previous = run.resumed_from.get("mlflow") or {}
     if previous.get("run_id"):  # the killed process's run: resumed here, so no longer RUNNING
         client.set_tag(mlrun.info.run_id, "visphy.resumed_from", previous["run_id"])
         try:
@@ -217,7 +219,7 @@ def _start_locked(run) -> None:
         except Exception as exc:  # noqa: BLE001 - another store, or the run was deleted
             log.warning("could not close the interrupted MLflow run %s: %s",
                         previous["run_id"], exc)
-    run.extra["mlflow"] = {"tracking_uri": uri, "run_id": mlrun.info.run_id,
+    run.tracking["mlflow"] = {"tracking_uri": uri, "run_id": mlrun.info.run_id,
                            "experiment_id": exp_id}
 
 
@@ -266,14 +268,13 @@ def _log_run_files(client, run_id: str, run, summary: dict, report: Path | None)
     if run.results:
         client.log_table(run_id, scene_table(run.results, list(summary.get("metrics") or {})),
                          SCENE_TABLE)
-    for name in RUN_FILES:
-        path = run.run_dir / name
-        if path.is_file():
-            client.log_artifact(run_id, str(path))
+    run_files = RunDir(run.run_dir)
+    for path in run_files.present(RUN_FILES):
+        client.log_artifact(run_id, str(path))
     if report is not None:
         client.log_artifacts(run_id, str(report), "report")
     if run.cfg.tracking.get("log_videos"):
-        for video in sorted(run.run_dir.glob("scenes/*/video.mp4")):
+        for video in sorted(run_files.scenes.glob("*/video.mp4")):
             client.log_artifact(run_id, str(video), f"videos/{video.parent.name}")
 
 
@@ -284,8 +285,9 @@ def visphy_run_end(run, summary):
     run) and the MLflow run, if one was opened, is marked FAILED: the run's own files are
     already written and the run ends as it would have."""
     active = _ACTIVE.pop(id(run), None)
-    if run.extra.get("tracking_failed"):
-        summary["tracking_failed"] = run.extra["tracking_failed"]
+    failed = _FAILED.pop(id(run), None)
+    if failed:
+        summary["tracking_failed"] = failed
     if active is None:
         return
     client, run_id = active
@@ -300,7 +302,7 @@ def visphy_run_end(run, summary):
 
 def _end(client, run_id: str, run, summary: dict) -> None:
     report = run_report(run.run_dir)  # written before the store is locked: no store access
-    with store_lock(run.extra["mlflow"]["tracking_uri"]):
+    with store_lock(run.tracking["mlflow"]["tracking_uri"]):
         _end_locked(client, run_id, run, summary, report)
 
 
@@ -311,13 +313,15 @@ def _end_locked(client, run_id: str, run, summary: dict, report: Path | None) ->
     _log_run_files(client, run_id, run, summary, report)
     status = _MLFLOW_STATUS.get(summary.get("status", "finished"), "FAILED")
     client.set_terminated(run_id, status=status)
-    summary["mlflow"] = dict(run.extra["mlflow"], status=status)
+    summary["mlflow"] = dict(run.tracking["mlflow"], status=status)
+    run.where_to_look.append(f"MLflow: {mlflow_command(run.tracking['mlflow']['tracking_uri'])}")
 
 
 @dataclass
 class FinishedRun:
-    """A finished run directory in the shape the hooks read (`RunContext`'s fields that
-    tracking uses), for logging it after the fact."""
+    """A finished run directory in the shape the hooks read (the fields of
+    `visphy_core.api.run_context.RunContext` that tracking uses), for logging it after the
+    fact."""
 
     cfg: Any
     run_dir: Path
@@ -325,8 +329,11 @@ class FinishedRun:
     model_name: str
     engine_name: str
     results: list
-    scenes: list
-    extra: dict = field(default_factory=dict)
+    datasets: list[str]
+    tracking: dict[str, dict[str, Any]] = field(default_factory=dict)
+    resumed_from: dict[str, dict[str, Any]] = field(default_factory=dict)
+    rescored_from: dict[str, Any] | None = None
+    where_to_look: list[str] = field(default_factory=list)
 
 
 def log_finished_run(data, uri: str | None = None, experiment: str | None = None) -> dict:
@@ -344,8 +351,7 @@ def log_finished_run(data, uri: str | None = None, experiment: str | None = None
     root = Path(OmegaConf.select(cfg, "paths.root", default=None) or data.run_dir.parents[1])
     run = FinishedRun(cfg=cfg, run_dir=data.run_dir, root=root, model_name=data.model,
                       engine_name=data.engine, results=data.results,
-                      scenes=[SimpleNamespace(dataset=d)
-                              for d in data.manifest.get("datasets") or []])
+                      datasets=sorted({str(d) for d in data.manifest.get("datasets") or [] if d}))
     summary = dict(data.summary)
     _start(run)
     client, run_id = _ACTIVE.pop(id(run))

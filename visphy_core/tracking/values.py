@@ -28,16 +28,6 @@ USAGE_FIELDS = ("calls", "cache_hits", "errors", "input_tokens", "output_tokens"
                 "cached_input_tokens", "reasoning_tokens", "cost_usd", "cost_usd_incl_cached")
 
 
-def flatten(d: Any, prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    if isinstance(d, dict):
-        for k, v in d.items():
-            out.update(flatten(v, f"{prefix}{k}."))
-    else:
-        out[prefix[:-1]] = d
-    return out
-
-
 #: A study's comparison table: of `headline_metrics`, these (and every ``family.*``).
 STUDY_COLUMNS = ("headline", "headline.lo", "headline.hi", "model_success_rate",
                  "system_success_rate", "n_scenes", "fallbacks")
