@@ -226,3 +226,50 @@ def test_a_long_module_says_why_it_is_one_module():
                                             for line in lines[:first_import]):
                 silent.append(f"{path.relative_to(REPO)} ({len(lines)} lines)")
     assert silent == []
+
+
+#: Modules outside ``visphy_core/results/`` that may spell a run-file name, with why: the name
+#: there is not a run's file.
+RUN_FILE_NAME_ELSEWHERE = {
+    "visphy_core/cli/help.py": "config.yaml of the Hydra config tree (visphy_conf)",
+}
+
+
+def run_file_literals(source: str, names: tuple[str, ...]) -> list[tuple[int, str]]:
+    """(line, name) for every string literal of ``source`` that names one of ``names`` (the
+    whole string, or a path ending in it)."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str):
+            text = node.value.strip()
+            for name in names:
+                if text == name or text.endswith("/" + name):
+                    found.append((node.lineno, name))
+    return sorted(found)
+
+
+def test_no_run_file_name_outside_results():
+    """``results/`` owns the run directory: no other module spells a run file's name (they
+    use `visphy_core.results.run_dir.RunDir` or the names of `visphy_core.results.layout`)."""
+    from visphy_core.results.layout import FILE_NAMES
+
+    offenders = []
+    for root in (CORE, REPO / "plugins", REPO / "examples"):
+        for path in sorted(root.rglob("*.py")):
+            rel = str(path.relative_to(REPO))
+            if rel.startswith("visphy_core/results/") or rel in RUN_FILE_NAME_ELSEWHERE:
+                continue
+            offenders += [f"{rel}:{line}: {name}"
+                          for line, name in run_file_literals(path.read_text(), FILE_NAMES)]
+    assert offenders == []
+
+
+def test_the_run_file_check_catches_a_name():
+    """A run file named in a string, alone or at the end of a path, is found; a docstring
+    that mentions one in a sentence and a similar name are not (so the test above can fail)."""
+    source = ('"""Reads the summary.json of a run."""\n'
+              'a = run_dir / "manifest.json"\n'
+              'b = "runs/x/results.jsonl"\n'
+              'c = "manifest.json.bak"\n')
+    assert run_file_literals(source, ("manifest.json", "results.jsonl", "summary.json")) == [
+        (2, "manifest.json"), (3, "results.jsonl")]
