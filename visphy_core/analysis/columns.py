@@ -3,10 +3,10 @@ each scene's values in either success view.
 
 A run's ``results`` carry one ``score_<column>`` per metric column (``psnr``, ``psnr.aligned``,
 ``paper.psnr``, ``spec.…``, ``norm.…``, ``judge_<key>``); its ``summary.json`` gives each
-column's direction. The two views follow `visphy_core.execute.run.summarise`: **model success** (the
-model's own program gave the clip) and **with fallbacks** (every scene with a clip; the spec
-track's ``spec.`` columns over every evaluable scene, as S is scored whether or not the program
-ran).
+column's direction. The two views follow `visphy_core.results.summary.summarise`: **model
+success** (the model's own program gave the clip) and **with fallbacks** (every scene with a
+clip; the spec track's ``spec.`` columns over every evaluable scene, as S is scored whether or
+not the program ran).
 """
 
 from __future__ import annotations
@@ -17,13 +17,12 @@ import numpy as np
 import pandas as pd
 
 from visphy_core.infra.errors import UserError
-from visphy_core.results.columns import SPEC_PREFIX
+from visphy_core.results.columns import JUDGE_PREFIX, NORM_PREFIX, SCORE, SPEC_PREFIX
 from visphy_core.results.row import NOT_EVALUABLE
 
 if TYPE_CHECKING:
     from visphy_core.results.load import RunData
 
-SCORE = "score_"
 MODEL_SUCCESS, WITH_FALLBACKS = "model_success", "with_fallbacks"
 VIEWS = (MODEL_SUCCESS, WITH_FALLBACKS)
 ARROW = {"higher": "↑", "lower": "↓"}
@@ -52,7 +51,7 @@ def direction(runs: list["RunData"], column: str) -> str | None:
         info = run.summary.get("metrics", {}).get(column)
         if isinstance(info, dict) and info.get("direction") in ARROW:
             return info["direction"]
-    if column.startswith(("judge_", "human", "norm.", f"{SPEC_PREFIX}norm.")):
+    if column.startswith((JUDGE_PREFIX, "human", NORM_PREFIX, SPEC_PREFIX + NORM_PREFIX)):
         return "higher"
     return None
 
@@ -84,7 +83,7 @@ def headline_columns(runs: list["RunData"]) -> list[str]:
                            for run in runs)
     cols = [c for c in scores if c and c not in HEADLINE and has_values(runs, c)]
     cols += [c for c in HEADLINE if has_values(runs, c)]
-    judges = [c for c in score_columns(runs) if c.startswith("judge_") and has_values(runs, c)]
+    judges = [c for c in score_columns(runs) if c.startswith(JUDGE_PREFIX) and has_values(runs, c)]
     return cols + judges
 
 

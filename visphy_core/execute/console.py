@@ -31,6 +31,7 @@ from visphy_core.calls.retry import RETRYABLE, kind_of_description
 from visphy_core.infra.events import STAGES, StageEvents
 from visphy_core.infra.numbers import number
 from visphy_core.infra.progress import EVERY, PlainLines, duration, output_columns, rate_and_eta
+from visphy_core.results.columns import ALIGNED_SUFFIX, NORM_PREFIX, PAPER_PREFIX, SPEC_PREFIX
 
 #: A pipe or a log file has no width: lines and tables are written whole, however wide (rich
 #: would cut them at 80 columns).
@@ -279,15 +280,15 @@ def _fmt(value) -> str:
 def split_column(name: str) -> tuple[str, str]:
     """A score column as (metric, view): ``psnr`` (visphy), ``psnr.aligned`` / ``align.err``
     (aligned), ``paper.psnr`` (paper), ``spec.psnr`` (the spec track, unaligned)."""
-    if name.startswith("spec."):
-        base, view = split_column(name[len("spec."):])
-        return base, "spec" if view == "visphy" else f"spec.{view}"
-    if name.startswith("norm."):
-        return name[len("norm."):], "norm"
-    if name.startswith("paper."):
-        return name[len("paper."):], "paper"
-    if name.endswith(".aligned"):
-        return name[:-len(".aligned")], "aligned"
+    if name.startswith(SPEC_PREFIX):
+        base, view = split_column(name[len(SPEC_PREFIX):])
+        return base, "spec" if view == "visphy" else f"{SPEC_PREFIX}{view}"
+    if name.startswith(NORM_PREFIX):
+        return name[len(NORM_PREFIX):], "norm"
+    if name.startswith(PAPER_PREFIX):
+        return name[len(PAPER_PREFIX):], "paper"
+    if name.endswith(ALIGNED_SUFFIX):
+        return name[:-len(ALIGNED_SUFFIX)], "aligned"
     if name.startswith("align."):
         return name, "aligned"
     return name, "visphy"

@@ -3,7 +3,15 @@ other pairings and tracks of the same metrics (see README, *Metrics and scoring 
 
 from __future__ import annotations
 
-from visphy_core.results.columns import column_direction
+from visphy_core.results.columns import (
+    ALIGN_PREFIX,
+    ALIGNED_SUFFIX,
+    JUDGE_PREFIX,
+    NORM_PREFIX,
+    PAPER_PREFIX,
+    SPEC_PREFIX,
+    column_direction,
+)
 
 #: Groups in display order: (key, heading).
 GROUPS = (
@@ -21,17 +29,17 @@ PRIMARY = ("visphy", "judge")
 
 
 def group_of(column: str) -> str:
-    if column.startswith("judge_"):
+    if column.startswith(JUDGE_PREFIX):
         return "judge"
-    if column.startswith("norm.") or column.startswith("spec.norm."):
+    if column.startswith((NORM_PREFIX, SPEC_PREFIX + NORM_PREFIX)):
         return "norm"
-    if column.startswith("spec."):
+    if column.startswith(SPEC_PREFIX):
         return "spec"
-    if column.startswith(("align.", "paper.align.")):
+    if column.startswith((ALIGN_PREFIX, PAPER_PREFIX + ALIGN_PREFIX)):
         return "align"
-    if column.startswith("paper."):
+    if column.startswith(PAPER_PREFIX):
         return "paper"
-    if column.endswith(".aligned"):
+    if column.endswith(ALIGNED_SUFFIX):
         return "aligned"
     return "visphy"
 
@@ -57,4 +65,5 @@ def direction_of(column: str, summary: dict) -> str:
 
 def label(column: str) -> str:
     """A column's display name (judges by their key)."""
-    return f"judge: {column.removeprefix('judge_')}" if column.startswith("judge_") else column
+    return f"judge: {column.removeprefix(JUDGE_PREFIX)}" if column.startswith(JUDGE_PREFIX) \
+        else column
