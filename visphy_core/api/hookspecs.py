@@ -85,7 +85,8 @@ def visphy_register_physics(register: Callable[..., None]) -> None:
 def visphy_run_start(run: Any) -> None:
     """Called once before the first scene, after the run directory exists.
 
-    :param run: the ``visphy_core.execute.run.RunContext`` (config, run directory, scenes, plugins).
+    :param run: the ``visphy_core.api.run_context.RunContext`` (config, run directory, scenes,
+        metrics).
     """
 
 
@@ -93,9 +94,9 @@ def visphy_run_start(run: Any) -> None:
 def visphy_scene_done(run: Any, scene: Any, result: Any) -> None:
     """Called after each scene is scored (or has failed): one call per scene, failures included.
 
-    :param run: the ``visphy_core.execute.run.RunContext``.
+    :param run: the ``visphy_core.api.run_context.RunContext``.
     :param scene: the ``visphy_core.api.scene.Scene`` that was processed.
-    :param result: the ``visphy_core.execute.pipeline.SceneResult`` row (status, failure class,
+    :param result: the ``visphy_core.results.row.SceneResult`` row (status, failure class,
     scores).
     """
 
@@ -104,6 +105,6 @@ def visphy_scene_done(run: Any, scene: Any, result: Any) -> None:
 def visphy_run_end(run: Any, summary: Any) -> None:
     """Called once after the last scene, after results and summary are written.
 
-    :param run: the ``visphy_core.execute.run.RunContext``.
+    :param run: the ``visphy_core.api.run_context.RunContext``.
     :param summary: the summary dict written to ``summary.json``.
     """

@@ -24,7 +24,7 @@ def _log(run, **record) -> None:
 
 @hookimpl
 def visphy_run_start(run):
-    # run: visphy_core.execute.run.RunContext (cfg, run_dir, scenes, model and engine names...)
+    # run: visphy_core.api.run_context.RunContext (cfg, run_dir, scenes, model and engine names…)
     _log(run, event="run_start", model=run.model_name, engine=run.engine_name,
          scenes=len(run.scenes))
 
