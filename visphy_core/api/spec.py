@@ -10,7 +10,6 @@ from visphy_core.spec.spec2d import (
     PHYRE_PROFILE,
     WALL_IDS,
     category_of,
-    contact_table,
     local_polygons,
     shape_area_centroid,
     transform_points,
@@ -35,6 +34,7 @@ from visphy_core.spec.spec3d import (
     validate_spec_3d,
     wedge_vertices,
 )
+from visphy_core.spec.validation import contact_table
 
 __all__ = [
     "body_mass", "bounding_radius", "box_corners", "CATEGORIES", "category_of", "category_of_3d",

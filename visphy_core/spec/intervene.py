@@ -24,7 +24,7 @@ velocity              m/s        a dynamic body's initial linear velocity (a vec
 angular_velocity      rad/s      its initial angular velocity (2D: a number, CCW; 3D: a vector)
 ====================  =========  ==============================================================
 
-Contacts use the spec's explicit contact table (`spec2d.contact_table`): a body-level change
+Contacts use the spec's explicit contact table (`validation.contact_table`): a body-level change
 writes an explicit pair for each partner the body has, starting from the pair's current values,
 so nothing depends on a material-mixing rule. Every value is checked against the range the
 spec's JSON Schema gives the field, and the edited spec is validated as a whole (its profile
@@ -44,8 +44,9 @@ import jsonschema
 import numpy as np
 
 from visphy_core.infra.errors import UserError
-from visphy_core.spec.spec2d import _NONNEG, _NUM, _POS, shape_area_centroid
+from visphy_core.spec.spec2d import shape_area_centroid
 from visphy_core.spec.spec3d import FLOOR_ID, body_mass
+from visphy_core.spec.validation import NONNEG, NUM, POS
 from visphy_core.spec.spec_track import MAX_SPEED
 
 PROFILE = "intervention"
@@ -64,12 +65,12 @@ class Parameter:
 
 
 PARAMETERS: dict[str, Parameter] = {p.name: p for p in (
-    Parameter("gravity", "m/s²", "world", _NUM, "number (vertical) or vector"),
-    Parameter("friction", "", "contact", _NONNEG, "contact friction ≥ 0"),
-    Parameter("restitution", "", "contact", _NONNEG, "contact restitution ≥ 0"),
-    Parameter("mass", "kg", "dynamic", _POS, "mass > 0"),
-    Parameter("velocity", "m/s", "dynamic", _NUM, "initial velocity vector"),
-    Parameter("angular_velocity", "rad/s", "dynamic", _NUM, "initial angular velocity"),
+    Parameter("gravity", "m/s²", "world", NUM, "number (vertical) or vector"),
+    Parameter("friction", "", "contact", NONNEG, "contact friction ≥ 0"),
+    Parameter("restitution", "", "contact", NONNEG, "contact restitution ≥ 0"),
+    Parameter("mass", "kg", "dynamic", POS, "mass > 0"),
+    Parameter("velocity", "m/s", "dynamic", NUM, "initial velocity vector"),
+    Parameter("angular_velocity", "rad/s", "dynamic", NUM, "initial angular velocity"),
 )}
 
 

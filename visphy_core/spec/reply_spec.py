@@ -11,6 +11,8 @@ from typing import Any
 
 import jsonschema
 
+from visphy_core.spec.validation import json_path
+
 
 @lru_cache(maxsize=2)
 def _validator(dim: str) -> jsonschema.protocols.Validator:
@@ -21,13 +23,6 @@ def _validator(dim: str) -> jsonschema.protocols.Validator:
     return jsonschema.Draft202012Validator(schema)
 
 
-def _where(err: jsonschema.ValidationError) -> str:
-    out = "$"
-    for p in err.absolute_path:
-        out += f"[{p}]" if isinstance(p, int) else f".{p}"
-    return out
-
-
 def spec_problems(spec: Any, dim: str, limit: int = 5) -> list[str]:
     """Up to ``limit`` problems of S as ``<json path>: <message>`` (empty when S is valid)."""
     if not isinstance(spec, dict):
@@ -36,7 +31,7 @@ def spec_problems(spec: Any, dim: str, limit: int = 5) -> list[str]:
     for err in sorted(_validator(dim).iter_errors(spec), key=lambda e: list(e.absolute_path)):
         while err.context:  # descend into if/then/allOf to the concrete failure
             err = jsonschema.exceptions.best_match(err.context)
-        problems.append(f"{_where(err)}: {' '.join(err.message.split())[:200]}")
+        problems.append(f"{json_path(err.absolute_path)}: {' '.join(err.message.split())[:200]}")
         if len(problems) >= limit:
             break
     return problems

@@ -13,7 +13,8 @@ conventions below are fixed here once:
   contact pairs may name them.
 
 `validate_spec` adds the checks JSON Schema cannot express (unique ids, convexity, constants of
-the PHYRE profile, category consistency) and reports the first problem on one line with its path.
+the PHYRE profile, category consistency) and reports the first problem on one line with its path;
+the steps and schema parts it shares with the 3D spec are in `visphy_core.spec.validation`.
 """
 
 from __future__ import annotations
@@ -25,8 +26,26 @@ import jsonschema
 import numpy as np
 
 from visphy_core.api.scene import SPEC_SCHEMA
+from visphy_core.spec.validation import (
+    BODY_ID,
+    CATEGORIES,
+    CONTACTS,
+    NONNEG,
+    NUM,
+    POS,
+    REPLY_CONTACTS,
+    RGB,
+    check_bodies,
+    check_contact_pairs,
+    check_profile,
+    check_schema,
+    fail,
+    ground_truth_schema,
+    obj,
+    shape_case,
+)
 
-#: Constants of PHYRE's Box2D world (MISSION §5); a spec with profile "phyre" must use them.
+#: Constants of PHYRE's Box2D world; a spec with profile "phyre" must use them.
 PHYRE_PROFILE: dict[str, Any] = {
     "px_per_m": 6.0,
     "canvas_px": [512, 512],
@@ -42,54 +61,34 @@ PHYRE_PROFILE: dict[str, Any] = {
     "bar_thickness_px": 512 / 50,
 }
 WALL_IDS = ("wall_bottom", "wall_left", "wall_right", "wall_top")
-CATEGORIES = ("circle", "rectangle", "line", "u_shape", "triangle", "composite_shape")
 #: Box2D's b2_maxPolygonVertices: a convex part may not have more vertices than this.
 MAX_POLYGON_VERTICES = 8
 
-_NUM = {"type": "number"}
-_NONNEG = {"type": "number", "minimum": 0}
-_POS = {"type": "number", "exclusiveMinimum": 0}
-_RGB = {"type": "array", "items": {"type": "integer", "minimum": 0, "maximum": 255},
-        "minItems": 3, "maxItems": 3}
-_VEC2 = {"type": "array", "items": _NUM, "minItems": 2, "maxItems": 2}
+_VEC2 = {"type": "array", "items": NUM, "minItems": 2, "maxItems": 2}
 _POLY = {"type": "array", "items": _VEC2, "minItems": 3, "maxItems": MAX_POLYGON_VERTICES}
 
-
-def _obj(props: dict[str, Any], required: list[str] | None = None, extra: bool = False) -> dict:
-    """A closed object schema; every property is required unless ``required`` says otherwise."""
-    return {"type": "object", "properties": props,
-            "required": list(props) if required is None else required,
-            "additionalProperties": extra}
-
-
-def _shape_case(kind: str, props: dict[str, Any]) -> dict:
-    return {"if": {"properties": {"type": {"const": kind}}, "required": ["type"]},
-            "then": _obj({"type": {"const": kind}, **props})}
-
-
-_MATERIAL = _obj({"density_kg_m2": _POS, "friction": _NONNEG, "restitution": _NONNEG})
-_CONTACT = _obj({"friction": _NONNEG, "restitution": _NONNEG})
+_MATERIAL = obj({"density_kg_m2": POS, "friction": NONNEG, "restitution": NONNEG})
 _SHAPE = {
     "type": "object",
     "required": ["type"],
     "properties": {"type": {"enum": ["circle", "box", "polygon", "compound"]}},
     "allOf": [
-        _shape_case("circle", {"radius_px": _POS}),
-        _shape_case("box", {"length_px": _POS, "thickness_px": _POS}),
-        _shape_case("polygon", {"vertices_px": _POLY}),
-        _shape_case("compound", {"parts_px": {"type": "array", "items": _POLY, "minItems": 1}}),
+        shape_case("circle", {"radius_px": POS}),
+        shape_case("box", {"length_px": POS, "thickness_px": POS}),
+        shape_case("polygon", {"vertices_px": _POLY}),
+        shape_case("compound", {"parts_px": {"type": "array", "items": _POLY, "minItems": 1}}),
     ],
 }
 _BODY = {
-    **_obj(
+    **obj(
         {
-            "id": {"type": "string", "pattern": r"^[a-z][a-z0-9_]*$"},
+            "id": BODY_ID,
             "category": {"enum": list(CATEGORIES)},
             "dynamic": {"type": "boolean"},
-            "color_rgb": _RGB,
+            "color_rgb": RGB,
             "shape": _SHAPE,
-            "pose": _obj({"x_px": _NUM, "y_px": _NUM, "angle_rad": _NUM}),
-            "velocity": _obj({"vx_px_s": _NUM, "vy_px_s": _NUM, "omega_rad_s": _NUM}),
+            "pose": obj({"x_px": NUM, "y_px": NUM, "angle_rad": NUM}),
+            "velocity": obj({"vx_px_s": NUM, "vy_px_s": NUM, "omega_rad_s": NUM}),
             "material": _MATERIAL,
         },
         required=["id", "category", "dynamic", "color_rgb", "shape", "pose"],
@@ -98,19 +97,12 @@ _BODY = {
     "if": {"properties": {"dynamic": {"const": True}}},
     "then": {"required": ["velocity", "material"]},
 }
-_EVENT = _obj({"t_s": _NONNEG, "step": {"type": "integer", "minimum": 0},
-               "type": {"enum": ["contact_begin"]}, "a": {"type": "string"},
-               "b": {"type": "string"}, "normal_speed_m_s": _NUM},
-              required=["t_s", "type", "a", "b"])
-_ID_LIST = {"type": "array", "items": {"type": "string"}}
-_PAIR_LIST = {"type": "array", "items": {"type": "array", "items": {"type": "string"},
-                                         "minItems": 2, "maxItems": 2}}
 
 #: JSON Schema (draft 2020-12) of `visphy-scene/1` for 2D scenes.
 SPEC_JSON_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
     "title": "visphy scene specification (2D)",
-    **_obj(
+    **obj(
         {
             "schema": {"const": SPEC_SCHEMA},
             # generated ids (`vpb3-s0-2d-t001-v00`); builds before version 3 used task-style ids
@@ -122,50 +114,42 @@ SPEC_JSON_SCHEMA: dict[str, Any] = {
             "dim": {"const": "2d"},
             "family": {"type": "string"},
             "description": {"type": "string"},
-            "difficulty": _obj({"label": {"enum": ["easy", "medium", "hard"]}, "score": _NUM,
+            "difficulty": obj({"label": {"enum": ["easy", "medium", "hard"]}, "score": NUM,
                                 "features": {"type": "object"}}),
-            "world": _obj(
+            "world": obj(
                 {
                     "engine": {"const": "box2d"},
                     "engine_version": {"type": "string"},
                     "profile": {"type": "string"},
-                    "units": _obj({"px_per_m": _POS,
+                    "units": obj({"px_per_m": POS,
                                    "canvas_px": {"type": "array", "minItems": 2, "maxItems": 2,
                                                  "items": {"type": "integer", "minimum": 2}},
                                    "origin": {"const": "bottom-left"}, "y_up": {"const": True},
                                    "angles": {"const": "rad_ccw"}}),
                     "gravity_m_s2": _VEC2,
-                    "dt_s": _POS,
-                    "solver": _obj({"velocity_iterations": {"type": "integer", "minimum": 1},
+                    "dt_s": POS,
+                    "solver": obj({"velocity_iterations": {"type": "integer", "minimum": 1},
                                     "position_iterations": {"type": "integer", "minimum": 1}}),
                     "steps_per_frame": {"type": "integer", "minimum": 1},
                     "first_frame_after_steps": {"type": "integer", "minimum": 0},
                     "n_frames": {"type": "integer", "minimum": 1},
-                    "video_fps": _POS,
-                    "walls": _obj({"thickness_px": _POS,
+                    "video_fps": POS,
+                    "walls": obj({"thickness_px": POS,
                                    "sides": {"type": "array", "items": {"enum": ["bottom", "left",
                                              "right", "top"]}, "uniqueItems": True}}),
-                    "damping": _obj({"linear": _NONNEG, "angular": _NONNEG}),
+                    "damping": obj({"linear": NONNEG, "angular": NONNEG}),
                     "allow_sleep": {"type": "boolean"},
                 },
                 required=["engine", "profile", "units", "gravity_m_s2", "dt_s", "solver",
                           "steps_per_frame", "first_frame_after_steps", "n_frames", "video_fps",
                           "walls", "damping"],
             ),
-            "render": _obj({"background_rgb": _RGB, "antialias": {"const": False},
+            "render": obj({"background_rgb": RGB, "antialias": {"const": False},
                             "codec": {"type": "string"}, "pix_fmt": {"type": "string"}},
                            required=["background_rgb", "antialias"]),
             "bodies": {"type": "array", "items": _BODY, "minItems": 1},
-            "contacts": _obj({"default": _CONTACT, "pairs": {"type": "array", "items": _obj(
-                {"a": {"type": "string"}, "b": {"type": "string"}, "friction": _NONNEG,
-                 "restitution": _NONNEG})}}),
-            "ground_truth": _obj(
-                {"trajectory": {"type": ["string", "null"]},
-                 "events": {"type": "array", "items": _EVENT},
-                 "identifiable": _obj({"gravity": {"type": "boolean"},
-                                       "initial_velocity": _ID_LIST, "restitution": _PAIR_LIST,
-                                       "friction": _PAIR_LIST, "mass_ratio": _PAIR_LIST})},
-                required=["trajectory", "events", "identifiable"]),
+            "contacts": CONTACTS,
+            "ground_truth": ground_truth_schema(),
             "digest_sha256": {"type": ["string", "null"]},
         },
         required=["schema", "scene_id", "template_id", "variant", "seed", "dim", "difficulty",
@@ -265,89 +249,42 @@ def category_of(body: dict) -> str:
 
 
 # ------------------------------------------------------------------------------- validation
-def _path(parts: Any) -> str:
-    out = "$"
-    for p in parts:
-        out += f"[{p}]" if isinstance(p, int) else f".{p}"
-    return out
-
-
-def _fail(spec: Any, path: str, message: str) -> None:
-    sid = spec.get("scene_id", "<no scene_id>") if isinstance(spec, dict) else "<not an object>"
-    raise ValueError(f"invalid scene spec {sid}: {path}: {message}")
+_WHAT = "scene spec"
 
 
 def validate_spec(spec: dict) -> None:
     """Raise ValueError("invalid scene spec <id>: <json path>: <problem>") for the first problem."""
-    errors = list(_VALIDATOR.iter_errors(spec))
-    if errors:
-        err = jsonschema.exceptions.best_match(errors)
-        while err.context:  # descend into if/then/allOf to the concrete failure
-            err = jsonschema.exceptions.best_match(err.context)
-        parts = list(err.absolute_path)
-        if err.validator == "required" and isinstance(err.instance, dict):
-            missing = [r for r in err.validator_value if r not in err.instance]
-            parts.append(missing[0] if missing else "?")
-            _fail(spec, _path(parts), "required field is missing")
-        if err.validator == "additionalProperties" and isinstance(err.instance, dict):
-            allowed = set(err.schema.get("properties", {}))
-            unknown = sorted(k for k in err.instance if k not in allowed)
-            parts.append(unknown[0] if unknown else "?")
-            _fail(spec, _path(parts), "unknown field")
-        _fail(spec, _path(parts), err.message)
+    check_schema(_VALIDATOR, spec, _WHAT)
     world = spec["world"]
     if world["profile"] == "phyre":
-        checks = [("units.px_per_m", world["units"]["px_per_m"], "px_per_m"),
-                  ("units.canvas_px", world["units"]["canvas_px"], "canvas_px"),
-                  ("gravity_m_s2", world["gravity_m_s2"], "gravity_m_s2"),
-                  ("dt_s", world["dt_s"], "dt_s"),
-                  ("solver.velocity_iterations", world["solver"]["velocity_iterations"],
-                   "velocity_iterations"),
-                  ("solver.position_iterations", world["solver"]["position_iterations"],
-                   "position_iterations"),
-                  ("steps_per_frame", world["steps_per_frame"], "steps_per_frame"),
-                  ("first_frame_after_steps", world["first_frame_after_steps"],
-                   "first_frame_after_steps")]
-        for where, value, key in checks:
-            if not np.allclose(value, PHYRE_PROFILE[key], rtol=1e-12, atol=1e-12):
-                _fail(spec, f"$.world.{where}", f"profile 'phyre' requires {PHYRE_PROFILE[key]}")
+        units, solver = world["units"], world["solver"]
+        check_profile(spec, _WHAT, "phyre", [
+            (f"$.world.{where}", value, PHYRE_PROFILE[key]) for where, value, key in (
+                ("units.px_per_m", units["px_per_m"], "px_per_m"),
+                ("units.canvas_px", units["canvas_px"], "canvas_px"),
+                ("gravity_m_s2", world["gravity_m_s2"], "gravity_m_s2"),
+                ("dt_s", world["dt_s"], "dt_s"),
+                ("solver.velocity_iterations", solver["velocity_iterations"],
+                 "velocity_iterations"),
+                ("solver.position_iterations", solver["position_iterations"],
+                 "position_iterations"),
+                ("steps_per_frame", world["steps_per_frame"], "steps_per_frame"),
+                ("first_frame_after_steps", world["first_frame_after_steps"],
+                 "first_frame_after_steps"))])
     w, h = world["units"]["canvas_px"]
     if w % 2 or h % 2:
-        _fail(spec, "$.world.units.canvas_px", "H.264 needs even canvas dimensions")
-    seen: set[str] = set()
-    for i, body in enumerate(spec["bodies"]):
-        if body["id"] in seen or body["id"] in WALL_IDS:
-            _fail(spec, f"$.bodies[{i}].id", f"duplicate or reserved id {body['id']!r}")
-        seen.add(body["id"])
-        polys = local_polygons(body["shape"])
+        fail(spec, _WHAT, "$.world.units.canvas_px", "H.264 needs even canvas dimensions")
+
+    def convex_parts(i: int, body: dict) -> None:
         key = "parts_px" if body["shape"]["type"] == "compound" else "vertices_px"
-        for j, poly in enumerate(polys):
+        for j, poly in enumerate(local_polygons(body["shape"])):
             problem = _convex_ccw_problem(poly)
             if problem:
                 where = f"$.bodies[{i}].shape.{key}" + (f"[{j}]" if key == "parts_px" else "")
-                _fail(spec, where, problem)
-        if body["category"] != category_of(body):
-            _fail(spec, f"$.bodies[{i}].category",
-                  f"{body['category']!r} but the geometry says {category_of(body)!r}")
-    known = seen | set(WALL_IDS)
-    pairs: set[frozenset[str]] = set()
-    for k, pair in enumerate(spec["contacts"]["pairs"]):
-        for side in ("a", "b"):
-            if pair[side] not in known:
-                _fail(spec, f"$.contacts.pairs[{k}].{side}", f"unknown body id {pair[side]!r}")
-        key2 = frozenset((pair["a"], pair["b"]))
-        if key2 in pairs or len(key2) < 2:
-            _fail(spec, f"$.contacts.pairs[{k}]", "pair repeated or a body paired with itself")
-        pairs.add(key2)
+                fail(spec, _WHAT, where, problem)
 
-
-def contact_table(spec: dict) -> tuple[dict[str, float], dict[frozenset[str], dict[str, float]]]:
-    """Default contact material and the explicit per-pair overrides, keyed by unordered id pair."""
-    contacts = spec["contacts"]
-    pairs = {frozenset((p["a"], p["b"])): {"friction": float(p["friction"]),
-                                           "restitution": float(p["restitution"])}
-             for p in contacts["pairs"]}
-    return {k: float(v) for k, v in contacts["default"].items()}, pairs
+    ids = check_bodies(spec, _WHAT, WALL_IDS, category_of, convex_parts)
+    check_contact_pairs(spec, _WHAT, ids | set(WALL_IDS))
 
 
 #: JSON Schema of the scene specification S a model writes for a 2D scene: the ground truth's
@@ -362,15 +299,10 @@ REPLY_SCHEMA_2D: dict[str, Any] = {
         "dim": {"const": "2d"},
         "world": {"type": "object",
                   "properties": {"gravity_m_s2": _VEC2,
-                                 "units": {"type": "object", "properties": {"px_per_m": _POS}}},
+                                 "units": {"type": "object", "properties": {"px_per_m": POS}}},
                   "required": ["gravity_m_s2"]},
         "bodies": {"type": "array", "items": _BODY, "minItems": 1},
-        "contacts": {"type": "object", "properties": {
-            "default": _CONTACT,
-            "pairs": {"type": "array", "items": _obj({"a": {"type": "string"},
-                                                      "b": {"type": "string"},
-                                                      "friction": _NONNEG,
-                                                      "restitution": _NONNEG})}}},
+        "contacts": REPLY_CONTACTS,
     },
     "required": ["world", "bodies"],
 }

@@ -26,7 +26,8 @@ three.js replay, detection context). Conventions, fixed here once:
 
 `validate_spec_3d` adds the checks JSON Schema cannot express (unique ids, unit quaternions,
 profile constants, category consistency, one of mass/density) and reports the first problem on
-one line naming the scene and the JSON path.
+one line naming the scene and the JSON path; the steps and schema parts it shares with the 2D
+spec are in `visphy_core.spec.validation`.
 """
 
 from __future__ import annotations
@@ -38,22 +39,27 @@ import jsonschema
 import numpy as np
 
 from visphy_core.api.scene import SPEC_SCHEMA
-from visphy_core.spec.spec2d import (  # schema building blocks shared with the 2D schema
-    _CONTACT,
-    _EVENT,
-    _ID_LIST,
-    _NONNEG,
-    _NUM,
-    _PAIR_LIST,
-    _POS,
-    _RGB,
+from visphy_core.spec.validation import (
+    BODY_ID,
     CATEGORIES,
-    _obj,
-    _path,
-    _shape_case,
+    CONTACTS,
+    ID_LIST,
+    NONNEG,
+    NUM,
+    POS,
+    REPLY_CONTACTS,
+    RGB,
+    check_bodies,
+    check_contact_pairs,
+    check_profile,
+    check_schema,
+    fail,
+    ground_truth_schema,
+    obj,
+    shape_case,
 )
 
-#: Constants of the generated 3D subset (MISSION §5): a spec with profile "visphybench-3d" must
+#: Constants of the generated 3D subset: a spec with profile "visphybench-3d" must
 #: use them.
 PROFILE_3D: dict[str, Any] = {
     "engine": "cannon-es",
@@ -73,38 +79,38 @@ RED_RGB = (243, 79, 70)
 #: Long thin boxes (longest / shortest side >= this) are "line" (planks), others "rectangle".
 LINE_ASPECT = 4.0
 
-_VEC3 = {"type": "array", "items": _NUM, "minItems": 3, "maxItems": 3}
-_POS3 = {"type": "array", "items": _POS, "minItems": 3, "maxItems": 3}
-_QUAT = {"type": "array", "items": _NUM, "minItems": 4, "maxItems": 4}
+_VEC3 = {"type": "array", "items": NUM, "minItems": 3, "maxItems": 3}
+_POS3 = {"type": "array", "items": POS, "minItems": 3, "maxItems": 3}
+_QUAT = {"type": "array", "items": NUM, "minItems": 4, "maxItems": 4}
 
 
 _PRIMITIVE_CASES = [
-    _shape_case("sphere", {"radius_m": _POS}),
-    _shape_case("box", {"size_m": _POS3}),
-    _shape_case("wedge", {"length_m": _POS, "height_m": _POS, "width_m": _POS}),
+    shape_case("sphere", {"radius_m": POS}),
+    shape_case("box", {"size_m": _POS3}),
+    shape_case("wedge", {"length_m": POS, "height_m": POS, "width_m": POS}),
 ]
 _PART_SHAPE = {"type": "object", "required": ["type"],
                "properties": {"type": {"enum": ["sphere", "box"]}}, "allOf": _PRIMITIVE_CASES}
-_PART = _obj({"shape": _PART_SHAPE, "offset_m": _VEC3, "quat": _QUAT})
+_PART = obj({"shape": _PART_SHAPE, "offset_m": _VEC3, "quat": _QUAT})
 _SHAPE = {
     "type": "object",
     "required": ["type"],
     "properties": {"type": {"enum": ["sphere", "box", "wedge", "compound"]}},
     "allOf": _PRIMITIVE_CASES + [
-        _shape_case("compound", {"parts": {"type": "array", "items": _PART, "minItems": 1}})],
+        shape_case("compound", {"parts": {"type": "array", "items": _PART, "minItems": 1}})],
 }
-_MATERIAL = _obj({"mass_kg": _POS, "density_kg_m3": _POS, "friction": _NONNEG,
-                  "restitution": _NONNEG}, required=["friction", "restitution"])
+_MATERIAL = obj({"mass_kg": POS, "density_kg_m3": POS, "friction": NONNEG,
+                  "restitution": NONNEG}, required=["friction", "restitution"])
 _BODY = {
-    **_obj(
+    **obj(
         {
-            "id": {"type": "string", "pattern": r"^[a-z][a-z0-9_]*$"},
+            "id": BODY_ID,
             "category": {"enum": list(CATEGORIES)},
             "dynamic": {"type": "boolean"},
-            "color_rgb": _RGB,
+            "color_rgb": RGB,
             "shape": _SHAPE,
-            "pose": _obj({"position_m": _VEC3, "quat": _QUAT}),
-            "velocity": _obj({"linear_m_s": _VEC3, "angular_rad_s": _VEC3}),
+            "pose": obj({"position_m": _VEC3, "quat": _QUAT}),
+            "velocity": obj({"linear_m_s": _VEC3, "angular_rad_s": _VEC3}),
             "material": _MATERIAL,
             "opacity": {"type": "number", "exclusiveMinimum": 0, "maximum": 1},
         },
@@ -113,13 +119,13 @@ _BODY = {
     "if": {"properties": {"dynamic": {"const": True}}},
     "then": {"required": ["velocity", "material"]},
 }
-_SPOOK = _obj({"stiffness": _POS, "relaxation": _POS})
+_SPOOK = obj({"stiffness": POS, "relaxation": POS})
 
 #: JSON Schema (draft 2020-12) of `visphy-scene/1` for 3D scenes.
 SCHEMA_3D: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
     "title": "visphy scene specification (3D)",
-    **_obj(
+    **obj(
         {
             "schema": {"const": SPEC_SCHEMA},
             "scene_id": {"type": "string",  # vpb3-s0-3d-t001-v00; before version 3: NN_tmpl_NN
@@ -130,36 +136,36 @@ SCHEMA_3D: dict[str, Any] = {
             "dim": {"const": "3d"},
             "family": {"type": "string"},
             "description": {"type": "string"},
-            "splits": _ID_LIST,
-            "difficulty": _obj({"label": {"enum": ["easy", "medium", "hard", None]},
-                                "score": _NUM, "features": {"type": "object"}}),
-            "world": _obj(
+            "splits": ID_LIST,
+            "difficulty": obj({"label": {"enum": ["easy", "medium", "hard", None]},
+                                "score": NUM, "features": {"type": "object"}}),
+            "world": obj(
                 {
                     "engine": {"const": "cannon-es"},
                     "engine_version": {"type": "string"},
                     "profile": {"type": "string"},
-                    "units": _obj({"length": {"const": "m"}, "mass": {"const": "kg"},
+                    "units": obj({"length": {"const": "m"}, "mass": {"const": "kg"},
                                    "time": {"const": "s"}, "angles": {"const": "rad"},
                                    "up_axis": {"const": "y"},
                                    "quaternion": {"const": "xyzw"}}),
                     "gravity_m_s2": _VEC3,
-                    "dt_s": _POS,
+                    "dt_s": POS,
                     "steps_per_frame": {"type": "integer", "minimum": 1},
                     "first_frame_after_steps": {"type": "integer", "minimum": 0},
                     "n_frames": {"type": "integer", "minimum": 1},
-                    "video_fps": _POS,
-                    "solver": _obj({"type": {"const": "GSSolver"},
+                    "video_fps": POS,
+                    "solver": obj({"type": {"const": "GSSolver"},
                                     "iterations": {"type": "integer", "minimum": 1},
-                                    "tolerance": _NONNEG}),
+                                    "tolerance": NONNEG}),
                     "broadphase": {"const": "naive"},
                     "contact_equation": _SPOOK,
                     "friction_equation": _SPOOK,
-                    "damping": _obj({"linear": {"type": "number", "minimum": 0, "maximum": 1},
+                    "damping": obj({"linear": {"type": "number", "minimum": 0, "maximum": 1},
                                      "angular": {"type": "number", "minimum": 0, "maximum": 1}}),
                     "allow_sleep": {"const": False},
-                    "quat_normalize": _obj({"skip": {"type": "integer", "minimum": 0},
+                    "quat_normalize": obj({"skip": {"type": "integer", "minimum": 0},
                                             "fast": {"type": "boolean"}}),
-                    "floor": _obj({"y": _NUM, "color_rgb": _RGB, "size_m": _POS},
+                    "floor": obj({"y": NUM, "color_rgb": RGB, "size_m": POS},
                                   required=["y", "color_rgb"]),
                 },
                 required=["engine", "engine_version", "profile", "units", "gravity_m_s2",
@@ -167,38 +173,29 @@ SCHEMA_3D: dict[str, Any] = {
                           "video_fps", "solver", "contact_equation", "friction_equation",
                           "damping", "allow_sleep", "floor"],
             ),
-            "camera": _obj(
+            "camera": obj(
                 {"type": {"const": "perspective"},
                  "fov_deg": {"type": "number", "exclusiveMinimum": 0, "exclusiveMaximum": 180},
-                 "near": _POS, "far": _POS, "position": _VEC3, "look_at": _VEC3,
+                 "near": POS, "far": POS, "position": _VEC3, "look_at": _VEC3,
                  "up": _VEC3, "width": {"type": "integer", "minimum": 2},
                  "height": {"type": "integer", "minimum": 2}},
                 required=["type", "fov_deg", "position", "look_at", "width", "height"]),
-            "render": _obj(
-                {"background_rgb": _RGB, "antialias": {"type": "boolean"},
+            "render": obj(
+                {"background_rgb": RGB, "antialias": {"type": "boolean"},
                  "material": {"enum": ["lambert"]},
                  "shadows": {"type": "boolean"},
-                 "lighting": _obj(
+                 "lighting": obj(
                      {"description": {"type": "string"},
-                      "hemisphere": _obj({"sky_rgb": _RGB, "ground_rgb": _RGB,
-                                          "intensity": _NONNEG}),
-                      "directional": _obj({"color_rgb": _RGB, "intensity": _NONNEG,
+                      "hemisphere": obj({"sky_rgb": RGB, "ground_rgb": RGB,
+                                          "intensity": NONNEG}),
+                      "directional": obj({"color_rgb": RGB, "intensity": NONNEG,
                                            "position": _VEC3})},
                      required=["hemisphere", "directional"]),
                  "codec": {"type": "string"}, "pix_fmt": {"type": "string"}},
                 required=["background_rgb", "antialias", "lighting"]),
             "bodies": {"type": "array", "items": _BODY, "minItems": 1},
-            "contacts": _obj({"default": _CONTACT, "pairs": {"type": "array", "items": _obj(
-                {"a": {"type": "string"}, "b": {"type": "string"}, "friction": _NONNEG,
-                 "restitution": _NONNEG})}}),
-            "ground_truth": _obj(
-                {"trajectory": {"type": ["string", "null"]},
-                 "events": {"type": "array", "items": _EVENT},
-                 "identifiable": _obj({"gravity": {"type": "boolean"},
-                                       "initial_velocity": _ID_LIST, "restitution": _PAIR_LIST,
-                                       "friction": _PAIR_LIST, "mass_ratio": _PAIR_LIST},
-                                      required=[], extra=True)},
-                required=["trajectory", "events", "identifiable"]),
+            "contacts": CONTACTS,
+            "ground_truth": ground_truth_schema(identifiable_open=True),
             "digest_sha256": {"type": ["string", "null"]},
         },
         required=["schema", "scene_id", "template_id", "variant", "seed", "dim", "difficulty",
@@ -377,101 +374,68 @@ def category_of_3d(body: dict) -> str:
 
 
 # ------------------------------------------------------------------------------- validation
-def _fail(spec: Any, path: str, message: str) -> None:
-    sid = spec.get("scene_id", "<no scene_id>") if isinstance(spec, dict) else "<not an object>"
-    raise ValueError(f"invalid 3D scene spec {sid}: {path}: {message}")
+_WHAT = "3D scene spec"
+
+
+def _one_line(message: str) -> str:
+    return message.replace("\n", " ")[:300]
 
 
 def _unit_quat(spec: dict, q, where: str) -> None:
     n = math.sqrt(sum(float(v) ** 2 for v in q))
     if abs(n - 1.0) > 1e-6:
-        _fail(spec, where, f"quaternion must have unit norm (has {n:.6g})")
+        fail(spec, _WHAT, where, f"quaternion must have unit norm (has {n:.6g})")
+
+
+def _check_body(spec: dict, i: int, body: dict) -> None:
+    """Unit quaternions, and a dynamic body's mass given exactly once."""
+    where = f"$.bodies[{i}]"
+    _unit_quat(spec, body["pose"]["quat"], f"{where}.pose.quat")
+    if body["shape"]["type"] == "compound":
+        for j, part in enumerate(body["shape"]["parts"]):
+            _unit_quat(spec, part["quat"], f"{where}.shape.parts[{j}].quat")
+    if body["dynamic"]:
+        mat = body["material"]
+        if ("mass_kg" in mat) == ("density_kg_m3" in mat):
+            fail(spec, _WHAT, f"{where}.material", "give exactly one of mass_kg and density_kg_m3")
+
+
+def _check_camera(spec: dict, cam: dict) -> None:
+    if cam["width"] % 2 or cam["height"] % 2:
+        fail(spec, _WHAT, "$.camera.width", "H.264 needs even image dimensions")
+    view = np.asarray(cam["look_at"], dtype=np.float64) - np.asarray(cam["position"], float)
+    up = np.asarray(cam.get("up", [0.0, 1.0, 0.0]), dtype=np.float64)
+    if np.linalg.norm(view) < 1e-9 or np.linalg.norm(np.cross(view, up)) < 1e-9 * np.linalg.norm(
+            view) * max(np.linalg.norm(up), 1e-300):
+        fail(spec, _WHAT, "$.camera.look_at",
+             "the view direction must be non-zero and not along up")
+    if cam.get("near", 0.1) >= cam.get("far", 100.0):
+        fail(spec, _WHAT, "$.camera.near", "near must be smaller than far")
 
 
 def validate_spec_3d(spec: dict) -> None:
     """Raise ValueError("invalid 3D scene spec <id>: <json path>: <problem>") for the first
     problem (one line)."""
-    errors = list(_VALIDATOR.iter_errors(spec))
-    if errors:
-        err = jsonschema.exceptions.best_match(errors)
-        while err.context:  # descend into if/then/allOf to the concrete failure
-            err = jsonschema.exceptions.best_match(err.context)
-        parts = list(err.absolute_path)
-        if err.validator == "required" and isinstance(err.instance, dict):
-            missing = [r for r in err.validator_value if r not in err.instance]
-            parts.append(missing[0] if missing else "?")
-            _fail(spec, _path(parts), "required field is missing")
-        if err.validator == "additionalProperties" and isinstance(err.instance, dict):
-            allowed = set(err.schema.get("properties", {}))
-            unknown = sorted(k for k in err.instance if k not in allowed)
-            parts.append(unknown[0] if unknown else "?")
-            _fail(spec, _path(parts), "unknown field")
-        _fail(spec, _path(parts), err.message.replace("\n", " ")[:300])
+    check_schema(_VALIDATOR, spec, _WHAT, _one_line)
     world, cam = spec["world"], spec["camera"]
     if world["profile"] == PROFILE_NAME:
-        checks = [("world.engine", world["engine"], "engine"),
-                  ("world.engine_version", world["engine_version"], "engine_version"),
-                  ("world.gravity_m_s2", world["gravity_m_s2"], "gravity_m_s2"),
-                  ("world.dt_s", world["dt_s"], "dt_s"),
-                  ("world.steps_per_frame", world["steps_per_frame"], "steps_per_frame"),
-                  ("world.first_frame_after_steps", world["first_frame_after_steps"],
-                   "first_frame_after_steps"),
-                  ("world.n_frames", world["n_frames"], "n_frames"),
-                  ("world.video_fps", world["video_fps"], "video_fps"),
-                  ("camera.width", cam["width"], "width"),
-                  ("camera.height", cam["height"], "height")]
-        for where, value, key in checks:
-            want = PROFILE_3D[key]
-            same = value == want if isinstance(want, str) else np.allclose(
-                value, want, rtol=1e-12, atol=1e-12)
-            if not same:
-                _fail(spec, f"$.{where}", f"profile {PROFILE_NAME!r} requires {want}")
-    if cam["width"] % 2 or cam["height"] % 2:
-        _fail(spec, "$.camera.width", "H.264 needs even image dimensions")
-    view = np.asarray(cam["look_at"], dtype=np.float64) - np.asarray(cam["position"], float)
-    up = np.asarray(cam.get("up", [0.0, 1.0, 0.0]), dtype=np.float64)
-    if np.linalg.norm(view) < 1e-9 or np.linalg.norm(np.cross(view, up)) < 1e-9 * np.linalg.norm(
-            view) * max(np.linalg.norm(up), 1e-300):
-        _fail(spec, "$.camera.look_at", "the view direction must be non-zero and not along up")
-    if cam.get("near", 0.1) >= cam.get("far", 100.0):
-        _fail(spec, "$.camera.near", "near must be smaller than far")
-    seen: set[str] = set()
-    for i, body in enumerate(spec["bodies"]):
-        where = f"$.bodies[{i}]"
-        if body["id"] in seen or body["id"] == FLOOR_ID:
-            _fail(spec, f"{where}.id", f"duplicate or reserved id {body['id']!r}")
-        seen.add(body["id"])
-        _unit_quat(spec, body["pose"]["quat"], f"{where}.pose.quat")
-        if body["shape"]["type"] == "compound":
-            for j, part in enumerate(body["shape"]["parts"]):
-                _unit_quat(spec, part["quat"], f"{where}.shape.parts[{j}].quat")
-        if body["dynamic"]:
-            mat = body["material"]
-            if ("mass_kg" in mat) == ("density_kg_m3" in mat):
-                _fail(spec, f"{where}.material", "give exactly one of mass_kg and density_kg_m3")
-        if body["category"] != category_of_3d(body):
-            _fail(spec, f"{where}.category",
-                  f"{body['category']!r} but the geometry says {category_of_3d(body)!r}")
-    known = seen | {FLOOR_ID}
-    pairs: set[frozenset[str]] = set()
-    for k, pair in enumerate(spec["contacts"]["pairs"]):
-        for side in ("a", "b"):
-            if pair[side] not in known:
-                _fail(spec, f"$.contacts.pairs[{k}].{side}", f"unknown body id {pair[side]!r}")
-        key = frozenset((pair["a"], pair["b"]))
-        if key in pairs or len(key) < 2:
-            _fail(spec, f"$.contacts.pairs[{k}]", "pair repeated or a body paired with itself")
-        pairs.add(key)
-
-
-def contact_table_3d(spec: dict
-                     ) -> tuple[dict[str, float], dict[frozenset[str], dict[str, float]]]:
-    """Default contact material and the explicit per-pair values, keyed by unordered id pair."""
-    contacts = spec["contacts"]
-    pairs = {frozenset((p["a"], p["b"])): {"friction": float(p["friction"]),
-                                           "restitution": float(p["restitution"])}
-             for p in contacts["pairs"]}
-    return {k: float(v) for k, v in contacts["default"].items()}, pairs
+        check_profile(spec, _WHAT, PROFILE_NAME, [
+            (f"$.{where}", value, PROFILE_3D[key]) for where, value, key in (
+                ("world.engine", world["engine"], "engine"),
+                ("world.engine_version", world["engine_version"], "engine_version"),
+                ("world.gravity_m_s2", world["gravity_m_s2"], "gravity_m_s2"),
+                ("world.dt_s", world["dt_s"], "dt_s"),
+                ("world.steps_per_frame", world["steps_per_frame"], "steps_per_frame"),
+                ("world.first_frame_after_steps", world["first_frame_after_steps"],
+                 "first_frame_after_steps"),
+                ("world.n_frames", world["n_frames"], "n_frames"),
+                ("world.video_fps", world["video_fps"], "video_fps"),
+                ("camera.width", cam["width"], "width"),
+                ("camera.height", cam["height"], "height"))])
+    _check_camera(spec, cam)
+    ids = check_bodies(spec, _WHAT, (FLOOR_ID,), category_of_3d,
+                       lambda i, body: _check_body(spec, i, body))
+    check_contact_pairs(spec, _WHAT, ids | {FLOOR_ID})
 
 
 #: JSON Schema of the scene specification S a model writes for a 3D scene (see
@@ -486,12 +450,7 @@ REPLY_SCHEMA_3D: dict[str, Any] = {
         "world": {"type": "object", "properties": {"gravity_m_s2": _VEC3},
                   "required": ["gravity_m_s2"]},
         "bodies": {"type": "array", "items": _BODY, "minItems": 1},
-        "contacts": {"type": "object", "properties": {
-            "default": _CONTACT,
-            "pairs": {"type": "array", "items": _obj({"a": {"type": "string"},
-                                                      "b": {"type": "string"},
-                                                      "friction": _NONNEG,
-                                                      "restitution": _NONNEG})}}},
+        "contacts": REPLY_CONTACTS,
     },
     "required": ["world", "bodies"],
 }
