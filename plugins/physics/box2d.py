@@ -14,51 +14,16 @@ engines (cannon: product) do not share.
 
 from __future__ import annotations
 
-import hashlib
-from dataclasses import dataclass, field
-
 import Box2D
 import numpy as np
 
 from visphy_core.api.hookspecs import hookimpl
-from visphy_core.api.physics import Physics
+from visphy_core.api.physics import Physics, Rollout
+from visphy_core.api.physics import trajectory_digest as trajectory_digest  # 2D callers' name
 from visphy_core.api.spec import WALL_IDS, contact_table, local_polygons
 
 #: Tangential speed (m/s) above which a touching contact counts as sliding for `pair_stats`.
 SLIDE_SPEED_M_S = 0.05
-
-
-@dataclass
-class Rollout:
-    """Everything a simulation produced, in the spec's frame (px, y up, radians CCW).
-
-    step_poses[s] is the state after s steps (s = 0 is the initial state), frame_poses[k] =
-    step_poses[frame_steps[k]]; frame_times_s[k] is the simulated time of frame k.
-    step_touching[s, b] says body b touched anything (walls included) after step s.
-    pair_stats maps "a|b" (spec order, walls last) to steps_touching, steps_sliding and
-    max_normal_speed_m_s (largest approach speed at a contact begin).
-    """
-
-    body_ids: tuple[str, ...]
-    frame_poses: np.ndarray
-    step_poses: np.ndarray
-    frame_steps: np.ndarray
-    frame_times_s: np.ndarray
-    events: list[dict] = field(default_factory=list)
-    step_touching: np.ndarray | None = None
-    pair_stats: dict[str, dict[str, float]] = field(default_factory=dict)
-
-
-def trajectory_digest(rollout: Rollout) -> str:
-    """SHA-256 over body ids, frame steps/times and the frame and step pose arrays (float64 LE)."""
-    h = hashlib.sha256()
-    h.update("\0".join(rollout.body_ids).encode())
-    for arr, dtype in ((rollout.frame_steps, "<i8"), (rollout.frame_times_s, "<f8"),
-                       (rollout.frame_poses, "<f8"), (rollout.step_poses, "<f8")):
-        a = np.ascontiguousarray(arr, dtype=dtype)
-        h.update(str(a.shape).encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
 
 
 class _Listener(Box2D.b2ContactListener):

@@ -20,13 +20,12 @@ import json
 import os
 import shutil
 import subprocess
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from visphy_core.api.hookspecs import hookimpl
-from visphy_core.api.physics import Physics
+from visphy_core.api.physics import Physics, Rollout, trajectory_digest
 from visphy_core.api.spec import body_mass
 
 SIM_SCRIPT = Path(__file__).with_name("sim3d.mjs")
@@ -37,39 +36,8 @@ class NodeUnavailable(RuntimeError):
     """Node.js is not installed, so cannon-es cannot run."""
 
 
-@dataclass
-class Rollout3D:
-    """Everything a cannon-es simulation produced (metres, seconds, quaternions x y z w).
-
-    step_poses[s] (B×7) is the state after s steps (s = 0: the initial state) and
-    frame_poses[k] = step_poses[frame_steps[k]]; frame_times_s[k] is frame k's simulated time.
-    step_velocities[s] (B×6) holds linear then angular velocity. step_touching[s, b] says body b
-    touches anything (the floor included) in state s. events are contact begins
-    ``{t_s, step, type: "contact_begin", a, b, normal_speed_m_s}`` (ids in spec order, floor
-    last; speed = largest approach speed over the contact points, before the solver).
-    pair_stats maps "a|b" to steps_touching, steps_sliding (tangential speed at a contact point
-    > 0.05 m/s at the end of the step) and max_normal_speed_m_s; initial_penetration_m maps
-    "a|b" to the deepest interpenetration cannon found in the initial state (≤ 0: merely
-    touching).
-    """
-
-    body_ids: tuple[str, ...]
-    frame_poses: np.ndarray
-    step_poses: np.ndarray
-    frame_steps: np.ndarray
-    frame_times_s: np.ndarray
-    events: list[dict] = field(default_factory=list)
-    step_velocities: np.ndarray | None = None
-    step_touching: np.ndarray | None = None
-    pair_stats: dict[str, dict[str, float]] = field(default_factory=dict)
-    initial_penetration_m: dict[str, float] = field(default_factory=dict)
-
-
-def trajectory_digest_3d(rollout: Rollout3D) -> str:
-    """The same digest as 2D rollouts (body ids, frame steps/times, frame and step poses)."""
-    from visphy_plugins.physics.box2d import trajectory_digest
-
-    return trajectory_digest(rollout)
+#: The one rollout digest (`visphy_core.api.physics.trajectory_digest`), by its 3D callers' name.
+trajectory_digest_3d = trajectory_digest
 
 
 def find_node() -> str:
@@ -104,7 +72,7 @@ def _decode(b64: str, dtype: str, shape: tuple[int, ...]) -> np.ndarray:
     return np.frombuffer(base64.b64decode(b64), dtype=dtype).reshape(shape).copy()
 
 
-def simulate_3d(spec: dict, n_steps: int | None = None, timeout_s: float = 120.0) -> Rollout3D:
+def simulate_3d(spec: dict, n_steps: int | None = None, timeout_s: float = 120.0) -> Rollout:
     """Simulate a validated 3D spec with cannon-es and record every body's pose after every step.
 
     `n_steps` defaults to the steps the clip needs; frames beyond a shorter run are omitted.
@@ -138,7 +106,7 @@ def simulate_3d(spec: dict, n_steps: int | None = None, timeout_s: float = 120.0
     events = [{"t_s": round(e["step"] * dt, 9), "step": int(e["step"]), "type": e["type"],
                "a": e["a"], "b": e["b"], "normal_speed_m_s": round(float(e["normal_speed_m_s"]), 6)}
               for e in out["events"]]
-    return Rollout3D(body_ids=ids, frame_poses=steps[frame_steps].copy(), step_poses=steps,
+    return Rollout(body_ids=ids, frame_poses=steps[frame_steps].copy(), step_poses=steps,
                      frame_steps=frame_steps, frame_times_s=frame_steps.astype(np.float64) * dt,
                      events=events, step_velocities=vels, step_touching=touching,
                      pair_stats=out["pair_stats"],
@@ -152,7 +120,7 @@ class CannonPhysics(Physics):
     name = "cannon-es"
     dim = "3d"
 
-    def simulate(self, spec: dict, timeout_s: float = 60.0) -> Rollout3D:
+    def simulate(self, spec: dict, timeout_s: float = 60.0) -> Rollout:
         return simulate_3d(spec, timeout_s=timeout_s)
 
 
