@@ -91,6 +91,22 @@ def test_anchors_built_ahead_are_the_run_time_anchors_and_a_run_reuses_them(
     assert (filled["computed_now"], filled["reused"], filled["values_computed"]) == (0, 1, 0)
 
 
+def test_without_normalisation_only_the_headline_floors_are_built(tmp_path, mini_root,
+                                                                  mini_scenes):
+    """The default (metrics.variance_norm=false): `ground-truth` builds what such a run reads,
+    the headline component's floor (the still clip's score), no twin and no other anchor."""
+    from visphy_core.execute.ground_truth import prepare
+
+    home = tmp_path / "home"
+    shutil.copytree(mini_root, home / "data" / mini_root.name)
+    scene = mini_scenes[0].scene_id
+    assert prepare([f"paths.root={home}", f"paths.cache_dir={tmp_path / 'cache'}",
+                    f"paths.ground_truth_dir={tmp_path / 'gt'}", f"dataset.scenes=[{scene}]",
+                    "metrics.names=[psnr,spatiotemporal_iou_tol]"], progress=False) == 0
+    assert len(_entries(tmp_path / "gt", "anchor")) == 1
+    assert not _entries(tmp_path / "gt", "render")
+
+
 class _Clips:
     """A ReferenceClips whose twin is a given clip (the test's own, known by its content)."""
 

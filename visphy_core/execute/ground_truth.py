@@ -1,5 +1,6 @@
 """A dataset's ground-truth artefacts computed ahead of scoring
-(`visphy_core.scoring.ground_truth`): for each scene, the twin rendered by the engine's
+(`visphy_core.scoring.ground_truth`): for each scene, the headline components' floors (what the
+still clip scores) and, with ``metrics.variance_norm=true``, the twin rendered by the engine's
 reference program and every frame/sequence metric's floor and ceiling, into the ground-truth
 store (``paths.ground_truth_dir``).
 
@@ -196,6 +197,7 @@ def prepare(overrides: list[str], workers: int = 2, progress: bool = True) -> in
     from visphy_core.infra.cache import Cache
     from visphy_core.infra.errors import UserError
     from visphy_core.scoring.ground_truth import open_store, store_path, writable
+    from visphy_core.scoring.headline import Headline
     from visphy_core.scoring.score import select_metrics
 
     registry = get_registry()  # plugins store their structured configs before Hydra composes
@@ -210,8 +212,19 @@ def prepare(overrides: list[str], workers: int = 2, progress: bool = True) -> in
     scenes = load_dataset(cfg.dataset, data_dir, progress=progress)
     engine = registry.get("engines", cfg.engine.name)(cfg.engine)
     metrics = select_metrics(registry, cfg.metrics)
+    # what a run with the same overrides reads (`execute.run._ground_truth_stage`): every
+    # metric's floor and the twin's ceiling with normalisation on, else the headline's floors
+    norm = bool(cfg.metrics.get("variance_norm", False))
+    if not norm:
+        headline = Headline.for_run(cfg.metrics, metrics)
+        metrics = headline.metrics_of(metrics) if headline is not None else []
+    if not metrics:
+        engine.close()
+        print("ground truth: nothing to compute (no headline component among the metrics and "
+              "metrics.variance_norm=false)")
+        return 0
     try:
-        filled = fill_store(scenes, engine, metrics, cache, store, ceiling=True,
+        filled = fill_store(scenes, engine, metrics, cache, store, ceiling=norm,
                             timeout_s=float(cfg.engine.timeout_s), seed=int(cfg.run.seed),
                             workers=workers, progress=progress)
     finally:
