@@ -26,15 +26,14 @@ import jsonschema
 import numpy as np
 
 from visphy_core.api.scene import SPEC_SCHEMA
+from visphy_core.spec.validation import CATEGORIES as CATEGORIES  # 2D callers' name
 from visphy_core.spec.validation import (
-    BODY_ID,
-    CATEGORIES,
     CONTACTS,
     NONNEG,
     NUM,
     POS,
-    REPLY_CONTACTS,
     RGB,
+    body_schema,
     check_bodies,
     check_contact_pairs,
     check_profile,
@@ -42,6 +41,7 @@ from visphy_core.spec.validation import (
     fail,
     ground_truth_schema,
     obj,
+    reply_schema,
     shape_case,
 )
 
@@ -79,24 +79,8 @@ _SHAPE = {
         shape_case("compound", {"parts_px": {"type": "array", "items": _POLY, "minItems": 1}}),
     ],
 }
-_BODY = {
-    **obj(
-        {
-            "id": BODY_ID,
-            "category": {"enum": list(CATEGORIES)},
-            "dynamic": {"type": "boolean"},
-            "color_rgb": RGB,
-            "shape": _SHAPE,
-            "pose": obj({"x_px": NUM, "y_px": NUM, "angle_rad": NUM}),
-            "velocity": obj({"vx_px_s": NUM, "vy_px_s": NUM, "omega_rad_s": NUM}),
-            "material": _MATERIAL,
-        },
-        required=["id", "category", "dynamic", "color_rgb", "shape", "pose"],
-    ),
-    # Dynamic bodies need a mass and an initial state; static ones may omit both.
-    "if": {"properties": {"dynamic": {"const": True}}},
-    "then": {"required": ["velocity", "material"]},
-}
+_BODY = body_schema(_SHAPE, obj({"x_px": NUM, "y_px": NUM, "angle_rad": NUM}),
+                    obj({"vx_px_s": NUM, "vy_px_s": NUM, "omega_rad_s": NUM}), _MATERIAL)
 
 #: JSON Schema (draft 2020-12) of `visphy-scene/1` for 2D scenes.
 SPEC_JSON_SCHEMA: dict[str, Any] = {
@@ -287,22 +271,10 @@ def validate_spec(spec: dict) -> None:
     check_contact_pairs(spec, _WHAT, ids | set(WALL_IDS))
 
 
-#: JSON Schema of the scene specification S a model writes for a 2D scene: the ground truth's
-#: schema for bodies and contacts, with only what a model can infer from the frames required
-#: (no scene id, difficulty, solver or ground-truth sections).
-REPLY_SCHEMA_2D: dict[str, Any] = {
-    "$schema": "https://json-schema.org/draft/2020-12/schema",
-    "title": "visphy scene specification S written by a model (2D)",
-    "type": "object",
-    "properties": {
-        "schema": {"const": SPEC_SCHEMA},
-        "dim": {"const": "2d"},
-        "world": {"type": "object",
-                  "properties": {"gravity_m_s2": _VEC2,
-                                 "units": {"type": "object", "properties": {"px_per_m": POS}}},
-                  "required": ["gravity_m_s2"]},
-        "bodies": {"type": "array", "items": _BODY, "minItems": 1},
-        "contacts": REPLY_CONTACTS,
-    },
-    "required": ["world", "bodies"],
-}
+#: JSON Schema of the scene specification S a model writes for a 2D scene
+#: (`visphy_core.spec.validation.reply_schema`).
+REPLY_SCHEMA_2D: dict[str, Any] = reply_schema(
+    "2d", {"type": "object",
+           "properties": {"gravity_m_s2": _VEC2,
+                          "units": {"type": "object", "properties": {"px_per_m": POS}}},
+           "required": ["gravity_m_s2"]}, _BODY)

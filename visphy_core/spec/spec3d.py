@@ -40,15 +40,13 @@ import numpy as np
 
 from visphy_core.api.scene import SPEC_SCHEMA
 from visphy_core.spec.validation import (
-    BODY_ID,
-    CATEGORIES,
     CONTACTS,
     ID_LIST,
     NONNEG,
     NUM,
     POS,
-    REPLY_CONTACTS,
     RGB,
+    body_schema,
     check_bodies,
     check_contact_pairs,
     check_profile,
@@ -56,6 +54,7 @@ from visphy_core.spec.validation import (
     fail,
     ground_truth_schema,
     obj,
+    reply_schema,
     shape_case,
 )
 
@@ -101,24 +100,9 @@ _SHAPE = {
 }
 _MATERIAL = obj({"mass_kg": POS, "density_kg_m3": POS, "friction": NONNEG,
                   "restitution": NONNEG}, required=["friction", "restitution"])
-_BODY = {
-    **obj(
-        {
-            "id": BODY_ID,
-            "category": {"enum": list(CATEGORIES)},
-            "dynamic": {"type": "boolean"},
-            "color_rgb": RGB,
-            "shape": _SHAPE,
-            "pose": obj({"position_m": _VEC3, "quat": _QUAT}),
-            "velocity": obj({"linear_m_s": _VEC3, "angular_rad_s": _VEC3}),
-            "material": _MATERIAL,
-            "opacity": {"type": "number", "exclusiveMinimum": 0, "maximum": 1},
-        },
-        required=["id", "category", "dynamic", "color_rgb", "shape", "pose"],
-    ),
-    "if": {"properties": {"dynamic": {"const": True}}},
-    "then": {"required": ["velocity", "material"]},
-}
+_BODY = body_schema(_SHAPE, obj({"position_m": _VEC3, "quat": _QUAT}),
+                    obj({"linear_m_s": _VEC3, "angular_rad_s": _VEC3}), _MATERIAL,
+                    opacity={"type": "number", "exclusiveMinimum": 0, "maximum": 1})
 _SPOOK = obj({"stiffness": POS, "relaxation": POS})
 
 #: JSON Schema (draft 2020-12) of `visphy-scene/1` for 3D scenes.
@@ -438,19 +422,8 @@ def validate_spec_3d(spec: dict) -> None:
     check_contact_pairs(spec, _WHAT, ids | {FLOOR_ID})
 
 
-#: JSON Schema of the scene specification S a model writes for a 3D scene (see
-#: `visphy_core.spec.spec2d.REPLY_SCHEMA_2D`): the ground truth's bodies and contacts.
-REPLY_SCHEMA_3D: dict[str, Any] = {
-    "$schema": "https://json-schema.org/draft/2020-12/schema",
-    "title": "visphy scene specification S written by a model (3D)",
-    "type": "object",
-    "properties": {
-        "schema": {"const": SPEC_SCHEMA},
-        "dim": {"const": "3d"},
-        "world": {"type": "object", "properties": {"gravity_m_s2": _VEC3},
-                  "required": ["gravity_m_s2"]},
-        "bodies": {"type": "array", "items": _BODY, "minItems": 1},
-        "contacts": REPLY_CONTACTS,
-    },
-    "required": ["world", "bodies"],
-}
+#: JSON Schema of the scene specification S a model writes for a 3D scene
+#: (`visphy_core.spec.validation.reply_schema`).
+REPLY_SCHEMA_3D: dict[str, Any] = reply_schema(
+    "3d", {"type": "object", "properties": {"gravity_m_s2": _VEC3},
+           "required": ["gravity_m_s2"]}, _BODY)

@@ -14,6 +14,8 @@ from typing import Any, Callable, Iterable, NoReturn
 import jsonschema
 import numpy as np
 
+from visphy_core.api.scene import SPEC_SCHEMA
+
 #: Detection categories of a body (2D and 3D alike).
 CATEGORIES = ("circle", "rectangle", "line", "u_shape", "triangle", "composite_shape")
 
@@ -54,6 +56,32 @@ EVENT = obj({"t_s": NONNEG, "step": {"type": "integer", "minimum": 0},
              "type": {"enum": ["contact_begin"]}, "a": {"type": "string"},
              "b": {"type": "string"}, "normal_speed_m_s": NUM},
             required=["t_s", "type", "a", "b"])
+
+
+def body_schema(shape: dict, pose: dict, velocity: dict, material: dict,
+                **extra: dict) -> dict:
+    """A body: id, category, dynamic, colour, shape and pose always; a dynamic body needs a mass
+    and an initial state too (``velocity``, ``material``), a static one may omit both."""
+    return {**obj({"id": BODY_ID, "category": {"enum": list(CATEGORIES)},
+                   "dynamic": {"type": "boolean"}, "color_rgb": RGB, "shape": shape,
+                   "pose": pose, "velocity": velocity, "material": material, **extra},
+                  required=["id", "category", "dynamic", "color_rgb", "shape", "pose"]),
+            "if": {"properties": {"dynamic": {"const": True}}},
+            "then": {"required": ["velocity", "material"]}}
+
+
+def reply_schema(dim: str, world: dict, body: dict) -> dict:
+    """JSON Schema of the scene specification S a model writes: the ground truth's schema for
+    bodies and contacts, with only what a model can infer from the frames required (no scene
+    id, difficulty, solver or ground-truth sections)."""
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema",
+            "title": f"visphy scene specification S written by a model ({dim.upper()})",
+            "type": "object",
+            "properties": {"schema": {"const": SPEC_SCHEMA}, "dim": {"const": dim},
+                           "world": world,
+                           "bodies": {"type": "array", "items": body, "minItems": 1},
+                           "contacts": REPLY_CONTACTS},
+            "required": ["world", "bodies"]}
 
 
 def ground_truth_schema(identifiable_open: bool = False) -> dict:
