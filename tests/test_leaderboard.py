@@ -130,6 +130,23 @@ def test_breakdowns_metric_pages_and_row_pages_are_written(site):
         assert (out / "runs" / e.slug / "index.html").is_file()
 
 
+def test_the_site_ships_every_row_s_scores_as_visphy_export_writes_them(site):
+    import pandas as pd
+
+    from visphy_core.results.tidy import tidy_scores
+
+    def plain(df):  # missing values as None whatever the dtype Parquet gave them
+        return df.astype(object).where(df.notna(), None)
+
+    out, built = site
+    table = pd.read_parquet(out / "scores.parquet")
+    assert sorted(table["row"].unique()) == sorted(e.label for e in built.entries)
+    for e in built.entries:
+        mine = table[table["row"] == e.label].drop(columns="row").reset_index(drop=True)
+        assert len(mine) > 0
+        pd.testing.assert_frame_equal(plain(mine), plain(tidy_scores(e.run.run_dir)))
+
+
 def test_reference_file_errors_are_one_line(tmp_path):
     bad = tmp_path / "refs.csv"
     bad.write_text("model,physics_score\nx,0.5\n")

@@ -9,6 +9,8 @@ Layout of the output folder::
     clips/<row>/media/    the best and worst scenes' clips
     metrics/<name>.html   one page per registered metric, and the headline's
     leaderboard.json      the rows, ranks, ties and warnings as data
+    scores.parquet        every row's per-scene scores, the tidy table of ``visphy export``
+                          (`visphy_core.results.tidy.tidy_scores`) with the row's label
 
 Rebuilding into the same folder rewrites the pages and copies only the media that changed.
 """
@@ -41,6 +43,8 @@ from visphy_core.leaderboard.ties import Standing, standings
 
 #: Files of a folder that mark it as a leaderboard site (safe to write over).
 MARKER = "leaderboard.json"
+#: The per-scene scores of every row (the tidy table of `visphy export`).
+SCORES = "scores.parquet"
 
 
 @dataclass
@@ -124,6 +128,7 @@ def build_site(run_dirs: list[Path], out: Path, options: SiteOptions | None = No
     atomic_write(out / "breakdowns.html",
                  breakdowns_page(options.title, entries, tables, engine_matrix(entries)))
     write_metric_pages(out)
+    _write_scores(entries, out / SCORES)
     notes = [f"{len(entries)} run(s), built {dt.date.today().isoformat()}. The headline is the "
              "run's own (every scored scene; a fallback clip scores as the fallback), with its "
              "95 % bootstrap interval. Rank = 1 + the rows of the same dataset that a paired "
@@ -131,12 +136,25 @@ def build_site(run_dirs: list[Path], out: Path, options: SiteOptions | None = No
              "difference at least the validity study's discriminative power): rows sharing a "
              "rank are tied. Click a header to sort.",
              f"Run reports are copied with clips over {options.max_clip_mb:g} MB, or beyond "
-             f"{options.max_report_mb:g} MB a report, left out."]
+             f"{options.max_report_mb:g} MB a report, left out.",
+             f"Every row's per-scene scores, as `visphy export` writes them: {SCORES}."]
     index = atomic_write(out / "index.html", index_page(options.title, entries, ranks, reports,
                                                         options.references, notes, warn))
     atomic_write(out / MARKER, json.dumps(_as_data(entries, ranks, comparisons, warn,
                                                    options.references), indent=1))
     return Site(index=index, entries=entries, standings=ranks, warnings=warn)
+
+
+def _write_scores(entries: list[Entry], path: Path) -> None:
+    """The rows' tidy score tables in one Parquet file, a ``row`` column naming the row."""
+    import pandas as pd
+
+    from visphy_core.results.tidy import tidy_scores
+
+    frames = [tidy_scores(e.run).assign(row=e.label) for e in entries]
+    tmp = path.with_name(path.name + ".tmp")
+    pd.concat(frames, ignore_index=True).to_parquet(tmp, index=False)
+    tmp.replace(path)
 
 
 def _as_data(entries, ranks, comparisons, warn, references) -> dict:
