@@ -2,7 +2,7 @@
 setInterval) or declaratively (SMIL ``<animate>``, CSS animations), captured frame by frame by
 screenshots of the viewport in headless Chromium, in virtual time.
 
-There is no physics engine (MISSION §2: scripted animation): the program integrates the motion
+There is no physics engine (docs/running.md: scripted animation): the program integrates the motion
 itself. Timers and animation frames follow the sandbox's virtual clock; SMIL timelines are paused
 and seeked with ``svg.setCurrentTime(t)``, CSS and Web Animations with ``currentTime``, before each
 capture, so frame k always shows t = k / fps. 2D only.

@@ -34,7 +34,7 @@ metric        before       now: frame + pair     what runs
 Both run on at most `PIQ_MAX_PAIRS` (8) pairs per pairing, evenly spaced
 (`visphy_plugins.metrics._pairs` explains the default; ``metrics.max_pairs.<name>`` overrides).
 
-Fast paths (issue 22), each next to the path it replaced (kept as the reference and compared
+Fast paths, each next to the path it replaced (kept as the reference and compared
 with it by tests/test_metric_fast_paths.py on 2D- and 3D-like renders):
 
 * FSIM (bit for bit): one frame at a time (a batch of four frames' 64 filter responses, 32 MiB,

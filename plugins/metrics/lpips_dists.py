@@ -66,7 +66,7 @@ metric, runs at `STLPIPS_SIZE` = 256 (its ranking of shifted, recoloured and res
 (`STLPIPS_MAX_PAIRS`). ``metrics.max_pairs.<name>`` overrides (0 or null: every pair), and the
 value is recorded in the identity, as ST-LPIPS' working size is.
 
-Fast path (issue 22), next to the path it replaced (kept as the reference and compared with it
+Fast path, next to the path it replaced (kept as the reference and compared with it
 by tests/test_metric_fast_paths.py on 2D- and 3D-like renders):
 
 * ST-LPIPS (bit for bit): the net's weights channels-last (the frames arrive channels-last, so

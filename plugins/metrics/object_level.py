@@ -1,4 +1,4 @@
-"""Object-level metrics (issue 32, "Validity II"): where things move and where each body is,
+"""Object-level metrics ("Validity II", docs/metrics.md): where things move and where each body is,
 measured so that *how* a body is drawn — 10% larger or smaller, paler, darker, hue-turned, its
 colours swapped among the bodies, outlined, anti-aliased, H.264-encoded — barely matters, while
 *where it goes* does. New columns next to the metrics they re-measure, whose values (and the

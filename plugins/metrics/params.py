@@ -1,4 +1,4 @@
-"""Parameter recovery (MISSION §6 item 6): how far the physical parameters a model states are from
+"""Parameter recovery (docs/metrics.md): how far the physical parameters a model states are from
 the ground truth's, scored only where the clip reveals them.
 
 Five scene metrics (family ``physics``, lower is better, ``needs`` spec and program):
@@ -98,7 +98,7 @@ POSITION_SCALE = (64.0, 0.5)   # S body matching: px (2D), m (3D)...
 POSITION_CAP = 1.5             # ...capped: a body placed elsewhere is still found by colour
 MAX_COEF, MAX_G, MAX_SPEED, MAX_MASS = 1e3, 1e4, 1e4, 1e12
 
-#: MISSION §6 item 6: the paper's ground-truth means and GPT-5's mean absolute errors.
+#: docs/metrics.md: the paper's ground-truth means and GPT-5's mean absolute errors.
 PAPER_GT_MEANS = {"gravity": 9.82, "restitution": 0.15, "friction": 0.40, "mass": 1.25,
                   "speed": 2.59}
 PAPER_GPT5_MAE = {"restitution": 0.17, "friction": 0.10, "mass": 0.15, "speed": 2.07}

@@ -1,6 +1,6 @@
 """Visual semantics: CLIP and DINO embeddings of the frames (family ``semantic``, higher is better).
 
-Each metric is named after the model it runs, and runs no other (MISSION §6; the paper's models
+Each metric is named after the model it runs, and runs no other (docs/metrics.md; the paper's models
 are upstream's ``utils/evaluate_video_metrics.py``: open_clip ``ViT-B-32`` pretrained
 ``laion2b_s34b_b79k``, timm ``vit_base_patch16_224.dino`` first): a different checkpoint is a
 different metric, never a silent stand-in.

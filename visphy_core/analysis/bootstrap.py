@@ -1,6 +1,6 @@
 """Paired bootstrap over scenes: is configuration A better than B on a metric, and by how much?
 
-Scenes are the unit of resampling (MISSION §8): only the scenes both runs scored under the
+Scenes are the unit of resampling (docs/studies.md): only the scenes both runs scored under the
 chosen view are compared (their number is reported), the per-scene differences are resampled
 with replacement ``resamples`` times (one seeded generator, so the same inputs always give the
 same interval), and the 95% interval is the 2.5th–97.5th percentile of the resampled mean

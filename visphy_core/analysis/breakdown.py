@@ -1,7 +1,7 @@
 """Where runs succeed and fail: by difficulty and dimension, and by failure class.
 
 The difficulty breakdown splits every run's scenes by ``difficulty`` (easy / medium / hard, the
-benchmark's 1–5 ratings binned, MISSION §5) and by ``dim`` (2D / 3D) and gives, per group, the
+benchmark's 1–5 ratings binned) and by ``dim`` (2D / 3D) and gives, per group, the
 scene count, the model-success rate and each metric's mean with its count. The failure table
 counts why the model's program gave no clip, per class, with ``infra_error`` and ``data_error``
 set apart: they are our side's or the scene's fault and leave the scene not evaluable.

@@ -1,6 +1,6 @@
 """Rank agreement between runs and between judges, with p-values and the n behind each number.
 
-**Across runs** (the cross-engine stress test, MISSION §8): for each metric, the scene-level
+**Across runs** (the cross-engine stress test, docs/studies.md): for each metric, the scene-level
 Spearman ρ between every two runs over the scenes both scored, as a runs × runs matrix, and the
 mean off-diagonal ρ per metric (the paper: RAFT-EPE 0.84, LPIPS 0.47, DINO 0.60). A high ρ means
 the metric ranks scenes the same way whichever engine the model wrote for: it measures the
@@ -27,7 +27,7 @@ from visphy_core.analysis.columns import MODEL_SUCCESS, scene_values
 from visphy_core.results.load import RunData
 
 MIN_N = 3
-#: The paper's mean off-diagonal scene-level Spearman ρ across engines (MISSION §8).
+#: The paper's mean off-diagonal scene-level Spearman ρ across engines (docs/studies.md).
 PAPER_MEAN_RHO = {"raft_epe": 0.84, "lpips": 0.47, "dino": 0.60}
 #: visphy's stand-ins for the paper's learned metrics (other models, their own names): compared
 #: with, never named as.

@@ -1,5 +1,5 @@
 """The leaderboard: one row per run, success rates, and each metric in both success views with
-its count (MISSION §2: report model success by default, the fallbacks, and honest denominators).
+its count (model success by default, the fallbacks, and honest denominators).
 
 Per metric ``m`` with direction arrow ``a``: ``m a`` (mean over the model's own successes),
 ``m n`` (how many scenes that mean is over), ``m a +fb`` and ``m n +fb`` (fallback clips scored

@@ -1,4 +1,4 @@
-"""Parameter recovery (MISSION §6 item 6): how far the physical parameters a model states are
+"""Parameter recovery (docs/metrics.md): how far the physical parameters a model states are
 from the ground truth's, as the ``param_*`` metrics scored them (plugins/metrics/params.py).
 
 Each ``param_*`` value is one scene's absolute error (a pair parameter: the mean over the pairs

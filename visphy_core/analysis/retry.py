@@ -1,4 +1,4 @@
-"""The retry ablation (MISSION §8): model success after the first attempt, and after one repair
+"""The retry ablation (docs/studies.md): model success after the first attempt, and after one repair
 call (paper: Three.js 0.979 → 0.990, p5.js 0.853 → 0.979).
 
 A scene succeeded at the first attempt when the model's own program gave a clip and no first

@@ -21,7 +21,7 @@ from visphy_core.infra.js_assets import JsAssets
 
 
 class FailureClass(str, Enum):
-    """Why a scene produced no usable clip (MISSION §2)."""
+    """Why a scene produced no usable clip (docs/running.md)."""
 
     NO_CODE = "no_code"
     TRUNCATED = "truncated"

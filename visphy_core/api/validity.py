@@ -1,6 +1,6 @@
 """Each metric's validity figures, as the validity study last measured them.
 
-``benchmarks/validity_study.py --order`` (issue 32) writes its summary to
+``benchmarks/validity_study.py --order`` writes its summary to
 ``validity_summary.json`` next to this module (`SUMMARY_FILE`); the metric registry
 (`Metric.describe`), the generated docs pages (``docs/reference/metrics.md``,
 ``docs/reference/validity.md``) and the tests read it from here, so no figure is copied by hand.

@@ -1,7 +1,7 @@
 """Reference descriptions: one text per scene that the text metrics compare each analysis with.
 
 The reference must be the same for every model and must never come from a model's own output
-(MISSION §6). Two sources (config ``reference``):
+(docs/metrics.md). Two sources (config ``reference``):
 
 * ``spec`` (default, offline): written deterministically from the ground-truth spec and its
   contact events (`describe_spec`). A scene without a spec (the original layout) gets a

@@ -116,7 +116,7 @@ class DatasetConfig:
 
 @dataclass
 class PaperAlignConfig:
-    """The upstream protocol's search (MISSION §6); `visphy_core.scoring.alignment.AlignParams`."""
+    """The upstream protocol's search; `visphy_core.scoring.alignment.AlignParams`."""
 
     sample_every: int = 3
     downsample: int = 64

@@ -1,6 +1,6 @@
 """Human evaluation: a model-blind rating page served on localhost (``python -m visphy_core rate``).
 
-The paper's holistic scores include human 1–5 ratings (MISSION §6). A rater sees, for one item at
+The paper's holistic scores include human 1–5 ratings. A rater sees, for one item at
 a time, the ground-truth clip and ONE generated clip, and gives a rating from 1 to 5 with an
 optional comment. What the page may learn is limited to what the rating needs: opaque item ids
 and video URLs, never a model, engine or run name (`items`). The order is shuffled by a seed

@@ -1,6 +1,6 @@
 """Temporal alignment of a generated clip to its reference: once, vectorised, for every metric.
 
-Two scoring protocols use it (MISSION §6):
+Two scoring protocols use it (docs/metrics.md):
 
 * ``paper`` (``rules="upstream"``, `PAPER`): upstream's ``utils/evaluate_video_metrics.py::
   evaluate_pair`` pairing, rule by rule, implemented in `visphy_core.scoring.paper_protocol` (every

@@ -59,7 +59,7 @@ GAP = 0.002          # bodies resting on something start this far above it
 QUAT_Y_PI = [0.0, 1.0, 0.0, 0.0]
 K_SPHERE = 2.0 / 3.0  # cannon-es sphere inertia (AABB approximation): I = 2/3 m r²
 
-# validity thresholds (MISSION §5 / the brief)
+# validity thresholds (docs/benchmark.md)
 # ------------------------------------------------------------------------------ builders
 def uni(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(rng.uniform(lo, hi))

@@ -29,7 +29,7 @@ PAPER_DIFFICULTY: dict[str, dict[str, int]] = {
 }
 LABELS = ("easy", "medium", "hard")
 #: The published clips as measured (nine scenes the authors published with their code, decoded
-#: frame by frame; MISSION §5): min, median, max.
+#: frame by frame; docs/benchmark.md): min, median, max.
 PUBLISHED_RED_RADIUS_PX = (17.0, 39.0, 56.0)      # 2D red ball
 PUBLISHED_NONWHITE_PCT = (3.3, 4.4, 6.6)          # 2D non-white area per frame
 PUBLISHED_OBJECTS_PER_SCENE = 1523 / 209          # the paper's category counts over 209 scenes

@@ -1,4 +1,4 @@
-"""Detection context D (MISSION §3) computed exactly from a scene spec instead of a detector.
+"""Detection context D (docs/benchmark.md) computed exactly from a scene spec instead of a detector.
 
 Why: the paper feeds models a per-object JSON for the first frame. For generated scenes we know
 the geometry, so D is derived from the spec and the frame-1 poses and is exact up to rounding.

@@ -1,4 +1,4 @@
-"""Detection context D (MISSION §3) of a 3D scene, computed exactly from its spec and poses.
+"""Detection context D (docs/benchmark.md) of a 3D scene, computed exactly from its spec and poses.
 
 The camera model is three.js's PerspectiveCamera (vertical ``fov_deg``, aspect width/height,
 ``lookAt`` with the spec's ``up``, default +y), so `project_points` lands on the pixels the

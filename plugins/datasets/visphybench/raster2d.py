@@ -20,7 +20,7 @@ import numpy as np
 
 from visphy_core.api.spec import local_polygons, transform_points
 
-#: PHYRE's flat palette (MISSION §5).
+#: PHYRE's flat palette (docs/benchmark.md).
 PALETTE: dict[str, tuple[int, int, int]] = {
     "red": (243, 79, 70),       # user / action ball
     "gray": (185, 202, 210),    # dynamic

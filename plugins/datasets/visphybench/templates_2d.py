@@ -4,7 +4,7 @@ Why two families: VisPhyBench's 2D scenes are PhyWorld's *combinatorial* scenes 
 ball dropped or launched into a random combination of PHYRE building blocks (bars, jars, boxes,
 standing sticks, balls, triangles) - and those never vary the world's constants. visphy adds
 *law* templates that vary exactly one law PHYRE keeps fixed (gravity, restitution, friction,
-initial velocity, mass ratio), so parameter recovery (MISSION section 6) has signal.
+initial velocity, mass ratio), so parameter recovery (docs/metrics.md) has signal.
 
 Contract: `make(rng, variant)` returns an un-simulated 2D spec (seed 0; the builder fills it) and
 draws everything from `rng`. Layouts are rejection-sampled on an occupancy grid
@@ -58,7 +58,7 @@ from visphy_plugins.datasets.visphybench.blocks2d import (
 
 W, H = bk.CANVAS
 LAYOUT_TRIES = 40
-#: Category shares of VisPhyBench (MISSION section 5), the target of the template mix.
+#: Category shares of VisPhyBench (docs/benchmark.md), the target of the template mix.
 #: Shares over the 2D scenes alone. They equal the paper's benchmark-wide shares except for
 #: triangles, which the 3D subset's ramps mostly provide (11 of the 30 3D scenes have a wedge):
 #: 2D keeps 4 of 179 so the whole benchmark lands at 15 / 209 = 7.2% (paper 6.3%).

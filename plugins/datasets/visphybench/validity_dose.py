@@ -1,4 +1,4 @@
-"""Dose series (issue 32): is a score monotone in how wrong the physics is?
+"""Dose series: is a score monotone in how wrong the physics is?
 
 Per scene, four series of three doses each move one thing away from the ground truth X in
 growing steps; each dose clip is drawn like X (same renderer, same spec apart from the dose)

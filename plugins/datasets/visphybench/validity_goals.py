@@ -1,4 +1,4 @@
-"""The validity study's goals (issue 32) measured: the summary ``benchmarks/validity_study.py
+"""The validity study's goals measured: the summary ``benchmarks/validity_study.py
 --order`` writes (``--summary``, default ``visphy_core/api/validity_summary.json``) and the
 metric registry (`visphy_core.api.validity`), the docs' generated pages and the tests read.
 
@@ -325,7 +325,7 @@ def study_summary(results: list[SceneOrder], metrics: list[Metric],
              for k in dict.fromkeys(c.kind for r in results for c in r.clips)}
     clips["dose"] = sum(len(r.doses) for r in results)
     return {
-        "study": "validity ordering, issue 32 (benchmarks/validity_study.py --order)",
+        "study": "validity ordering (benchmarks/validity_study.py --order)",
         **(meta or {}),
         "n_scenes": len(results),
         "dims": {d: sum(1 for r in results if r.dim == d)
