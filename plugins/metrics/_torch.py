@@ -145,8 +145,8 @@ def _cache_bytes() -> int:
 #: What the per-frame cache may hold, in bytes (all metrics together; least recently used
 #: entries go first): ``$VISPHY_FRAME_CACHE_MB``, default 128 MiB (a 2D scene's SSIM moments
 #: take about 270 MiB, its ST-LPIPS features about 160 MiB; metrics run one after the other, so
-#: the largest one's share is what counts). 128 MiB keeps a whole run under 3 GiB (
-#: 2.91–2.97 GiB over 21 scenes, against 3.17 at 384 MiB) for 3–10 % more scoring CPU. 0 turns it
+#: the largest one's share is what counts). 128 MiB keeps a whole run under 3 GiB
+#: (2.91–2.97 GiB over 21 scenes, against 3.17 at 384 MiB) for 3–10 % more scoring CPU. 0 turns it
 #: off: each call still computes each distinct frame of its batch once.
 FRAME_CACHE_BYTES = _cache_bytes()
 
