@@ -19,7 +19,7 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="visphy leaderboard",
         description="Write a static leaderboard site from finished runs (and study folders "
-                    "holding runs): one row per run with the headline and its 95%% interval, "
+                    "holding runs): one row per run with the headline and its 95 % interval, "
                     "tie ranks from a paired bootstrap over shared scenes, breakdowns, each "
                     "run's report and its best and worst clips, and a page per metric.")
     parser.add_argument("paths", nargs="+", type=Path, metavar="RUN_OR_STUDY",
