@@ -24,6 +24,7 @@ from visphy_core.scoring.score import ScoringProtocol, alignments
 from visphy_plugins.datasets.visphybench.detection import detection_from_spec
 from visphy_plugins.datasets.visphybench.detection3d import detection_from_spec_3d
 from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d, render_frame_2d
+from visphy_plugins.metrics import track_segments
 from visphy_plugins.metrics import tracks as T
 from visphy_plugins.physics.box2d import simulate_2d
 
@@ -178,7 +179,8 @@ def test_segmentation_runs_once_per_clip(mini, monkeypatch):
     ref, gen = m["decoded"], clean_clip(perturbed(m["spec"], "speed", 2))
     calls = []
     real = T.segment
-    monkeypatch.setattr(T, "segment", lambda *a, **k: calls.append(1) or real(*a, **k))
+    monkeypatch.setattr(track_segments, "segment",
+                        lambda *a, **k: calls.append(1) or real(*a, **k))
     inp = MetricInput(scene=m["scene"], reference=ref, generated=gen)
     views = alignments(ref, gen, ScoringProtocol())
     T.segment(ref, T.scene_palette(m["scene"]))  # warm the colour table
