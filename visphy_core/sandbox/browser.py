@@ -558,7 +558,6 @@ class BrowserPool:
         context = None
         crashed: list[bool] = []
         killed: list[str] = []
-        cdp = None
         stderr_at = proc.stderr_size()
         if stderr_at > (32 << 20):  # keep the log file small; only new lines matter
             try:
@@ -572,65 +571,13 @@ class BrowserPool:
         def left() -> float:
             return max(0.05, deadline - time.perf_counter())
 
-        def left_ms() -> float:
-            return left() * 1000
-
         try:
             prepared = await asyncio.wait_for(self._page_for(proc, width, height, assets), left())
             context, page, crashed = prepared.context, prepared.page, prepared.crashed
-            cap.page_prepared = prepared.ahead
-            prepared.slot.load(html, assets, cap)
-            context.set_default_timeout(left_ms())
-            context.set_default_navigation_timeout(left_ms())
-            config = {"tickMs": tick_ms, "seed": seed, "capture": capture, "origin": ORIGIN,
-                      "realWebRTC": inject_fault == "real-webrtc"}
-            await asyncio.wait_for(context.add_init_script(
-                f"window.__VISPHY_CONFIG__ = {json.dumps(config)};\n{VIRTUAL_TIME_JS}"), left())
-            page.on("popup", lambda popup: on_popup(popup, cap))
-            page.on("console", lambda msg: on_console(msg, cap))
-            lap("page")
-
-            await asyncio.wait_for(page.goto(f"{ORIGIN}/index.html", wait_until="load",
-                                             timeout=left_ms()), left())
-            lap("load")
-            await asyncio.wait_for(self._wait_ready(
-                page, cap, min(READY_WAIT_S, deadline - time.perf_counter())), left())
-            lap("ready")
-            read = ("t => window.__visphy.captureRawAt(t)" if self.readback == "raw"
-                    else "t => window.__visphy.captureAt(t)")
-            for i, t in enumerate(times_ms):
-                if cap.navigations:
-                    break  # the page tried to leave: what is left of it is not the program's
-                if i == 1 and inject_fault == "crash":
-                    await self._crash_renderer(context, page, crashed)
-                if capture == "canvas":
-                    shot = await asyncio.wait_for(page.evaluate(read, t), left())
-                    lap("frames")
-                    frame = frame_from_capture(shot)
-                    lap("decode")
-                    if frame is None:
-                        cap.no_canvas = True
-                        break
-                    cap.frames.append(frame)
-                    cap.raw_frames += "png" not in shot
-                else:
-                    info = await asyncio.wait_for(
-                        page.evaluate("t => window.__visphy.prepareScreenshot(t)", t), left())
-                    if not isinstance(info, dict) or not info.get("drawable"):
-                        cap.no_canvas = True
-                        break
-                    if cdp is None:
-                        cdp = await asyncio.wait_for(context.new_cdp_session(page), left())
-                    # CDP directly: Playwright's page.screenshot adds round trips (fonts, caret).
-                    # optimizeForSpeed: a faster zlib setting; the PNG is as lossless as before.
-                    shot = await asyncio.wait_for(cdp.send("Page.captureScreenshot", {
-                        "format": "png", "fromSurface": True,
-                        "optimizeForSpeed": self.readback == "raw",
-                        "clip": {"x": 0, "y": 0, "width": width, "height": height, "scale": 1}}),
-                        left())
-                    lap("frames")
-                    cap.frames.append(png_bytes_to_rgb(base64.b64decode(shot["data"])))
-                    lap("decode")
+            await self._load(prepared, html, assets, cap, seed, tick_ms, capture, inject_fault,
+                             deadline, left, lap)
+            await self._capture_frames(context, page, cap, times_ms, width, height, capture,
+                                       inject_fault, crashed, left, lap)
             state = await asyncio.wait_for(page.evaluate(
                 "() => [window.__visphy.errors(), window.__visphy.logs(),"
                 " window.__visphy.attempts()]"), left())
@@ -653,41 +600,112 @@ class BrowserPool:
                 cap.errors.append(f"page failure: {msg[:500]}")
         finally:
             watchdog.cancel()
-            died = bool(crashed or killed)
-            if cap.timed_out:
-                # A renderer stuck in a loop may not let its context close: end it first (and
-                # the page prepared next to it, which went with it).
+            await self._end_page(proc, browser, context, cap, bool(crashed or killed), stderr_at,
+                                 killed, width, height, warm, assets)
+            lap("close")
+        cap.wall_s = time.perf_counter() - start
+        return cap.detached()
+
+    async def _load(self, prepared: PreparedPage, html, assets, cap: PageCapture, seed, tick_ms,
+                    capture, inject_fault, deadline: float, left, lap) -> None:
+        """Load the program into the prepared page and wait until it says it is ready."""
+        context, page = prepared.context, prepared.page
+        cap.page_prepared = prepared.ahead
+        prepared.slot.load(html, assets, cap)
+        context.set_default_timeout(left() * 1000)
+        context.set_default_navigation_timeout(left() * 1000)
+        config = {"tickMs": tick_ms, "seed": seed, "capture": capture, "origin": ORIGIN,
+                  "realWebRTC": inject_fault == "real-webrtc"}
+        await asyncio.wait_for(context.add_init_script(
+            f"window.__VISPHY_CONFIG__ = {json.dumps(config)};\n{VIRTUAL_TIME_JS}"), left())
+        page.on("popup", lambda popup: on_popup(popup, cap))
+        page.on("console", lambda msg: on_console(msg, cap))
+        lap("page")
+
+        await asyncio.wait_for(page.goto(f"{ORIGIN}/index.html", wait_until="load",
+                                         timeout=left() * 1000), left())
+        lap("load")
+        await asyncio.wait_for(self._wait_ready(
+            page, cap, min(READY_WAIT_S, deadline - time.perf_counter())), left())
+        lap("ready")
+
+    async def _capture_frames(self, context, page, cap: PageCapture, times_ms, width, height,
+                              capture, inject_fault, crashed: list, left, lap) -> None:
+        """One frame per virtual time in ``times_ms``, into ``cap.frames``: the canvas read back
+        by the page, or a CDP screenshot of the page."""
+        cdp = None
+        read = ("t => window.__visphy.captureRawAt(t)" if self.readback == "raw"
+                else "t => window.__visphy.captureAt(t)")
+        for i, t in enumerate(times_ms):
+            if cap.navigations:
+                break  # the page tried to leave: what is left of it is not the program's
+            if i == 1 and inject_fault == "crash":
+                await self._crash_renderer(context, page, crashed)
+            if capture == "canvas":
+                shot = await asyncio.wait_for(page.evaluate(read, t), left())
+                lap("frames")
+                frame = frame_from_capture(shot)
+                lap("decode")
+                if frame is None:
+                    cap.no_canvas = True
+                    break
+                cap.frames.append(frame)
+                cap.raw_frames += "png" not in shot
+            else:
+                info = await asyncio.wait_for(
+                    page.evaluate("t => window.__visphy.prepareScreenshot(t)", t), left())
+                if not isinstance(info, dict) or not info.get("drawable"):
+                    cap.no_canvas = True
+                    break
+                if cdp is None:
+                    cdp = await asyncio.wait_for(context.new_cdp_session(page), left())
+                # CDP directly: Playwright's page.screenshot adds round trips (fonts, caret).
+                # optimizeForSpeed: a faster zlib setting; the PNG is as lossless as before.
+                shot = await asyncio.wait_for(cdp.send("Page.captureScreenshot", {
+                    "format": "png", "fromSurface": True,
+                    "optimizeForSpeed": self.readback == "raw",
+                    "clip": {"x": 0, "y": 0, "width": width, "height": height, "scale": 1}}),
+                    left())
+                lap("frames")
+                cap.frames.append(png_bytes_to_rgb(base64.b64decode(shot["data"])))
+                lap("decode")
+        frame = shot = None  # noqa: F841 - a finished coroutine's frame may outlive it
+
+    async def _end_page(self, proc: ChromiumProcess, browser, context, cap: PageCapture,
+                        died: bool, stderr_at: int, killed: list[str], width, height, warm,
+                        assets) -> None:
+        """After a page: classify a crash, close (or hand back) its context, and restart the
+        pool or prepare the browser's next page."""
+        if cap.timed_out:
+            # A renderer stuck in a loop may not let its context close: end it first (and
+            # the page prepared next to it, which went with it).
+            await self._drop_prepared()
+            kill_all(proc.processes(("renderer",)))
+        if died and not cap.infra_error:
+            await asyncio.sleep(0.05)  # let the renderer's last words reach the log
+            self._classify_crash(cap, proc, stderr_at, killed)
+        restart = False
+        clean = not (cap.timed_out or died or cap.infra_error)
+        if context is not None and clean and self.prepare_pages:
+            self._close_later(context)
+        elif context is not None:
+            try:
+                await asyncio.wait_for(context.close(), 3)
+            except Exception:
+                # e.g. an endless loop in an unload handler: end the renderer, try again
                 await self._drop_prepared()
                 kill_all(proc.processes(("renderer",)))
-            if died and not cap.infra_error:
-                await asyncio.sleep(0.05)  # let the renderer's last words reach the log
-                self._classify_crash(cap, proc, stderr_at, killed)
-            restart = False
-            clean = not (cap.timed_out or died or cap.infra_error)
-            if context is not None and clean and self.prepare_pages:
-                self._close_later(context)
-            elif context is not None:
                 try:
                     await asyncio.wait_for(context.close(), 3)
                 except Exception:
-                    # e.g. an endless loop in an unload handler: end the renderer, try again
-                    await self._drop_prepared()
-                    kill_all(proc.processes(("renderer",)))
-                    try:
-                        await asyncio.wait_for(context.close(), 3)
-                    except Exception:
-                        restart = True
-            # A crashed renderer takes only its page down; restart when the browser went too.
-            if (cap.infra_error or cap.resource_limit) and not browser.is_connected():
-                restart = True
-            if restart:
-                await self._restart()
-            else:
-                self._prepare_next(proc, width, height, warm, assets)
-            lap("close")
-        cap.wall_s = time.perf_counter() - start
-        frame = shot = None  # noqa: F841 - a finished coroutine's frame may outlive it
-        return cap.detached()
+                    restart = True
+        # A crashed renderer takes only its page down; restart when the browser went too.
+        if (cap.infra_error or cap.resource_limit) and not browser.is_connected():
+            restart = True
+        if restart:
+            await self._restart()
+        else:
+            self._prepare_next(proc, width, height, warm, assets)
 
     def _classify_crash(self, cap: PageCapture, proc: ChromiumProcess, stderr_at: int,
                         killed: list[str]) -> None:
