@@ -68,7 +68,6 @@ ALLOWED: dict[str, tuple[set[str], str]] = {
     "visphy_core/config/schema.py": ({"visphybench"}, "the comment on dataset.source lists the "
                                      "built-in sources; the config reference page is generated "
                                      "from it"),
-    "visphy_core/execute/pipeline.py": ({"oracle"}, "a comment naming the privileged model"),
     "visphy_core/execute/render_one.py": ({"blender", "gemini", "gpt_frames", "manim", "p5",
                                            "replay", "threejs", "visphybench"},
                                           "the render command's help, its default dataset "

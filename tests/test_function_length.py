@@ -2,8 +2,9 @@
 reason. A function's length is counted from its ``def`` line to the last line of its body,
 inclusive (decorators excluded; docstring, comments and blank lines inside the body included), so
 the number is what a reader scrolls through. A longer function passes only when a
-``# long: <reason>`` comment stands on the line above its ``def`` (above its decorators, if it
-has any) or on its first body line (or the comment line just before it)."""
+``# long: <reason>`` comment stands in the comment lines right above its ``def`` (above its
+decorators, if it has any) or on its first body line (or the comment lines right before it); the
+reason may continue on the following comment lines."""
 
 from __future__ import annotations
 
@@ -19,7 +20,14 @@ MARK = "# long: "
 def _has_reason(lines: list[str], node: ast.FunctionDef | ast.AsyncFunctionDef) -> bool:
     top = min([node.lineno, *(d.lineno for d in node.decorator_list)])
     first_body = node.body[0].lineno
-    candidates = {top - 1, first_body - 1, first_body}
+    candidates = [first_body]
+    # the comment block right above the def (or its decorators), and right above the first body
+    # line: a reason may run over several comment lines
+    for start in (top - 1, first_body - 1):
+        number = start
+        while 1 <= number <= len(lines) and lines[number - 1].strip().startswith("#"):
+            candidates.append(number)
+            number -= 1
     for number in candidates:
         if 1 <= number <= len(lines):
             text = lines[number - 1].strip()
@@ -64,6 +72,10 @@ def test_the_check_catches_a_long_function():
     assert _unexplained(_fixture(101)) == [("f", 2, 101)]
     assert _unexplained(_fixture(101, before="# long: a table read as one\n")) == []
     assert _unexplained(_fixture(101, first="    # long: one state machine\n")) == []
+    two_lines = "# long: a reason that runs\n# over two comment lines\n"
+    assert _unexplained(_fixture(101, before=two_lines)) == []
+    # A '# long:' separated from the def by code is not the def's reason.
+    assert _unexplained(_fixture(101, before="# long: elsewhere\nX = 1\n")) != []
     # An empty reason is no reason.
     assert _unexplained(_fixture(101, before="# long:\n")) != []
 

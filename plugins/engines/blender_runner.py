@@ -260,6 +260,8 @@ def frame_for(k: int, job: dict, scene) -> tuple[int, float]:
 # ------------------------------------------------------------------------------- main
 
 
+# long: one Blender job in order (import, compile, reset, run, simulate, render), each step
+# returning its own result; it runs in Blender's Python, testable only where Blender is installed
 def main() -> int:
     job_path = sys.argv[1] if len(sys.argv) > 1 else "job.json"
     with open(job_path) as f:

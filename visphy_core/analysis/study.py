@@ -168,6 +168,42 @@ def below_power(runs: list[RunData], table: pd.DataFrame) -> list[str]:
     return out
 
 
+def _tables(runs: list[RunData], labels: list[str], parts, columns: list[str],
+            all_columns: list[str], view: str, resamples: int, seed: int,
+            notes: list[str]) -> dict[str, pd.DataFrame]:
+    """The study's tables, by name, for the ``parts`` that apply (a note is added to ``notes``
+    for each comparison below the power the validity study finds)."""
+    tables: dict[str, pd.DataFrame] = {"runs": _runs_table(runs, labels)}
+    full = leaderboard.leaderboard(runs, labels, all_columns)
+    tables["leaderboard"] = full[leaderboard.printed_columns(full, runs, columns)]
+    tables["leaderboard_all"] = full
+    if "failures" in parts:
+        tables["failures"] = breakdown.failure_table(runs, labels)
+    if "difficulty" in parts:
+        tables["difficulty"] = breakdown.difficulty_table(runs, labels, columns, view)
+    if "bootstrap" in parts and len(runs) >= 2:
+        tables["bootstrap"] = bootstrap_table(runs, labels, columns, view, resamples, seed)
+        notes += below_power(runs, tables["bootstrap"])
+    if "spearman" in parts and len(runs) >= 2:
+        long = correlation.spearman_long(runs, labels, columns, view)
+        tables["spearman"] = long
+        tables["spearman_mean"] = correlation.mean_offdiagonal(long)
+        for col in columns:
+            tables[f"spearman_{col}"] = correlation.spearman_matrix(long, labels, col)
+    if "human" in parts and any(len(r.ratings) for r in runs):
+        tables["human"] = _human_table(runs, labels)
+    if "judges" in parts:
+        judges = [c for c in all_columns if c.startswith("judge_") and has_values(runs, c)]
+        if judges:
+            tables["judges"] = correlation.judge_agreement(runs, judges)
+    if "params" in parts:
+        tables["param_recovery"] = params.param_table(runs, labels, all_columns, view)
+        tables["param_reference"] = params.reference_table()
+    if "retry" in parts:
+        tables["retry"] = retry.retry_table(runs, labels)
+    return tables
+
+
 def analyse(runs: list[RunData], out_dir: Path, study: str | None = None,
             metrics: list[str] | None = None, *, view: str = MODEL_SUCCESS,
             resamples: int = RESAMPLES, seed: int = SEED) -> StudyOutputs:
@@ -198,34 +234,8 @@ def analyse(runs: list[RunData], out_dir: Path, study: str | None = None,
     else:
         parts = STUDIES[study]
 
-    tables: dict[str, pd.DataFrame] = {"runs": _runs_table(runs, labels)}
-    full = leaderboard.leaderboard(runs, labels, all_columns)
-    tables["leaderboard"] = full[leaderboard.printed_columns(full, runs, columns)]
-    tables["leaderboard_all"] = full
-    if "failures" in parts:
-        tables["failures"] = breakdown.failure_table(runs, labels)
-    if "difficulty" in parts:
-        tables["difficulty"] = breakdown.difficulty_table(runs, labels, columns, view)
-    if "bootstrap" in parts and len(runs) >= 2:
-        tables["bootstrap"] = bootstrap_table(runs, labels, columns, view, resamples, seed)
-        notes += below_power(runs, tables["bootstrap"])
-    if "spearman" in parts and len(runs) >= 2:
-        long = correlation.spearman_long(runs, labels, columns, view)
-        tables["spearman"] = long
-        tables["spearman_mean"] = correlation.mean_offdiagonal(long)
-        for col in columns:
-            tables[f"spearman_{col}"] = correlation.spearman_matrix(long, labels, col)
-    if "human" in parts and any(len(r.ratings) for r in runs):
-        tables["human"] = _human_table(runs, labels)
-    if "judges" in parts:
-        judges = [c for c in all_columns if c.startswith("judge_") and has_values(runs, c)]
-        if judges:
-            tables["judges"] = correlation.judge_agreement(runs, judges)
-    if "params" in parts:
-        tables["param_recovery"] = params.param_table(runs, labels, all_columns, view)
-        tables["param_reference"] = params.reference_table()
-    if "retry" in parts:
-        tables["retry"] = retry.retry_table(runs, labels)
+    tables = _tables(runs, labels, parts, columns, all_columns, view, resamples, seed,
+                     notes)
 
     marks = small_sample.marks(tables)
     if marks:

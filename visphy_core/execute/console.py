@@ -362,6 +362,42 @@ def success_label(summary: dict) -> str:
     return "model success"
 
 
+def _print_scene_table(console: Console, results: list, metrics: dict,
+                       headline: str | None, keys: list[str]) -> None:
+    """One row per scene: its outcome, the headline, the key metrics and its render time."""
+    prefix, short_ids = shorten_ids([r.scene_id for r in results])
+    table = Table(box=box.SIMPLE_HEAD, pad_edge=False, show_edge=False)
+    table.add_column("scene", overflow="fold")
+    table.add_column("outcome", overflow="fold")
+    if headline:
+        table.add_column("headline ↑", justify="right", no_wrap=True)
+    for name in keys:
+        arrow = "↑" if metrics[name]["direction"] == "higher" else "↓"
+        table.add_column(f"{name} {arrow}", justify="right", overflow="fold")
+    table.add_column("render", justify="right", no_wrap=True)
+    for r, sid in zip(results, short_ids):
+        render = "cached" if r.render_cached else (
+            f"{r.render_wall_s:.1f} s" if r.render_wall_s is not None else "—")
+        cells = [_fmt(r.scores.get(headline))] if headline else []
+        table.add_row(sid, r.outcome, *cells, *[_fmt(r.scores.get(n)) for n in keys], render)
+    console.print(table)
+    if prefix:
+        console.print(f"(scene ids without the prefix they share: {prefix})")
+
+
+def _print_cache(console: Console, summary: dict) -> None:
+    """The cache's hits, and the corrupt entries it dropped."""
+    cache = summary["cache"]
+    render = cache.get("render", {"hits": 0, "misses": 0})
+    dropped = sum(v.get("dropped", 0) for v in cache.values())
+    if dropped:
+        console.print(f"cache: {dropped} corrupt entr{'y' if dropped == 1 else 'ies'} dropped "
+                      "and recomputed (see the warnings above)")
+    console.print(f"cache: renders {render['hits']} hit / {render['misses']} rendered · "
+                  f"replies {cache.get('response', {}).get('hits', 0)} hit · "
+                  f"scores {cache.get('score', {}).get('hits', 0)} hit")
+
+
 def print_summary(summary: dict, results: list, calls_heading: str | None = None,
                   mode: str = "short", wall_s: float | None = None) -> None:
     """The end of a run for people, within `SUMMARY_WIDTH` columns: the title, the headline
@@ -386,24 +422,7 @@ def print_summary(summary: dict, results: list, calls_heading: str | None = None
     for line in _headline_lines(head):
         console.print(line, soft_wrap=False)
 
-    prefix, short_ids = shorten_ids([r.scene_id for r in results])
-    table = Table(box=box.SIMPLE_HEAD, pad_edge=False, show_edge=False)
-    table.add_column("scene", overflow="fold")
-    table.add_column("outcome", overflow="fold")
-    if headline:
-        table.add_column("headline ↑", justify="right", no_wrap=True)
-    for name in keys:
-        arrow = "↑" if metrics[name]["direction"] == "higher" else "↓"
-        table.add_column(f"{name} {arrow}", justify="right", overflow="fold")
-    table.add_column("render", justify="right", no_wrap=True)
-    for r, sid in zip(results, short_ids):
-        render = "cached" if r.render_cached else (
-            f"{r.render_wall_s:.1f} s" if r.render_wall_s is not None else "—")
-        cells = [_fmt(r.scores.get(headline))] if headline else []
-        table.add_row(sid, r.outcome, *cells, *[_fmt(r.scores.get(n)) for n in keys], render)
-    console.print(table)
-    if prefix:
-        console.print(f"(scene ids without the prefix they share: {prefix})")
+    _print_scene_table(console, results, metrics, headline, keys)
 
     rows: dict[str, dict[str, dict]] = {}
     unavailable: dict[str, str] = {}
@@ -432,15 +451,7 @@ def print_summary(summary: dict, results: list, calls_heading: str | None = None
         f"{summary['fallbacks']} · repaired {summary['repaired']}"
         + (f" · model failures {model_f}" if model_f else "")
         + (f" · not counted (infrastructure/data) {other_f}" if other_f else ""))
-    cache = summary["cache"]
-    render = cache.get("render", {"hits": 0, "misses": 0})
-    dropped = sum(v.get("dropped", 0) for v in cache.values())
-    if dropped:
-        console.print(f"cache: {dropped} corrupt entr{'y' if dropped == 1 else 'ies'} dropped "
-                      "and recomputed (see the warnings above)")
-    console.print(f"cache: renders {render['hits']} hit / {render['misses']} rendered · "
-                  f"replies {cache.get('response', {}).get('hits', 0)} hit · "
-                  f"scores {cache.get('score', {}).get('hits', 0)} hit")
+    _print_cache(console, summary)
     usage = summary.get("usage") or {}
     if calls_heading and any(t["calls"] or t["cache_hits"] for stage, t in usage.items()
                              if stage != "all"):

@@ -1,15 +1,11 @@
 """One scene through the pipeline: prompt → model → extract → validate → render → repair →
 fallback → score. Every outcome, failures included, becomes one `SceneResult` row.
 """
-# size: one scene's path from prompt to row, step by step
 
 from __future__ import annotations
 
 import json
-import os
-import threading
-import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -20,8 +16,6 @@ from visphy_core.api.engine import (
     Program,
     ProgramRejected,
     RenderContract,
-    RenderFlag,
-    RenderResult,
     classify_frames,
 )
 from visphy_core.api.extract import extract_analysis, extract_spec
@@ -45,18 +39,24 @@ from visphy_core.calls.prompts.build import (
 )
 from visphy_core.calls.references import ReferenceWriter
 from visphy_core.calls.usage import CostCapReached
-from visphy_core.infra.cache import Cache, CorruptEntry, content_key, read_json
+from visphy_core.execute.engine_references import EngineReferenceClips
+from visphy_core.execute.render_cache import (  # noqa: F401 - re-exported for callers
+    RENDER_FLAGS,
+    UNCACHED_FAILURES,
+    RenderOutcome,
+    render_cached,
+    render_key,
+)
+from visphy_core.infra.cache import Cache
 from visphy_core.infra.errors import SceneDataError, UserError, host_fault, one_line
 from visphy_core.infra.events import StageEvents
-from visphy_core.infra.secrets import redact, redact_obj
+from visphy_core.infra.secrets import redact
 from visphy_core.infra.video import decode_video, encode_video, frame_digest, load_clip_for
 from visphy_core.results.row import SceneResult
 from visphy_core.results.write import write_artifact
-from visphy_core.scoring.ground_truth import writable
 from visphy_core.scoring.headline import Headline
-from visphy_core.scoring.normalisation import twin_scene
 from visphy_core.scoring.paper_protocol import frames_needed
-from visphy_core.scoring.reference_clips import ReferenceClipUnavailable, frozen_clip
+from visphy_core.scoring.reference_clips import frozen_clip
 from visphy_core.scoring.scene_scores import (
     ScoringServices,
     score_columns_of,
@@ -65,139 +65,6 @@ from visphy_core.scoring.scene_scores import (
 )
 from visphy_core.scoring.score import ScoringProtocol
 from visphy_core.spec.reply_spec import spec_problems
-from visphy_core.spec.spec_track import SpecTrackError, spec_scene
-
-#: Render failures never replayed from the cache: they depend on the time limit or the machine.
-UNCACHED_FAILURES = (FailureClass.TIMEOUT, FailureClass.INFRA_ERROR, FailureClass.RESOURCE_LIMIT)
-
-
-@dataclass
-class RenderOutcome:
-    frames: np.ndarray | None
-    failure: FailureClass | None
-    error: str | None
-    logs: list[str]
-    frame_digests: list[str]
-    video_path: Path | None
-    cached: bool
-    wall_s: float
-    isolation: str | None = None
-    flags: list[str] = field(default_factory=list)  # RenderFlag values (RenderResult.flags)
-    partial_path: Path | None = None  # partial_clip: the frames before a runtime error (mp4)
-
-
-#: Row flags that come from a render (`RenderFlag`): the row shows those of its last render.
-RENDER_FLAGS = tuple(f.value for f in RenderFlag)
-
-
-
-
-def _safe_render(engine: Engine, program: Program, contract: RenderContract) -> RenderResult:
-    """``engine.render``; an exception (an engine bug, a browser that will not start) is our
-    side's failure: an ``infra_error`` result carrying the exception type and message."""
-    try:
-        return engine.render(program, contract)
-    except Exception as exc:  # noqa: BLE001 - engines must not abort the run
-        if host_fault(exc) is not None:  # the machine's fault: it stops the run (resumable)
-            raise
-        return RenderResult(frames=None, failure=FailureClass.INFRA_ERROR,
-                            error=one_line(f"{type(exc).__name__}: {exc}")[:2000])
-
-
-def render_key(engine: Engine, program: Program, contract: RenderContract) -> str:
-    """The render cache's key: everything that determines a render's frames."""
-    return content_key("render", engine.cache_identity(), program.digest, contract.key())
-
-
-def render_cached(engine: Engine, program: Program, contract: RenderContract,
-                  cache: Cache, memo: dict[str, RenderOutcome] | None = None) -> RenderOutcome:
-    """Render through the content-addressed cache.
-
-    ``memo``: one scene's clips by render key, so a program the scene renders twice (the
-    oracle's program is the reference program of its S) is rendered or decoded once; a clip
-    from it counts as cached.
-
-    Deterministic program failures (syntax or runtime errors, blank output...) are cached: the
-    same program fails the same way. Timeouts, resource limits and infrastructure errors are not:
-    they depend on the time limit and the machine, so they are rendered again next time. Error
-    text and logs are redacted before they are cached. The render's flags and its partial clip
-    (``partial.mp4``: the frames before a runtime error) are cached with it and replayed.
-    """
-    key = render_key(engine, program, contract)
-
-    def parse(entry: Path) -> RenderOutcome:
-        meta = read_json(entry / "meta.json")
-        failure = FailureClass(meta["failure"]) if meta["failure"] else None
-        if failure in UNCACHED_FAILURES:
-            raise CorruptEntry(f"{failure.value} entries are never replayed")
-        video = entry / "video.mp4"
-        frames = None
-        if failure is None:
-            if not video.is_file():
-                raise CorruptEntry(f"missing {video}")
-            frames = decode_video(video)[0]
-            if len(frames) != len(meta["frame_digests"]) or len(frames) != contract.n_frames:
-                raise CorruptEntry(f"{video} has {len(frames)} frames, expected "
-                                   f"{contract.n_frames}")
-        partial = entry / "partial.mp4"
-        if meta.get("partial_frames") and not partial.is_file():
-            raise CorruptEntry(f"missing {partial}")
-        return RenderOutcome(frames=frames, failure=failure, error=meta["error"],
-                             logs=list(meta["logs"]), frame_digests=list(meta["frame_digests"]),
-                             video_path=video if frames is not None else None, cached=True,
-                             wall_s=float(meta["wall_s"]), isolation=meta.get("isolation"),
-                             flags=[str(f) for f in meta.get("flags") or []],
-                             partial_path=partial if meta.get("partial_frames") else None)
-
-    if memo is not None and key in memo:
-        return replace(memo[key], cached=True)
-
-    def remember(outcome: RenderOutcome) -> RenderOutcome:
-        if memo is not None and outcome.failure is None:
-            memo[key] = outcome
-        return outcome
-
-    outcome = cache.load("render", key, parse)
-    if outcome is not None:
-        return remember(outcome)
-    result = _safe_render(engine, program, contract)
-    ok = result.failure is None and result.frames is not None
-    failure = result.failure or (None if ok else FailureClass.INFRA_ERROR)
-    partial = result.partial_frames if failure is not None else None
-    if partial is not None and (len(partial) == 0 or partial.shape[1:] != (
-            contract.height, contract.width, 3)):
-        partial = None
-    meta = {"failure": failure.value if failure else None,
-            "error": redact(result.error), "logs": redact_obj(list(result.logs[-200:])),
-            "wall_s": result.wall_s, "isolation": result.isolation,
-            "frame_digests": [frame_digest(f) for f in result.frames] if ok else [],
-            "flags": [str(f) for f in result.flags],
-            "partial_frames": len(partial) if partial is not None else 0}
-    if failure in UNCACHED_FAILURES:
-        return RenderOutcome(frames=None, failure=failure, error=meta["error"], logs=meta["logs"],
-                             frame_digests=[], video_path=None, cached=False,
-                             wall_s=result.wall_s, isolation=result.isolation,
-                             flags=meta["flags"])
-    files: dict = {"meta.json": json.dumps(meta, indent=1)}
-    here = f"{os.getpid()}-{threading.get_ident()}"  # scenes render on several threads
-    tmp_video = cache.root / "tmp" / f"{key}.{here}.mp4"
-    tmp_partial = cache.root / "tmp" / f"{key}.{here}.partial.mp4"
-    if ok:
-        encode_video(result.frames, tmp_video, contract.fps)
-        files["video.mp4"] = tmp_video
-    if partial is not None:
-        encode_video(partial, tmp_partial, contract.fps)
-        files["partial.mp4"] = tmp_partial
-    try:
-        entry = cache.put("render", key, files)
-    finally:
-        tmp_video.unlink(missing_ok=True)
-        tmp_partial.unlink(missing_ok=True)
-    # Read back what was stored: a fresh render and a cached one give the same decoded frames.
-    outcome = parse(entry)
-    outcome.cached = False
-    return remember(outcome)
-
 
 def error_summary(outcome_error: str | None, logs: list[str], max_lines: int = 12) -> str:
     """Concise error text for the repair prompt: the error, then the last lines of the log."""
@@ -260,82 +127,6 @@ class SceneServices:
                                judges=self.judges, references=self.references,
                                progress=self.progress, headline=self.headline,
                                ground_truth=self.ground_truth)
-
-
-class EngineReferenceClips:
-    """`visphy_core.scoring.scene_scores.ReferenceClips` of a run: the engine's trusted reference
-    program renders S and the twin (through the render cache) into the scene's folder. Each
-    render goes through the ``render`` stage (the run's render lane). The twin's render goes to
-    the ground-truth store when there is one (``ground_truth``), so later runs find it there."""
-
-    def __init__(self, engine: Engine, cache: Cache, progress: StageEvents | None = None,
-                 renders: dict[str, RenderOutcome] | None = None,
-                 ground_truth: Cache | None = None):
-        self.engine = engine
-        self.cache = cache
-        self.progress = progress or StageEvents()
-        self.renders = renders
-        self.twin_cache = ground_truth if writable(ground_truth) else cache
-        self.stores = [c for c in (ground_truth, cache) if c is not None]
-        self._twins: dict[str, Program] = {}
-        self.render_s = 0.0  # wall seconds spent rendering (or reading back) clips here
-
-    def _render(self, scene: Scene, program: Program, contract: RenderContract,
-                cache: Cache | None = None) -> RenderOutcome:
-        start = time.perf_counter()  # waiting for the render lane included
-        try:
-            with self.progress.stage("render", scene.scene_id):
-                return render_cached(self.engine, program, contract, cache or self.cache,
-                                     self.renders)
-        finally:
-            self.render_s += time.perf_counter() - start
-
-    def spec_replay(self, scene: Scene, spec: dict, contract: RenderContract,
-                    scene_dir: Path) -> np.ndarray:
-        try:
-            program = self.engine.program_from_spec(spec_scene(scene, spec))
-        except (SpecTrackError, ValueError, NotImplementedError) as exc:
-            raise ReferenceClipUnavailable(one_line(str(exc))) from None
-        outcome = self._render(scene, program, contract)
-        if outcome.failure is not None:
-            raise ReferenceClipUnavailable(one_line(
-                f"the reference program failed to replay S: {outcome.failure.value} "
-                f"{outcome.error or ''}"))
-        _write(scene_dir / "spec_video.mp4", outcome.video_path.read_bytes())
-        return outcome.frames
-
-    def _twin_program(self, scene: Scene) -> Program:
-        if scene.scene_id not in self._twins:
-            try:
-                self._twins[scene.scene_id] = self.engine.program_from_spec(twin_scene(scene))
-            except (SpecTrackError, ValueError, NotImplementedError) as exc:
-                raise ReferenceClipUnavailable(
-                    f"normalisation: no twin of the ground truth: {one_line(str(exc))}"
-                ) from None
-        return self._twins[scene.scene_id]
-
-    def twin_identity(self, scene: Scene, contract: RenderContract) -> str:
-        return render_key(self.engine, self._twin_program(scene), contract)
-
-    def copy_twin(self, scene: Scene, contract: RenderContract, scene_dir: Path) -> bool:
-        key = self.twin_identity(scene, contract)
-        for store in self.stores:
-            entry = store.get("render", key)
-            if entry is not None and (entry / "video.mp4").is_file():
-                _write(scene_dir / "twin_video.mp4", (entry / "video.mp4").read_bytes())
-                return True
-        return False
-
-    def twin(self, scene: Scene, contract: RenderContract, scene_dir: Path | None
-             ) -> np.ndarray:
-        outcome = self._render(scene, self._twin_program(scene), contract, self.twin_cache)
-        if outcome.failure is not None:
-            raise ReferenceClipUnavailable(
-                f"normalisation: the reference program failed to render the twin: "
-                f"{outcome.failure.value} {one_line(outcome.error or '')}")
-        if scene_dir is not None:
-            _write(scene_dir / "twin_video.mp4", outcome.video_path.read_bytes())
-        return outcome.frames
 
 
 class ProviderRejectedKey(UserError):
@@ -452,15 +243,37 @@ def _record_spec(result: SceneResult, spec: dict | None, dim: str, scene_dir: Pa
            json.dumps({"valid": not problems, "problems": problems}, indent=1))
 
 
+def _prompt_record(first: FirstCall, engine: Engine, model) -> dict:
+    """What ``prompt.json`` says of the scene's first call."""
+    return {"text": first.prompt, "images": [i.name for i in first.images], "engine": engine.name,
+            "prompt_version": first.version, "privileged": model.privileged}
+
+
+def _record_response(result: SceneResult, response: ModelResponse, cached: bool,
+                     scene_dir: Path, suffix: str) -> None:
+    """Count one reply's usage into the row and write it (``response{suffix}.txt/.json``)."""
+    result.response_cached = cached
+    result.model_calls += 0 if cached else 1
+    result.model_latency_s += response.latency_s
+    result.cost_usd += response.cost_usd or 0.0
+    result.input_tokens += int(response.usage.get("input_tokens", 0) or 0)
+    result.output_tokens += int(response.usage.get("output_tokens", 0) or 0)
+    result.finish_reason = response.finish_reason
+    _write(scene_dir / f"response{suffix}.txt", response.text)
+    _write(scene_dir / f"response{suffix}.json", json.dumps(
+        {k: getattr(response, k) for k in ("usage", "cost_usd", "latency_s", "error",
+                                            "error_kind", "finish_reason", "refusal",
+                                            "transport_attempts", "prompt_version",
+                                            "model_id")} | {"cached": cached}, indent=1))
+
+
 def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scene_dir: Path,
               result: SceneResult) -> None:
     model, engine, settings = services.model, services.engine, services.settings
     contract = RenderContract.for_scene(scene, timeout_s=settings.timeout_s, seed=settings.seed)
     first = first_call(scene, services)
     result.prompt_version = first.version
-    _write(scene_dir / "prompt.json", json.dumps(
-        {"text": first.prompt, "images": [i.name for i in first.images], "engine": engine.name,
-         "prompt_version": first.version, "privileged": model.privileged}, indent=1))
+    _write(scene_dir / "prompt.json", json.dumps(_prompt_record(first, engine, model), indent=1))
     outcome: RenderOutcome | None = None
     clip: np.ndarray | None = None
     decoded: np.ndarray | None = None   # a video reply's frames by index (the paper protocol)
@@ -473,20 +286,8 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
         result.attempts = attempt
         with services.progress.stage("generate", scene.scene_id):
             response, cached = services.caller.call(request)
-        result.response_cached = cached
-        result.model_calls += 0 if cached else 1
-        result.model_latency_s += response.latency_s
-        result.cost_usd += response.cost_usd or 0.0
-        result.input_tokens += int(response.usage.get("input_tokens", 0) or 0)
-        result.output_tokens += int(response.usage.get("output_tokens", 0) or 0)
-        result.finish_reason = response.finish_reason
         suffix = "" if attempt == 1 else f".attempt{attempt}"
-        _write(scene_dir / f"response{suffix}.txt", response.text)
-        _write(scene_dir / f"response{suffix}.json", json.dumps(
-            {k: getattr(response, k) for k in ("usage", "cost_usd", "latency_s", "error",
-                                                "error_kind", "finish_reason", "refusal",
-                                                "transport_attempts", "prompt_version",
-                                                "model_id")} | {"cached": cached}, indent=1))
+        _record_response(result, response, cached, scene_dir, suffix)
         if response.error:
             if response.error_kind == "not_recorded" and attempt > 1:
                 break  # a replay without the repair reply: the first failure stands
@@ -541,17 +342,7 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
     if outcome is not None or clip is not None:
         result.model_success = result.system_success = True
         result.failure_class = result.failure_detail = None
-        if outcome is not None:
-            generated = outcome.frames
-            result.frame_digests = outcome.frame_digests
-            _write(scene_dir / "video.mp4", outcome.video_path.read_bytes())
-        else:
-            encode_video(clip, scene_dir / "video.mp4", contract.fps)
-            generated = decode_video(scene_dir / "video.mp4")[0]
-            result.frame_digests = [frame_digest(f) for f in generated]
-        flag = classify_frames(generated)
-        if flag is FailureClass.STATIC_OUTPUT:
-            result.flags.append(flag.value)
+        generated = _write_clip(result, outcome, clip, scene_dir, contract)
     elif result.failure_class == FailureClass.INFRA_ERROR.value:
         # Not evaluable (our side failed twice): no fallback clip, nothing counted for the model.
         result.scores = {name: None for name in result.scores}
@@ -567,6 +358,24 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
                   scene_dir, result, contract, program if outcome is not None else None,
                   spec_track=model.output_kind == "program",
                   as_decoded=decoded if clip is not None and outcome is None else None)
+
+
+def _write_clip(result: SceneResult, outcome: RenderOutcome | None, clip: np.ndarray | None,
+                scene_dir: Path, contract: RenderContract) -> np.ndarray:
+    """The scene's clip (the rendered program's, else the model's video) written as
+    ``video.mp4``; its frames, with their digests and a static-output flag in the row."""
+    if outcome is not None:
+        generated = outcome.frames
+        result.frame_digests = outcome.frame_digests
+        _write(scene_dir / "video.mp4", outcome.video_path.read_bytes())
+    else:
+        encode_video(clip, scene_dir / "video.mp4", contract.fps)
+        generated = decode_video(scene_dir / "video.mp4")[0]
+        result.frame_digests = [frame_digest(f) for f in generated]
+    flag = classify_frames(generated)
+    if flag is FailureClass.STATIC_OUTPUT:
+        result.flags.append(flag.value)
+    return generated
 
 
 def _render_with_infra_retry(engine: Engine, program: Program, contract: RenderContract,

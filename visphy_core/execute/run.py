@@ -553,14 +553,11 @@ def _host_fault_line(fault: OSError, run_dir: Path, results: list[SceneResult],
             f"{run_dir}{need}: {what}, then rerun the same command to resume")
 
 
-def _run(cfg: DictConfig, pm, root: Path, cache: Cache, scenes: list[Scene],
-         services: SceneServices, run_dir: Path, restored: list[SceneResult], setup: RunSetup,
-         ledger: UsageLedger) -> dict:
-    started = time.monotonic()  # the summary's wall time
-
-    metrics, engine = services.metrics, services.engine
-    judge_keys = [k for k, _ in services.judges.judges] if services.judges else []
-    files = RunDir(run_dir)
+def _open_run(cfg: DictConfig, root: Path, cache: Cache, scenes: list[Scene], metrics,
+              judge_keys: list[str], files: RunDir, run_dir: Path,
+              restored: list[SceneResult], setup: RunSetup) -> tuple[RunContext, dict]:
+    """Write the run's config and manifest; the context the lifecycle hooks receive, with the
+    rows a resume restored."""
     files.write_config(cfg)  # no credentials in URLs
     ctx = RunContext(cfg=cfg, run_dir=run_dir, root=root, scenes=scenes,
                      model_name=cfg.model.name, engine_name=cfg.engine.name, metrics=metrics,
@@ -571,6 +568,84 @@ def _run(cfg: DictConfig, pm, root: Path, cache: Cache, scenes: list[Scene],
         manifest["resumed_rows"] = len(restored)
     files.write_manifest(manifest)
     ctx.results.extend(restored)
+    return ctx, manifest
+
+
+def _close_services(services: SceneServices, engine, cfg: DictConfig,
+                    gates: StageGates | None, scheduler: SceneScheduler | None) -> None:
+    """Close model calls and the engine, and let the scenes still in flight stop."""
+    try:
+        _close_calls(services)
+    except Exception as exc:  # noqa: BLE001
+        log.warning("closing model calls failed: %s: %s", type(exc).__name__, exc)
+    _close_engine(engine, cfg, gates)
+    if scheduler is not None:
+        _let_scenes_stop(scheduler)
+
+
+def _run_summary(ctx: RunContext, cfg: DictConfig, services: SceneServices, setup: RunSetup,
+                 ledger: UsageLedger, cache: Cache, resumed_rows: int, status: str,
+                 raised: BaseException | None, cost_stop: CostCapReached | None,
+                 ground_truth: dict[str, Any] | None) -> dict:
+    """The run's summary: `summarise` of its rows, with how the run ended."""
+    scenes, metrics = ctx.scenes, services.metrics
+    summary = summarise(ctx.results, metrics, score_columns(metrics, services.protocol),
+                        cache_stats=cache.stats(), judges=ctx.judges, usage=ledger.totals(),
+                        headline=headline_column(services.headline))
+    summary.update({"status": status, "run_dir": str(ctx.run_dir), "model": cfg.model.name,
+                    "model_output": services.model.output_kind,
+                    "model_baseline": services.model.baseline,
+                    "engine": cfg.engine.name, "dataset": cfg.dataset.name,
+                    "n_selected": len(scenes), "resumed_rows": resumed_rows,
+                    "config_hash": setup.config_hash,
+                    "isolation_levels": setup.isolation})
+    if ground_truth:
+        summary["ground_truth"] = ground_truth
+    if cost_stop is not None:
+        done_ids = {r.scene_id for r in ctx.results}
+        summary["cost_cap"] = {
+            "cap_usd": cost_stop.cap_usd, "spent_usd": ledger.spent_usd,
+            "not_run": [s.scene_id for s in scenes if s.scene_id not in done_ids],
+            "message": f"{cost_stop}; {len(scenes) - len(done_ids)} of {len(scenes)} "
+                       "scenes not run: raise run.cost_cap_usd and rerun the same command "
+                       "to continue"}
+    if cache.warnings:
+        summary["cache_warnings"] = list(cache.warnings)
+    if status == INTERRUPTED:
+        summary["interrupted_by"] = signal.Signals(raised.signum).name
+    elif status == FAILED:
+        summary["error"] = f"{type(raised).__name__}: {raised}"
+    return summary
+
+
+def _print_end(summary: dict, ctx: RunContext, cfg: DictConfig, status: str,
+               started: float) -> None:
+    """What a person reads when the run ends: the summary and where to look, or why it
+    stopped."""
+    scenes, run_dir = ctx.scenes, ctx.run_dir
+    if status in (FINISHED, COST_CAP):
+        print_summary(summary, ctx.results, mode=str(cfg.run.get("summary", "short")),
+                      wall_s=time.monotonic() - started)
+        print_where_to_look(write_report(run_dir), ctx.where_to_look)
+    if summary.get("tracking_failed"):
+        print(summary["tracking_failed"], file=sys.stderr)
+    if status == COST_CAP:
+        print(f"stopped: {summary['cost_cap']['message']}", file=sys.stderr)
+    elif status != FINISHED:
+        print(f"run {status} after {len(ctx.results)}/{len(scenes)} scenes; partial results in "
+              f"{run_dir} (rerun the same command to resume)", file=sys.stderr)
+
+
+def _run(cfg: DictConfig, pm, root: Path, cache: Cache, scenes: list[Scene],
+         services: SceneServices, run_dir: Path, restored: list[SceneResult], setup: RunSetup,
+         ledger: UsageLedger) -> dict:
+    started = time.monotonic()  # the summary's wall time
+
+    metrics, engine = services.metrics, services.engine
+    judge_keys = [k for k, _ in services.judges.judges] if services.judges else []
+    files = RunDir(run_dir)
+    ctx, manifest = _open_run(cfg, root, cache, scenes, metrics, judge_keys, files, run_dir,
+                              restored, setup)
     done = {r.scene_id for r in restored}
     pending = work_order([s for s in scenes if s.scene_id not in done])
     prefetch = _Prefetch(pending, services, int(cfg.run.get("prefetch", 0)))
@@ -625,44 +700,14 @@ def _run(cfg: DictConfig, pm, root: Path, cache: Cache, scenes: list[Scene],
     if status != FAILED:
         _wait_for_calls(services.caller)
     with _deferred_signals() as pending_signals:
-        try:
-            _close_calls(services)
-        except Exception as exc:  # noqa: BLE001
-            log.warning("closing model calls failed: %s: %s", type(exc).__name__, exc)
-        _close_engine(engine, cfg, gates)
-        if scheduler is not None:
-            _let_scenes_stop(scheduler)
+        _close_services(services, engine, cfg, gates, scheduler)
         order = {s.scene_id: i for i, s in enumerate(scenes)}
         ctx.results.sort(key=lambda r: order.get(r.scene_id, len(order)))
         faults: list[OSError] = [f for f in [host_fault(raised)] if f is not None]
         closing = _ClosingWrites(faults)
         closing.do(files.write_rows, ctx.results, jsonl=False)  # lines written as it went
-        summary = summarise(ctx.results, metrics, score_columns(metrics, services.protocol),
-                            cache_stats=cache.stats(), judges=judge_keys, usage=ledger.totals(),
-                            headline=headline_column(services.headline))
-        summary.update({"status": status, "run_dir": str(run_dir), "model": cfg.model.name,
-                        "model_output": services.model.output_kind,
-                        "model_baseline": services.model.baseline,
-                        "engine": cfg.engine.name, "dataset": cfg.dataset.name,
-                        "n_selected": len(scenes), "resumed_rows": len(restored),
-                        "config_hash": setup.config_hash,
-                        "isolation_levels": setup.isolation})
-        if ground_truth:
-            summary["ground_truth"] = ground_truth
-        if cost_stop is not None:
-            done_ids = {r.scene_id for r in ctx.results}
-            summary["cost_cap"] = {
-                "cap_usd": cost_stop.cap_usd, "spent_usd": ledger.spent_usd,
-                "not_run": [s.scene_id for s in scenes if s.scene_id not in done_ids],
-                "message": f"{cost_stop}; {len(scenes) - len(done_ids)} of {len(scenes)} "
-                           "scenes not run: raise run.cost_cap_usd and rerun the same command "
-                           "to continue"}
-        if cache.warnings:
-            summary["cache_warnings"] = list(cache.warnings)
-        if status == INTERRUPTED:
-            summary["interrupted_by"] = signal.Signals(raised.signum).name
-        elif status == FAILED:
-            summary["error"] = f"{type(raised).__name__}: {raised}"
+        summary = _run_summary(ctx, cfg, services, setup, ledger, cache, len(restored), status,
+                               raised, cost_stop, ground_truth)
         closing.do(files.write_summary, summary)
         if faults and status == FINISHED:  # the run's files are not all written: not finished
             status = summary["status"] = FAILED
@@ -678,17 +723,7 @@ def _run(cfg: DictConfig, pm, root: Path, cache: Cache, scenes: list[Scene],
     if faults:
         raise HostFault(_host_fault_line(faults[0], run_dir, ctx.results, scenes)) \
             from (raised if raised is not None else faults[0])
-    if status in (FINISHED, COST_CAP):
-        print_summary(summary, ctx.results, mode=str(cfg.run.get("summary", "short")),
-                      wall_s=time.monotonic() - started)
-        print_where_to_look(write_report(run_dir), ctx.where_to_look)
-    if summary.get("tracking_failed"):
-        print(summary["tracking_failed"], file=sys.stderr)
-    if status == COST_CAP:
-        print(f"stopped: {summary['cost_cap']['message']}", file=sys.stderr)
-    elif status != FINISHED:
-        print(f"run {status} after {len(ctx.results)}/{len(scenes)} scenes; partial results in "
-              f"{run_dir} (rerun the same command to resume)", file=sys.stderr)
+    _print_end(summary, ctx, cfg, status, started)
     if raised is not None:
         raise raised
     if pending_signals:

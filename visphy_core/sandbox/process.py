@@ -604,54 +604,17 @@ def run_sandboxed(argv: list[str], workdir: Path, limits: Limits,
         path = None
     env = child_env(workdir, env_extra, allow_secret_env, path=path)
 
-    # Resolve the program here: behind bwrap a missing binary would only show up as exit 1.
-    exe = cmd[0] if os.sep in cmd[0] else shutil.which(cmd[0], path=env["PATH"])
-    if exe is None or not os.path.isfile(os.path.join(workdir, exe)) or not os.access(
-            os.path.join(workdir, exe), os.X_OK):
-        return _refused(workdir, f"could not start {cmd[0]}: not found or not executable",
-                        refused=False)
-    seccomp_fd: int | None = None
-    if mode is not None:
-        try:
-            seccomp_fd = syscall_filter.memfd()
-        except (OSError, syscall_filter.FilterUnavailable) as exc:
-            return _refused(workdir, f"sandbox unavailable, refusing to run untrusted code: "
-                                     f"no seccomp filter: {exc}; {INSTALL_HINT}")
-        full = [*_bwrap_argv(_bwrap_path() or "bwrap", mode, workdir, ro_list, env, limits,
-                             cmd, seccomp_fd=seccomp_fd)]
-        isolation = level
-        uid = NOBODY_UID if mode == "root" else os.getuid()
-    else:
-        log.warning("sandbox: running %s UNISOLATED (%s; opted out explicitly)", cmd[:1], level)
-        full, isolation, uid = cmd, "none", os.getuid()
+    planned = _command(cmd, workdir, mode, level, ro_list, env, limits)
+    if isinstance(planned, ProcessResult):
+        return planned
+    full, isolation, uid, seccomp_fd = planned
 
     preexec = _make_preexec(_rlimits(limits, uid))
-    out_r, out_w = os.pipe()
-    err_r, err_w = os.pipe()
-    in_r, in_w = os.pipe() if stdin is not None else (None, None)
     start = time.monotonic()
-    try:
-        proc = subprocess.Popen(
-            full, cwd=workdir, env=env, stdin=in_r if in_r is not None else subprocess.DEVNULL,
-            stdout=out_w, stderr=err_w, start_new_session=True, preexec_fn=preexec,
-            close_fds=True, pass_fds=(seccomp_fd,) if seccomp_fd is not None else ())
-    except OSError as exc:
-        for fd in (out_r, out_w, err_r, err_w, in_r, in_w):
-            if fd is not None:
-                os.close(fd)
-        res = _refused(workdir, f"could not start {full[0]}: {exc}", refused=False)
-        res.isolation = isolation
-        return res
-    finally:
-        for fd in (out_w, err_w, in_r, seccomp_fd):
-            if fd is not None:
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
-    out, err = _Capture(out_r), _Capture(err_r)
-    if in_w is not None:
-        threading.Thread(target=_feed, args=(in_w, stdin), daemon=True).start()
+    started = _start(full, workdir, env, stdin, preexec, seccomp_fd, isolation)
+    if isinstance(started, ProcessResult):
+        return started
+    proc, out, err = started
 
     hit: list[str] = []
     hit_lock = threading.Lock()
@@ -700,7 +663,74 @@ def run_sandboxed(argv: list[str], workdir: Path, limits: Limits,
     watcher.join(2.0)
     stdout, stderr = out.text(2.0), err.text(2.0)
 
-    returncode: int | None = proc.returncode
+    returncode, limit_hit = _outcome(proc.returncode, mode, hit, usage, limits, stderr)
+    return ProcessResult(returncode=returncode, stdout=stdout, stderr=stderr,
+                         timed_out=limit_hit == "wall", limit_hit=limit_hit, wall_s=wall,
+                         isolation=isolation, workdir=workdir)
+
+
+def _command(cmd: list[str], workdir: Path, mode: str | None, level: str, ro_list: list[Path],
+             env: dict[str, str], limits: Limits
+             ) -> ProcessResult | tuple[list[str], str, int, int | None]:
+    """The command line that runs ``cmd`` isolated in ``mode`` (or as is, when the user opted
+    out): ``(argv, isolation, uid, seccomp filter fd)``, or the result of refusing to start."""
+    # Resolve the program here: behind bwrap a missing binary would only show up as exit 1.
+    exe = cmd[0] if os.sep in cmd[0] else shutil.which(cmd[0], path=env["PATH"])
+    if exe is None or not os.path.isfile(os.path.join(workdir, exe)) or not os.access(
+            os.path.join(workdir, exe), os.X_OK):
+        return _refused(workdir, f"could not start {cmd[0]}: not found or not executable",
+                        refused=False)
+    if mode is None:
+        log.warning("sandbox: running %s UNISOLATED (%s; opted out explicitly)", cmd[:1], level)
+        return cmd, "none", os.getuid(), None
+    try:
+        seccomp_fd = syscall_filter.memfd()
+    except (OSError, syscall_filter.FilterUnavailable) as exc:
+        return _refused(workdir, f"sandbox unavailable, refusing to run untrusted code: "
+                                 f"no seccomp filter: {exc}; {INSTALL_HINT}")
+    full = [*_bwrap_argv(_bwrap_path() or "bwrap", mode, workdir, ro_list, env, limits,
+                         cmd, seccomp_fd=seccomp_fd)]
+    return full, level, NOBODY_UID if mode == "root" else os.getuid(), seccomp_fd
+
+
+def _start(full: list[str], workdir: Path, env: dict[str, str], stdin: bytes | None, preexec,
+           seccomp_fd: int | None, isolation: str
+           ) -> ProcessResult | tuple[subprocess.Popen, _Capture, _Capture]:
+    """Start ``full`` in its own session with piped output (and ``stdin`` fed by a thread); the
+    parent's copies of the child's pipe ends and of the filter fd are closed either way."""
+    out_r, out_w = os.pipe()
+    err_r, err_w = os.pipe()
+    in_r, in_w = os.pipe() if stdin is not None else (None, None)
+    try:
+        proc = subprocess.Popen(
+            full, cwd=workdir, env=env, stdin=in_r if in_r is not None else subprocess.DEVNULL,
+            stdout=out_w, stderr=err_w, start_new_session=True, preexec_fn=preexec,
+            close_fds=True, pass_fds=(seccomp_fd,) if seccomp_fd is not None else ())
+    except OSError as exc:
+        for fd in (out_r, out_w, err_r, err_w, in_r, in_w):
+            if fd is not None:
+                os.close(fd)
+        res = _refused(workdir, f"could not start {full[0]}: {exc}", refused=False)
+        res.isolation = isolation
+        return res
+    finally:
+        for fd in (out_w, err_w, in_r, seccomp_fd):
+            if fd is not None:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+    out, err = _Capture(out_r), _Capture(err_r)
+    if in_w is not None:
+        threading.Thread(target=_feed, args=(in_w, stdin), daemon=True).start()
+    return proc, out, err
+
+
+def _outcome(status: int, mode: str | None, hit: list[str], usage, limits: Limits,
+             stderr: str) -> tuple[int | None, str | None]:
+    """``(returncode, limit_hit)`` of a finished program: a signal death as a negative code, and
+    which limit ended it (None for the return code when the watcher killed it)."""
+    returncode: int | None = status
     if mode is not None and returncode is not None and 128 < returncode < 128 + 65:
         returncode = -(returncode - 128)  # bwrap reports a signal death as 128 + signal
     limit_hit: str | None = hit[0] if hit and hit[0] in ("wall", "disk") else None
@@ -714,6 +744,4 @@ def run_sandboxed(argv: list[str], workdir: Path, limits: Limits,
         limit_hit = "file_size"
     elif returncode != 0:
         limit_hit = limit_from_text(stderr[-8000:])
-    return ProcessResult(returncode=returncode, stdout=stdout, stderr=stderr,
-                         timed_out=limit_hit == "wall", limit_hit=limit_hit, wall_s=wall,
-                         isolation=isolation, workdir=workdir)
+    return returncode, limit_hit

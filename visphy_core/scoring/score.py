@@ -238,12 +238,7 @@ def score_scene(scene: Scene, reference: np.ndarray, generated: np.ndarray,
     clips = content_key(clip_digest(reference), clip_digest(generated), analysis or "",
                         json.dumps(spec, sort_keys=True) if spec else "", reference_text or "")
     frame_metrics = any(m.kind != SCENE for m in metrics)
-    # the paper view pairs the clip as given, by index (upstream reads no timestamps)
-    paper_gen = paper_clip(reference, as_given) if protocol.paper and frame_metrics \
-        else generated
-    if paper_gen is not generated and paper_gen.shape == generated.shape \
-            and np.array_equal(paper_gen, generated):
-        paper_gen = generated
+    paper_gen = _paper_generated(reference, as_given, generated, protocol.paper and frame_metrics)
     paper_inp, paper_clips = inp, clips
     if paper_gen is not generated:  # its own clip: own per-scene memo (indices differ)
         paper_inp = replace(inp, generated=paper_gen, extra={})
@@ -309,16 +304,33 @@ def score_scene(scene: Scene, reference: np.ndarray, generated: np.ndarray,
                     lambda a=a, view_inp=view_inp: metric.compute_sequence(view_inp, a),
                     clips=view_clips)
     if details is not None:
-        for metric in metrics:
-            if metric.unavailable_reason():
-                continue
-            try:
-                info = metric.details(inp)
-            except Exception as exc:  # noqa: BLE001 - a breakdown never costs the scores
-                info = {"error": f"{type(exc).__name__}: {exc}"[:300]}
-            if info is not None:
-                details.setdefault(metric.details_key or metric.name, info)
+        _collect_details(metrics, inp, details)
     return scores, unavailable
+
+
+def _paper_generated(reference: np.ndarray, as_given: np.ndarray, generated: np.ndarray,
+                     paper: bool) -> np.ndarray:
+    """The generated clip the paper view pairs: the clip as given, by index (upstream reads no
+    timestamps); ``generated`` itself when that is the same clip."""
+    paper_gen = paper_clip(reference, as_given) if paper else generated
+    if paper_gen is not generated and paper_gen.shape == generated.shape \
+            and np.array_equal(paper_gen, generated):
+        paper_gen = generated
+    return paper_gen
+
+
+def _collect_details(metrics: list[Metric], inp: MetricInput, details: dict) -> None:
+    """Each available metric's per-scene breakdown into ``details`` (an error in one is
+    recorded as its breakdown)."""
+    for metric in metrics:
+        if metric.unavailable_reason():
+            continue
+        try:
+            info = metric.details(inp)
+        except Exception as exc:  # noqa: BLE001 - a breakdown never costs the scores
+            info = {"error": f"{type(exc).__name__}: {exc}"[:300]}
+        if info is not None:
+            details.setdefault(metric.details_key or metric.name, info)
 
 
 def _pairs_key(a: Alignment) -> str:
