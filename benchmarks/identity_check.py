@@ -41,7 +41,8 @@ JOB = ["dataset=mini", "model=oracle", "engine=threejs", "metrics=default", "tra
 #: where the run lives, cache statistics, versions).
 VOLATILE_KEYS = {
     "model_latency_s", "render_wall_s", "reference_render_wall_s", "scoring_wall_s",
-    "judge_wall_s", "wall_s", "cpu_s", "stage_seconds", "started_at", "finished_at", "updated_at", "at",
+    "judge_wall_s", "wall_s", "cpu_s", "stage_seconds", "started_at", "finished_at",
+    "updated_at", "at",
     "run_dir", "cache", "visphy_version", "git", "git_commit", "command", "argv", "pid",
     "host", "hostname", "elapsed_s", "duration_s", "seconds", "python", "platform", "usage",
     "render_cached", "response_cached", "renders_done", "model_calls", "mlflow", "tracking",
