@@ -148,6 +148,9 @@ def test_run_report_leaderboard_first_counts_match_results_one_section_per_scene
         page = Opened(browser, index)
         first = page.eval("document.querySelector('header.top').nextElementSibling.id")
         assert first == "leaderboard"
+        # the folded tables' title names only the groups the run has (no normalisation here)
+        folded = page.eval("document.querySelector('#leaderboard details summary').textContent")
+        assert "aligned" in folded and "variance-normalised" not in folded
         board = page.eval("""Array.from(document.querySelectorAll(
             '#leaderboard table.leaderboard tbody tr'))
             .map(tr => Array.from(tr.cells).map(td => td.textContent))""")

@@ -97,12 +97,14 @@ def leaderboard(run: RunData) -> str:
 
     heads = ["metric", "model successes", "with fallbacks"]
     main, folded = [], []
+    folded_keys: list[str] = []
     for key, members in grouped(list(metrics)):
         block = table(heads, rows(members), cls="leaderboard", attrs=f" data-group={attr(key)}")
         if key in PRIMARY:
             main.append(block)
         else:
             folded.append(f'<p class="note">{esc(HEADINGS[key])}</p>{block}')
+            folded_keys.append(key)
     head = s.get("headline") or {}
     if head.get("metric"):
         ci = head.get("ci")
@@ -120,9 +122,14 @@ def leaderboard(run: RunData) -> str:
         main[first:] = [f'<div class="board"><div>{"".join(main[first:])}</div>'
                         f'<div class="board-plots" id="run-plots">{plots}</div></div>']
     if folded:
-        main.append(details("other pairings and tracks (aligned, paper protocol, spec track, "
-                            "variance-normalised)", "".join(folded)))
+        shown = ", ".join(dict.fromkeys(FOLDED_NAMES.get(k, k) for k in folded_keys))
+        main.append(details(f"other pairings and tracks ({shown})", "".join(folded)))
     return f'<section id="leaderboard"><h2>Leaderboard</h2>{intro}{"".join(main)}</section>'
+
+
+#: The folded groups' short names in the expander's title (only the groups the run has).
+FOLDED_NAMES = {"aligned": "aligned", "paper": "paper protocol", "align": "alignment",
+                "spec": "spec track", "norm": "variance-normalised"}
 
 
 def _card(key: str, value: str, ident: str = "") -> str:
