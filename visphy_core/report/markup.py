@@ -82,7 +82,9 @@ def asset(name: str) -> str:
     return resources.files("visphy_core.report").joinpath("assets", name).read_text("utf-8")
 
 
-def _csp(script: str) -> str:
+def csp(script: str) -> str:
+    """The Content-Security-Policy of a page that runs exactly ``script`` (by its digest) and
+    loads nothing from outside its folder."""
     digest = base64.b64encode(hashlib.sha256(script.encode("utf-8")).digest()).decode()
     return ("default-src 'none'; "
             f"script-src 'sha256-{digest}'; style-src 'unsafe-inline'; "
@@ -94,7 +96,7 @@ def page(title: str, body: str, with_script: bool = True) -> str:
     """A complete page: the stylesheet and the script inline, nothing fetched from anywhere."""
     script = asset("report.js") if with_script else ""
     return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
-            f"<meta http-equiv=\"Content-Security-Policy\" content={attr(_csp(script))}>"
+            f"<meta http-equiv=\"Content-Security-Policy\" content={attr(csp(script))}>"
             "<meta name=\"referrer\" content=\"no-referrer\">"
             "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
             f"<title>{esc(title)}</title><style>{asset('report.css')}</style></head>"
