@@ -17,7 +17,7 @@ from pathlib import Path
 
 from visphy_core.leaderboard.entries import Entry
 from visphy_core.report.ground_truth import locate_ground_truth
-from visphy_core.report.markup import attr, esc, url
+from visphy_core.report.markup import attr, url
 from visphy_core.report.media import MediaStore, Placed
 from visphy_core.report.run_report import write_run_report
 from visphy_core.results.layout import SCENES
@@ -107,13 +107,3 @@ def best_and_worst(entry: Entry, site: Path, n: int = 2,
     result = clips(best_ids), clips(worst_ids)
     store.close()
     return result
-
-
-def clip_html(placed: Placed, prefix: str, title: str, missing: str) -> str:
-    """A clip of the site (``prefix``: from the page to the clip store's folder)."""
-    if placed.rel is None:
-        body = f'<div class="missing-clip">{esc(placed.error or missing)}</div>'
-    else:
-        body = (f'<video muted loop playsinline controls preload="metadata" '
-                f"src={attr(url(prefix + placed.rel))}></video>")
-    return f'<figure class="clip"><figcaption>{esc(title)}</figcaption>{body}</figure>'

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections import Counter
 
 from visphy_core.leaderboard.breakdowns import Breakdown
-from visphy_core.leaderboard.clips import SceneClips, clip_html
+from visphy_core.leaderboard.clips import SceneClips
 from visphy_core.leaderboard.entries import Entry
 from visphy_core.leaderboard.html import (
     Cell,
@@ -23,6 +23,7 @@ from visphy_core.leaderboard.references import Reference
 from visphy_core.leaderboard.ties import Standing
 from visphy_core.report.markup import attr, esc, fmt, url
 from visphy_core.report.plots import family_bars, headline_plot
+from visphy_core.report.scene_section import clip_figure
 
 
 def _link(href: str, label: str) -> str:
@@ -161,8 +162,10 @@ def breakdowns_page(title: str, entries: list[Entry], tables: list[Breakdown],
 def _pair(c: SceneClips, slug: str) -> str:
     return (f'<div class="pair"><h4>{esc(c.scene_id)} · {esc(fmt(c.value, 3))}</h4>'
             '<div class="row">'
-            + clip_html(c.generated, f"../clips/{slug}/", "generated", "no generated clip")
-            + clip_html(c.truth, f"../clips/{slug}/", "ground truth", "no ground truth")
+            + clip_figure("generated", c.generated, "no generated clip",
+                          prefix=f"../clips/{slug}/", controls=True)
+            + clip_figure("ground truth", c.truth, "no ground truth",
+                          prefix=f"../clips/{slug}/", controls=True)
             + "</div></div>")
 
 

@@ -126,12 +126,16 @@ def _outcome_text(r: SceneResult | None) -> str:
 # ------------------------------------------------------------------ clips
 
 
-def _clip(title: str, placed: Placed, missing: str, preload: str) -> str:
+def clip_figure(title: str, placed: Placed, missing: str, preload: str = "metadata", *,
+                prefix: str = "", controls: bool = False) -> str:
+    """A clip as a captioned figure (``prefix``: from the page to the media store's folder;
+    ``controls``: the browser's own, for a clip outside the report's shared player)."""
     if placed.rel is None:
         body = f'<div class="missing-clip">{esc(placed.error or missing)}</div>'
     else:
-        body = (f"<video muted loop playsinline preload={attr(preload)} "
-                f"src={attr(url(placed.rel))}></video>")
+        shown = " controls" if controls else ""
+        body = (f"<video muted loop playsinline{shown} preload={attr(preload)} "
+                f"src={attr(url(prefix + placed.rel))}></video>")
     note = f'<p class="note">{esc(placed.note)}</p>' if placed.note else ""
     return f'<figure class="clip"><figcaption>{esc(title)}</figcaption>{body}{note}</figure>'
 
@@ -152,24 +156,26 @@ def _clip_contract(view: SceneView) -> tuple[float, int]:
 def clips(view: SceneView, media: MediaStore) -> str:
     base = f"media/{safe_name(view.scene_id)}"
     d, r = view.scene_dir, view.result
-    figures = [_clip("ground truth", media.video(view.truth.video, f"{base}/ground_truth.mp4"),
-                     view.truth.missing or "no ground-truth clip", view.preload)]
+    figures = [clip_figure("ground truth",
+                           media.video(view.truth.video, f"{base}/ground_truth.mp4"),
+                           view.truth.missing or "no ground-truth clip", view.preload)]
     generated_title = "generated (fallback clip)" if r is not None and r.fallback else "generated"
-    figures.append(_clip(generated_title, media.video(d / "video.mp4", f"{base}/generated.mp4"),
-                         "no generated clip (the program produced none and no fallback was "
-                         "rendered)", view.preload))
+    figures.append(clip_figure(generated_title,
+                               media.video(d / "video.mp4", f"{base}/generated.mp4"),
+                               "no generated clip (the program produced none and no fallback "
+                               "was rendered)", view.preload))
     if (d / "spec_video.mp4").is_file():
-        figures.append(_clip("spec track (S simulated)",
-                             media.video(d / "spec_video.mp4", f"{base}/spec_track.mp4"), "",
-                             view.preload))
+        figures.append(clip_figure("spec track (S simulated)",
+                                   media.video(d / "spec_video.mp4", f"{base}/spec_track.mp4"),
+                                   "", view.preload))
     if (d / "reply.mp4").is_file():
-        figures.append(_clip("the model's own video (as returned, before normalisation)",
-                             media.video(d / "reply.mp4", f"{base}/reply.mp4"), "",
-                             view.preload))
+        figures.append(clip_figure("the model's own video (as returned, before normalisation)",
+                                   media.video(d / "reply.mp4", f"{base}/reply.mp4"), "",
+                                   view.preload))
     for partial in sorted(d.glob("partial*.mp4")):
-        figures.append(_clip(f"partial clip of the failed attempt {_attempt_of(partial)}",
-                             media.video(partial, f"{base}/{partial.name}"), "",
-                             view.preload))
+        figures.append(clip_figure(f"partial clip of the failed attempt {_attempt_of(partial)}",
+                                   media.video(partial, f"{base}/{partial.name}"), "",
+                                   view.preload))
     fps, frames = _clip_contract(view)
     last = max(frames - 1, 0)
     controls = (
