@@ -9,10 +9,11 @@ study's numbers, not by taste").
 The checkpoint is what ``benchmarks/validity_study.py --order --checkpoint F`` writes: every
 clip of every scene scored with every frame metric, the still clip and the twin included, so a
 headline of any components can be recomputed without scoring a clip again
-(`validity_order.rescored_headline`). For each subset of the pool (1 to ``--max-size``
-components, equal weights, the headline's clip) the goals are computed as the study computes
-them (`validity_goals.score_summary`): strict share, monotone share, the largest median change
-a restyle causes and the smallest median drop a physics error causes. Candidates are ranked by
+(`visphy_plugins.studies.validity.order.rescored_headline`). For each subset of the pool (1 to
+``--max-size`` components, equal weights, the headline's clip) the goals are computed as the
+study computes them (`visphy_plugins.studies.validity.goals.score_summary`): strict share,
+monotone share, the largest median change a restyle causes and the smallest median drop a
+physics error causes. Candidates are ranked by
 how many of the four goals they meet, then by the smallest margin to the goals. The pool
 defaults to every metric of the checkpoint with a value on most clips.
 """
@@ -28,20 +29,20 @@ from pathlib import Path
 
 
 def load(checkpoint: Path):
-    from visphy_plugins.datasets.visphybench import validity_order as vo
+    from visphy_plugins.studies.validity import clips as vc
 
     done = {}
     for line in checkpoint.read_text().splitlines():
         if line.strip():
-            res = vo.SceneOrder.from_json(json.loads(line))
+            res = vc.SceneOrder.from_json(json.loads(line))
             done[res.scene_id] = res
     return list(done.values())
 
 
 def evaluate(results, metrics, components: tuple[str, ...], base, ceiling: str = "twin"
              ) -> dict:
-    from visphy_plugins.datasets.visphybench import validity_goals as vg
-    from visphy_plugins.datasets.visphybench import validity_order as vo
+    from visphy_plugins.studies.validity import goals as vg
+    from visphy_plugins.studies.validity import order as vo
 
     headline = dataclasses.replace(base, components=components, ceiling=ceiling)
     res = vo.rescored_headline(results, metrics, headline, ceiling)

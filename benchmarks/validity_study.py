@@ -14,14 +14,14 @@ validity ordering.
    and object-track metric scores the result (visphy's unaligned pairing). Per metric: the cases,
    how many have Spearman ρ(step, worsening) ≥ 0.9, the mean ρ, and the pooled ρ (the step
    against the mean worsening over the cases) over all cases and per parameter
-   (`visphy_plugins.datasets.visphybench.validity`).
+   (`visphy_plugins.studies.validity.perturbation`).
 2. Ranking: ten 2D scenes of the ``test`` split run through the real CLI with the default
    (offline) suite for the oracle and the two pixel-space baselines (`static`: the first key
    frame held; `flow_extrapolate`: DIS flow between the key frames extrapolated) — the means.
 Prints both tables as Markdown (the README's).
 
 ``--order`` runs the validity ordering instead (issue 21,
-`visphy_plugins.datasets.visphybench.validity_order`): every scene of the ``test`` split (every
+`visphy_plugins.studies.validity.study`, `.order`): every scene of the ``test`` split (every
 ``N``-th with ``--every N``; 2D in-process, 3D through Chromium), four kinds of clip —
 (i) the physics of the truth drawn differently, (ii) the physics changed and re-simulated,
 (iii) the static baseline, (iv) the flow_extrapolate baseline — scored by the default offline
@@ -36,14 +36,14 @@ last line of a scene wins).
 
 Issue 32 adds restyles (colour ±40 %, swapped colours, line widths, background shade), the truth
 clip itself as the reference, the twin scored with every metric, and the dose series
-(`validity_dose`: gravity ×0.9/×0.75/×0.5, restitution −0.1/−0.2/−0.3, launch +5°/+10°/+20°,
-playback ×0.9/×0.8/×0.67), and prints, per score, the goals (`validity_goals`): strict
-ordering with the (ii) clips departing ≥ 20 px, appearance invariance (median |Δ| per restyle),
-physics drop (median per intervention ≥ 20 px), monotone share over the dose series; a table per
-scene; the discriminative power. ``--summary`` (default
-``visphy_core/api/validity_summary.json``: the figures the metric registry, the docs'
-generated pages and the tests read; ``''`` for none) writes all of it as JSON with the
-scenes, wall time, machine (``benchmarks/machine.py``) and command line.
+(`visphy_plugins.studies.validity.dose`: gravity ×0.9/×0.75/×0.5, restitution −0.1/−0.2/−0.3,
+launch +5°/+10°/+20°, playback ×0.9/×0.8/×0.67), and prints, per score, the goals
+(`visphy_plugins.studies.validity.goals`): strict ordering with the (ii) clips departing
+≥ 20 px, appearance invariance (median |Δ| per restyle), physics drop (median per intervention
+≥ 20 px), monotone share over the dose series; a table per scene; the discriminative power.
+``--summary`` (default ``visphy_core/api/validity_summary.json``: the figures the metric
+registry, the docs' generated pages and the tests read; ``''`` for none) writes all of it as
+JSON with the scenes, wall time, machine (``benchmarks/machine.py``) and command line.
 ``--no-dose`` leaves the dose series out; ``--variants`` keeps only the named (i) and (ii)
 variants and dose series (``right``, ``wrong``, ``dose``: a whole group); ``--metrics`` only
 these metrics of the default suite; ``--split`` another split (``mini``: four 2D scenes);
@@ -80,7 +80,7 @@ def _fmt(v, decimals: int | None = None) -> str:
 
 def perturbation(specs: list[dict], per_param: int, progress: bool) -> tuple[dict, list]:
     from visphy_core.api.registry import get_registry
-    from visphy_plugins.datasets.visphybench.validity import PARAMS, run_study, summarise
+    from visphy_plugins.studies.validity.perturbation import PARAMS, run_study, summarise
 
     registry = get_registry()
     metrics = [registry.get("metrics", n) for n in sorted(registry.metrics)]
@@ -122,7 +122,7 @@ def default_suite() -> list:
     import yaml
 
     from visphy_core.api.registry import get_registry
-    from visphy_plugins.datasets.visphybench.validity_order import frame_metrics
+    from visphy_plugins.studies.validity.study import frame_metrics
 
     names = yaml.safe_load((REPO / "conf" / "metrics" / "default.yaml").read_text())["names"]
     registry = get_registry()
@@ -153,19 +153,21 @@ def order_study(specs: list[dict], dims: tuple[str, ...], checkpoint: str | None
                 summary: str | Path | None = None, meta: dict | None = None) -> dict:
     """The validity ordering on ``specs`` (in ``dims``) with ``metrics`` (default: the default
     suite's frame and sequence metrics); prints its tables and, with ``summary``, writes the
-    goals' summary there (`validity_goals.study_summary`, ``meta`` included)."""
-    from visphy_plugins.datasets.visphybench import validity_goals as vg
-    from visphy_plugins.datasets.visphybench import validity_order as vo
+    goals' summary there (`goals.study_summary`, ``meta`` included)."""
+    from visphy_plugins.studies.validity import clips as vc
+    from visphy_plugins.studies.validity import goals as vg
+    from visphy_plugins.studies.validity import order as vo
+    from visphy_plugins.studies.validity import study as vs
 
     metrics = default_suite() if metrics is None else metrics
     appearances = interventions = series = None
     if variants:
-        appearances, interventions, series = vo.variants_named(variants)
+        appearances, interventions, series = vs.variants_named(variants)
     done: dict = {}
     if checkpoint and Path(checkpoint).is_file():
         for line in Path(checkpoint).read_text().splitlines():
             if line.strip():
-                res = vo.SceneOrder.from_json(json.loads(line))
+                res = vc.SceneOrder.from_json(json.loads(line))
                 done[res.scene_id] = res  # the last line of a scene wins
 
     t0 = time.perf_counter()
@@ -177,11 +179,11 @@ def order_study(specs: list[dict], dims: tuple[str, ...], checkpoint: str | None
             with open(checkpoint, "a") as fh:
                 fh.write(json.dumps(res.to_json()) + "\n")
 
-    results = vo.run_order_study(
+    results = vs.run_order_study(
         specs, metrics, dims=dims, done=done, on_scene=save,
         progress=(lambda s: print(f"  {s}", file=sys.stderr, flush=True)) if progress else None,
         appearances=appearances, interventions=interventions, dose=dose, series=series,
-        clips_cache=vo.ClipCache(clips_cache) if clips_cache else None)
+        clips_cache=vc.ClipCache(clips_cache) if clips_cache else None)
     wall = time.perf_counter() - t0
     # the headline as it is defined now, from the stored values (a checkpoint's scenes may
     # have been scored under another definition; no clip is scored again)
@@ -206,7 +208,7 @@ def order_study(specs: list[dict], dims: tuple[str, ...], checkpoint: str | None
                                               "the clip equals the previous dose's")) \
                 else skipped
             into[name] = into.get(name, 0) + 1
-    counts = {k: sum(1 for r in results for c in r.clips if c.kind == k) for k in vo.KINDS}
+    counts = {k: sum(1 for r in results for c in r.clips if c.kind == k) for k in vc.KINDS}
     scene_s = {d: [r.seconds for r in results if r.dim == d] for d in dims}
 
     n2 = sum(1 for r in results if r.dim == "2d")
@@ -234,12 +236,12 @@ def order_study(specs: list[dict], dims: tuple[str, ...], checkpoint: str | None
         print(f"| {label} | {arrow} | {row['scenes']} | "
               f"{_share(row['ordered_means'], row['scenes'])} | "
               f"{_share(row['ordered_strict'], row['scenes'])} | "
-              + " | ".join(_fmt(row[f"mean_{k}"]) for k in vo.KINDS) + " |")
+              + " | ".join(_fmt(row[f"mean_{k}"]) for k in vc.KINDS) + " |")
     kinds = placement["kinds"]
     print("\n### The headline scale (physics_score: 0 = the static clip, 1 = the twin)\n")
     print("| clip | mean | min | max | scenes |")
     print("|---|---|---|---|---|")
-    for k, label in vo.KINDS.items():
+    for k, label in vc.KINDS.items():
         r = kinds[k]
         print(f"| {label} (scene mean) | {_fmt(r['mean'])} | {_fmt(r['min'])} | "
               f"{_fmt(r['max'])} | {r['scenes']} |")
@@ -266,7 +268,7 @@ def order_study(specs: list[dict], dims: tuple[str, ...], checkpoint: str | None
         same = row["same_size"]
         print(f"| {label} | {row['scenes']} | {_share(row['ordered_means'], row['scenes'])} | "
               f"{_share(row['ordered_strict'], row['scenes'])} | "
-              + " | ".join(_fmt(row[f"mean_{k}"]) for k in vo.KINDS)
+              + " | ".join(_fmt(row[f"mean_{k}"]) for k in vc.KINDS)
               + f" | {_share(same['ordered_strict'], same['scenes'])} |")
     print(f"\nWhere the headline's strict ordering fails ({breakers['scenes']} scenes): some "
           f"(ii) clip reaches an (i) clip on {breakers['right_vs_wrong']} (lowest (i): "

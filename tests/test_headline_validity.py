@@ -17,9 +17,11 @@ from mini_templates import mini_specs
 
 from visphy_core.api.registry import get_registry
 from visphy_core.scoring.headline import Headline
-from visphy_plugins.datasets.visphybench import validity_dose as vd
-from visphy_plugins.datasets.visphybench import validity_goals as vg
-from visphy_plugins.datasets.visphybench import validity_order as vo
+from visphy_plugins.studies.validity import clips as vc
+from visphy_plugins.studies.validity import dose as vd
+from visphy_plugins.studies.validity import goals as vg
+from visphy_plugins.studies.validity import restyles as vr
+from visphy_plugins.studies.validity import study as vs
 
 RESTYLES = ("pale", "dark", "tint+20", "swapped", "outline", "outline1", "outline4", "antialias",
             "grow", "shrink", "background", "thick")
@@ -29,16 +31,16 @@ SERIES = ("gravity", "restitution", "playback")
 
 
 @pytest.fixture(scope="module")
-def scored() -> list[vo.SceneOrder]:
+def scored() -> list[vc.SceneOrder]:
     headline = Headline()
     registry = get_registry()
-    metrics = vo.frame_metrics(registry.get("metrics", n) for n in headline.components)
+    metrics = vs.frame_metrics(registry.get("metrics", n) for n in headline.components)
     assert [m.name for m in metrics] == list(headline.components)
-    appearances = [a for a in vo.APPEARANCES if a.name in RESTYLES]
+    appearances = [a for a in vr.APPEARANCES if a.name in RESTYLES]
     out = []
     for spec in (s for s in mini_specs() if s["dim"] == "2d"):
-        truth = vo.Truth.of(spec, vo.Renderer2D())
-        out.append(vo.score_truth(truth, metrics, headline, kinds=(vo.RIGHT, vo.STATIC),
+        truth = vc.Truth.of(spec, vc.Renderer2D())
+        out.append(vs.score_truth(truth, metrics, headline, kinds=(vc.RIGHT, vc.STATIC),
                                   appearances=appearances, twin=False, dose=True,
                                   series=vd.series_named(SERIES)))
     assert len(out) >= 2

@@ -1,5 +1,5 @@
 """Metric validity: physics departing from the truth in growing steps worsens the motion and
-object-track metrics monotonically (`visphy_plugins.datasets.visphybench.validity`; the README's
+object-track metrics monotonically (`visphy_plugins.studies.validity.perturbation`; the README's
 table comes
 from benchmarks/validity_study.py on more scenes)."""
 
@@ -10,7 +10,7 @@ import json
 import pytest
 
 from visphy_core.api.registry import get_registry
-from visphy_plugins.datasets.visphybench.validity import (
+from visphy_plugins.studies.validity.perturbation import (
     PARAMS,
     RELATIVE_STEP,
     perturb,

@@ -28,7 +28,7 @@ from visphy_core.api.metrics import HIGHER, LOWER, SEQUENCE, MetricInput
 from visphy_core.scoring.alignment import unaligned
 from visphy_core.scoring.headline import Headline, scene_headline
 from visphy_plugins.datasets.visphybench.raster2d import render_clip_2d
-from visphy_plugins.datasets.visphybench.validity import scene_of
+from visphy_plugins.studies.validity.perturbation import scene_of
 from visphy_plugins.metrics import motion_masks as MM
 from visphy_plugins.metrics import object_level as OL
 from visphy_plugins.metrics import tracks as TR
@@ -42,7 +42,7 @@ SCENES = (0, 1, 3)  # ramp roll (2 tracked bodies), ball into jar (3), thrown ba
 # ------------------------------------------------------------------------------ drawing
 def scaled(spec: dict, f: float) -> dict:
     """Every body drawn ``f`` times its size about its own origin (the study's grow/shrink)."""
-    from visphy_plugins.datasets.visphybench.validity_order import resized_spec
+    from visphy_plugins.studies.validity.restyles import resized_spec
 
     return resized_spec(f)(copy.deepcopy(spec))
 

@@ -1,5 +1,5 @@
-"""Issue 32's validity study: the dose series (`validity_dose`), the goals' summary and its
-discriminative power (`validity_goals`), and a small study on the ``mini`` split's 2D scenes
+"""Issue 32's validity study: the dose series (`visphy_plugins.studies.validity.dose`), the goals'
+summary and its discriminative power (`goals`), and a small study on the ``mini`` split's 2D scenes
 writing the summary JSON (``benchmarks/validity_study.py --order``'s own function, one cheap
 metric, a few variants, the flow baseline stubbed: seconds)."""
 
@@ -15,9 +15,12 @@ import pytest
 from mini_templates import mini_specs
 
 from visphy_core.api.metrics import HIGHER, LOWER
-from visphy_plugins.datasets.visphybench import validity_dose as vd
-from visphy_plugins.datasets.visphybench import validity_goals as vg
-from visphy_plugins.datasets.visphybench import validity_order as vo
+from visphy_plugins.studies.validity import clips as vc
+from visphy_plugins.studies.validity import dose as vd
+from visphy_plugins.studies.validity import goals as vg
+from visphy_plugins.studies.validity import interventions as vi
+from visphy_plugins.studies.validity import order as vo
+from visphy_plugins.studies.validity import study as vs
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -27,15 +30,15 @@ def _spec(start: str) -> dict:
 
 
 @pytest.fixture(scope="module")
-def fall() -> vo.Truth:
+def fall() -> vc.Truth:
     """The red ball falls freely (from rest) and clips a purple box's corner."""
-    return vo.Truth.of(_spec("red ball falls freely"), vo.Renderer2D())
+    return vc.Truth.of(_spec("red ball falls freely"), vc.Renderer2D())
 
 
 @pytest.fixture(scope="module")
-def thrown() -> vo.Truth:
+def thrown() -> vc.Truth:
     """A thrown red ball knocks a green ball off a gray box."""
-    return vo.Truth.of(_spec("thrown"), vo.Renderer2D())
+    return vc.Truth.of(_spec("thrown"), vc.Renderer2D())
 
 
 # ------------------------------------------------------------------------------- doses
@@ -44,7 +47,7 @@ def test_dose_clips_depart_further_from_the_truth_as_the_dose_grows(fall, thrown
     clips = list(vd.dose_clips(fall, None, skipped))
     by = {}
     for c in clips:
-        assert c.kind == vo.DOSE and c.frames.shape == fall.frames.shape
+        assert c.kind == vc.DOSE and c.frames.shape == fall.frames.shape
         by.setdefault(c.series, []).append(c)
     for name in ("gravity", "playback"):
         doses = [c.dose for c in by[name]]
@@ -59,7 +62,7 @@ def test_dose_clips_depart_further_from_the_truth_as_the_dose_grows(fall, thrown
     assert skipped["dose:restitution-0.3"].endswith("the clip equals the previous dose's")
     launch = [c for c in vd.dose_clips(thrown, vd.series_named(["launch"]))]
     assert [c.name for c in launch] == ["launch+5", "launch+10", "launch+20"]
-    assert all(c.deviation > vo.VISIBLE_PX for c in launch)
+    assert all(c.deviation > vi.VISIBLE_PX for c in launch)
 
 
 def test_the_launch_turns_toward_the_vertical_and_keeps_the_speed():
@@ -75,7 +78,7 @@ def test_the_launch_turns_toward_the_vertical_and_keeps_the_speed():
         math.degrees(math.asin(1.0 / 3.0)) + 20.0)
     assert out[0] / out[2] == pytest.approx(v3[0] / v3[2])  # same heading
     # the spec edit: the action body's velocity only
-    thrown = vo.Truth(_spec("thrown"), np.zeros((1, 5, 3)), np.zeros((1, 2, 2, 3), np.uint8),
+    thrown = vc.Truth(_spec("thrown"), np.zeros((1, 5, 3)), np.zeros((1, 2, 2, 3), np.uint8),
                       _Poses())
     spec, _ = vd.launch_dose(thrown, 10.0)
     v0 = next(b for b in thrown.spec["bodies"] if b["id"] == "red_ball")["velocity"]
@@ -101,7 +104,7 @@ def test_slower_playback_interpolates_the_truths_own_steps(fall):
     assert np.allclose(half[2], fall.poses[1])
     # 3D: a quaternion blended along the shorter arc and normalised
     q = np.array([[[0, 0, 0, 0, 0, 0, 1.0]], [[2, 0, 0, 0, 0, -math.sin(0.1), -math.cos(0.1)]]])
-    truth3 = vo.Truth({}, q[[0, 1]], np.zeros((2, 1, 1, 3), np.uint8), None,
+    truth3 = vc.Truth({}, q[[0, 1]], np.zeros((2, 1, 1, 3), np.uint8), None,
                       (q, np.array([0, 1])))
     mid = vd.slowed_poses(truth3, 0.5)[1, 0]
     assert mid[0] == pytest.approx(1.0) and np.linalg.norm(mid[3:]) == pytest.approx(1.0)
@@ -120,16 +123,16 @@ def test_monotone_means_spearman_at_most_minus_point_nine_ties_averaged():
 
 
 def _clip(name, kind, headline, scores=None, **kw):
-    return vo.ClipScore(name, kind, "", scores or {}, headline, **kw)
+    return vc.ClipScore(name, kind, "", scores or {}, headline, **kw)
 
 
 def _result(sid, right, wrong, doses, truth=1.0, static=0.0, flow=0.1):
-    clips = [_clip(n, vo.RIGHT, v) for n, v in right.items()]
-    clips += [_clip(n, vo.WRONG, v, deviation=px) for n, (v, px) in wrong.items()]
-    clips += [_clip("static", vo.STATIC, static), _clip("flow_extrapolate", vo.FLOW, flow)]
-    dose = [_clip(f"{s}{d}", vo.DOSE, v, deviation=px, series=s, dose=d)
+    clips = [_clip(n, vc.RIGHT, v) for n, v in right.items()]
+    clips += [_clip(n, vc.WRONG, v, deviation=px) for n, (v, px) in wrong.items()]
+    clips += [_clip("static", vc.STATIC, static), _clip("flow_extrapolate", vc.FLOW, flow)]
+    dose = [_clip(f"{s}{d}", vc.DOSE, v, deviation=px, series=s, dose=d)
             for s, points in doses.items() for d, v, px in points]
-    return vo.SceneOrder(sid, "2d", clips, {}, {}, {}, 1.0, _clip("truth", vo.TRUTH, truth),
+    return vc.SceneOrder(sid, "2d", clips, {}, {}, {}, 1.0, _clip("truth", vc.TRUTH, truth),
                          dose)
 
 
@@ -186,12 +189,12 @@ def test_a_small_study_on_the_mini_split_writes_the_summary(tmp_path, monkeypatc
     from visphy_core.api.registry import get_registry
     from visphy_plugins.datasets.visphybench.build import shipped_catalogue
 
-    monkeypatch.setattr(vo, "flow_clip", lambda frames, fps: np.repeat(
+    monkeypatch.setattr(vs, "flow_clip", lambda frames, fps: np.repeat(
         frames[len(frames) // 2:len(frames) // 2 + 1], len(frames), axis=0))
     catalogue = shipped_catalogue(0)
     specs = validity_study.split_specs(catalogue, "mini", ("2d",), 2)
     assert [s["dim"] for s in specs] == ["2d", "2d"]
-    metrics = vo.frame_metrics([get_registry().get("metrics", "spatiotemporal_iou_tol")])
+    metrics = vs.frame_metrics([get_registry().get("metrics", "spatiotemporal_iou_tol")])
     summary, checkpoint = tmp_path / "validity" / "summary.json", tmp_path / "scenes.jsonl"
     kw = dict(metrics=metrics, variants=["pale", "swapped", "gravity_x0.5", "remove",
                                          "gravity"],
@@ -222,16 +225,16 @@ def test_a_small_study_on_the_mini_split_writes_the_summary(tmp_path, monkeypatc
     assert again["scored_this_run"] == [] and again["goals"]["scores"] == data["scores"]
     assert result["results"][0]["doses"] and result["results"][0]["truth"]["name"] == "truth"
     # what was asked is kept: a rerun with other variants scores the scenes again
-    assert vo.SceneOrder.from_json(result["results"][0]).options["series"] == ["gravity"]
+    assert vc.SceneOrder.from_json(result["results"][0]).options["series"] == ["gravity"]
 
 
 def test_a_headline_from_other_metrics_is_recomputed_from_the_stored_twin():
     metrics = [_Metric("iou", HIGHER), _Metric("err", LOWER)]
-    clips = [_clip("pale", vo.RIGHT, None, {"iou": 0.9, "err": 1.0}),
-             _clip("static", vo.STATIC, None, {"iou": 0.0, "err": 10.0})]
-    res = vo.SceneOrder("s", "2d", clips, {}, {"iou": 0.8, "err": 2.0}, {}, 0.0,
-                        _clip("truth", vo.TRUTH, None, {"iou": 1.0, "err": 0.0}),
-                        [_clip("g", vo.DOSE, None, {"iou": 0.4, "err": 6.0}, series="gravity",
+    clips = [_clip("pale", vc.RIGHT, None, {"iou": 0.9, "err": 1.0}),
+             _clip("static", vc.STATIC, None, {"iou": 0.0, "err": 10.0})]
+    res = vc.SceneOrder("s", "2d", clips, {}, {"iou": 0.8, "err": 2.0}, {}, 0.0,
+                        _clip("truth", vc.TRUTH, None, {"iou": 1.0, "err": 0.0}),
+                        [_clip("g", vc.DOSE, None, {"iou": 0.4, "err": 6.0}, series="gravity",
                                dose=0.1)])
     from visphy_core.api.scoring import Headline
 

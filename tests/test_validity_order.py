@@ -1,5 +1,5 @@
 """Validity ordering (issue 21): physics-right clips drawn differently > physics-wrong clips > the
-static and flow_extrapolate baselines (`visphy_plugins.datasets.visphybench.validity_order`; the
+static and flow_extrapolate baselines (`visphy_plugins.studies.validity`: `study`, `order`; the
 README's table comes from ``benchmarks/validity_study.py --order`` on the test split).
 
 The variants are checked as drawn (repaints touch body pixels only, a removed body is gone, a
@@ -20,7 +20,12 @@ from mini_templates import mini_specs
 from visphy_core.api.metrics import HIGHER, LOWER
 from visphy_core.scoring.headline import Headline
 from visphy_core.scoring.normalisation import twin_spec
-from visphy_plugins.datasets.visphybench import validity_order as vo
+from visphy_plugins.studies.validity import clips as vc
+from visphy_plugins.studies.validity import interventions as vi
+from visphy_plugins.studies.validity import order as vo
+from visphy_plugins.studies.validity import perturbation as vp
+from visphy_plugins.studies.validity import restyles as vr
+from visphy_plugins.studies.validity import study as vs
 
 RED = (243, 79, 70)
 ISSUE_21 = ("pale", "tint+20", "tint-20", "outline", "antialias", "grow", "shrink")
@@ -35,25 +40,25 @@ def specs() -> dict[str, dict]:
 
 
 @pytest.fixture(scope="module")
-def jar(specs) -> vo.Truth:
+def jar(specs) -> vc.Truth:
     """The red ball dropped (at rest) off a bar into a gray jar; a blue ball lies still."""
     spec = next(s for s in specs.values() if "jar" in s["description"])
-    return vo.Truth.of(spec, vo.Renderer2D())
+    return vc.Truth.of(spec, vc.Renderer2D())
 
 
 @pytest.fixture(scope="module")
-def thrown(specs) -> vo.Truth:
+def thrown(specs) -> vc.Truth:
     """A thrown red ball knocks a green ball off a gray box."""
     spec = next(s for s in specs.values() if s["description"].startswith("thrown"))
-    return vo.Truth.of(spec, vo.Renderer2D())
+    return vc.Truth.of(spec, vc.Renderer2D())
 
 
-def _variant(truth: vo.Truth, name: str) -> np.ndarray:
-    (a,) = [a for a in vo.APPEARANCES if a.name == name and truth.dim in a.dims]
+def _variant(truth: vc.Truth, name: str) -> np.ndarray:
+    (a,) = [a for a in vr.APPEARANCES if a.name == name and truth.dim in a.dims]
     return a.make(truth)
 
 
-def _background(truth: vo.Truth) -> np.ndarray:
+def _background(truth: vc.Truth) -> np.ndarray:
     return np.all(truth.frames == np.asarray(truth.spec["render"]["background_rgb"],
                                              dtype=np.uint8), axis=-1)
 
@@ -65,18 +70,18 @@ def _of_colour(frames: np.ndarray, rgb) -> np.ndarray:
 # ----------------------------------------------------------------------------- (i) drawing
 def test_pale_and_tint_repaint_every_body_pixel_by_its_colour_and_nothing_else(jar):
     bg = _background(jar)
-    for name, fn in (("pale", vo.pale_rgb), ("tint+20", lambda c: vo.tint_rgb(c, 20)),
-                     ("tint-20", lambda c: vo.tint_rgb(c, -20))):
+    for name, fn in (("pale", vr.pale_rgb), ("tint+20", lambda c: vr.tint_rgb(c, 20)),
+                     ("tint-20", lambda c: vr.tint_rgb(c, -20))):
         clip = _variant(jar, name)
         assert clip.shape == jar.frames.shape
         assert np.array_equal(clip[bg], jar.frames[bg]), name  # background untouched
-        for rgb in vo.body_colours(jar.spec):                   # each colour → its new colour
+        for rgb in vr.body_colours(jar.spec):                   # each colour → its new colour
             where = _of_colour(jar.frames, rgb)
             assert np.all(clip[where] == np.asarray(fn(rgb), dtype=np.uint8)), (name, rgb)
-    assert vo.pale_rgb(RED) == (248, 149, 144)                  # 40 % of the way to white
-    assert vo.pale_rgb((0, 0, 0)) == (102, 102, 102)
+    assert vr.pale_rgb(RED) == (248, 149, 144)                  # 40 % of the way to white
+    assert vr.pale_rgb((0, 0, 0)) == (102, 102, 102)
     h0 = colorsys.rgb_to_hsv(*(c / 255 for c in RED))[0]
-    h1 = colorsys.rgb_to_hsv(*(c / 255 for c in vo.tint_rgb(RED, 20)))[0]
+    h1 = colorsys.rgb_to_hsv(*(c / 255 for c in vr.tint_rgb(RED, 20)))[0]
     assert (h1 - h0) % 1.0 == pytest.approx(20 / 360, abs=0.01)
 
 
@@ -86,7 +91,7 @@ def test_the_outline_is_dark_two_pixels_inside_each_body_and_keeps_the_silhouett
     clip = _variant(jar, "outline")
     changed = np.any(clip != jar.frames, axis=-1)
     assert changed.any() and not (changed & _background(jar)).any()
-    assert np.all(clip[changed] == np.asarray(vo.OUTLINE_RGB, dtype=np.uint8))
+    assert np.all(clip[changed] == np.asarray(vr.OUTLINE_RGB, dtype=np.uint8))
     red = _of_colour(jar.frames[0], RED).astype(np.uint8)
     inner = cv2.erode(red, np.ones((5, 5), np.uint8)) > 0
     ring = (red > 0) & ~inner
@@ -113,7 +118,7 @@ def test_antialiasing_mixes_colours_along_edges_only(jar):
 
 def test_grow_and_shrink_draw_every_body_ten_percent_larger_or_smaller_at_the_same_place(jar):
     red0 = _of_colour(jar.frames, RED)
-    for name, k in (("grow", 1 + vo.SIZE), ("shrink", 1 - vo.SIZE)):
+    for name, k in (("grow", 1 + vr.SIZE), ("shrink", 1 - vr.SIZE)):
         clip = _variant(jar, name)
         red = _of_colour(clip, RED)
         for f in (0, 8, 16):
@@ -124,15 +129,15 @@ def test_grow_and_shrink_draw_every_body_ten_percent_larger_or_smaller_at_the_sa
             ys2, xs2 = np.nonzero(red[f])
             if f == 0:  # same centre: the motion is the truth's
                 assert abs(xs.mean() - xs2.mean()) < 0.5 and abs(ys.mean() - ys2.mean()) < 0.5
-    assert vo.scaled_shape({"type": "circle", "radius_px": 10.0}, 1.1)["radius_px"] == 11.0
-    part = vo.scaled_shape({"type": "compound", "parts": [
+    assert vr.scaled_shape({"type": "circle", "radius_px": 10.0}, 1.1)["radius_px"] == 11.0
+    part = vr.scaled_shape({"type": "compound", "parts": [
         {"shape": {"type": "box", "size_m": [1.0, 2.0, 3.0]}, "offset_m": [0.0, 1.0, 0.0]}]},
         0.9)["parts"][0]
     assert part["shape"]["size_m"] == pytest.approx([0.9, 1.8, 2.7])
     assert part["offset_m"] == pytest.approx([0.0, 0.9, 0.0])
 
 
-class _Drawing(vo.Renderer2D):
+class _Drawing(vc.Renderer2D):
     """The ground truth's rasteriser that records the poses it is asked to draw and refuses to
     simulate: a variant drawn through it cannot have changed the physics."""
 
@@ -156,7 +161,7 @@ def _recolouring(truth: np.ndarray, clip: np.ndarray) -> dict[tuple, tuple]:
     def rgb(code: int) -> tuple:
         return int(code >> 16), int((code >> 8) & 255), int(code & 255)
 
-    pairs = np.unique(vo._codes(truth).astype(np.int64) << 24 | vo._codes(clip))
+    pairs = np.unique(vr._codes(truth).astype(np.int64) << 24 | vr._codes(clip))
     src, dst = pairs >> 24, pairs & ((1 << 24) - 1)
     assert len(np.unique(src)) == len(src), "a region took several colours"
     return {rgb(a): rgb(b) for a, b in zip(src, dst)}
@@ -167,7 +172,7 @@ def test_the_issue_32_restyles_keep_the_truths_poses_and_change_only_the_drawing
     takes one new colour (a recolouring of the same frames); outline1/outline4 darken rings
     inside bodies only; thick widens the bars only; the redrawn ones draw the truth's own
     poses without simulating."""
-    truth = vo.Truth(thrown.spec, thrown.poses, thrown.frames, _Drawing())
+    truth = vc.Truth(thrown.spec, thrown.poses, thrown.frames, _Drawing())
     bg = tuple(thrown.spec["render"]["background_rgb"])
     dynamic = [tuple(b["color_rgb"]) for b in thrown.spec["bodies"] if b.get("dynamic")]
     static = [tuple(b["color_rgb"]) for b in thrown.spec["bodies"] if not b.get("dynamic")]
@@ -178,24 +183,24 @@ def test_the_issue_32_restyles_keep_the_truths_poses_and_change_only_the_drawing
         new = _recolouring(thrown.frames, clip)  # one region → one colour, nothing moves
         regions = list(new)
         if name == "dark":
-            assert new == {c: (c if c == bg else vo.dark_rgb(c)) for c in regions}
-            assert vo.dark_rgb(RED) == (146, 47, 42)                 # 40 % toward black
+            assert new == {c: (c if c == bg else vr.dark_rgb(c)) for c in regions}
+            assert vr.dark_rgb(RED) == (146, 47, 42)                 # 40 % toward black
         elif name == "swapped":      # the dynamic colours rotate: each body wears another's
             assert sorted(new[c] for c in dynamic) == sorted(dynamic)
             assert all(new[c] != c for c in dynamic)
             assert all(new[c] == c for c in static + [bg])
         else:
-            assert new == {c: (vo.dark_rgb(c, vo.SHADE) if c == bg else c) for c in regions}
+            assert new == {c: (vr.dark_rgb(c, vr.SHADE) if c == bg else c) for c in regions}
         if name != "dark":             # redrawn at the truth's own poses
             assert len(truth.renderer.drawn) == 1
             assert np.array_equal(truth.renderer.drawn[0], thrown.poses)
     body = np.any(thrown.frames != np.asarray(bg, dtype=np.uint8), axis=-1)
     rings = {}
-    for w in vo.OUTLINE_WIDTHS:
+    for w in vr.OUTLINE_WIDTHS:
         clip = _variant(truth, f"outline{w}")
         changed = np.any(clip != thrown.frames, axis=-1)
         assert changed.any() and not (changed & ~body).any()          # inside bodies only
-        assert np.all(clip[changed] == np.asarray(vo.OUTLINE_RGB, dtype=np.uint8))
+        assert np.all(clip[changed] == np.asarray(vr.OUTLINE_RGB, dtype=np.uint8))
         rings[w] = changed
     assert not (rings[1] & ~rings[4]).any() and rings[4].sum() > 2 * rings[1].sum()
     truth.renderer.drawn.clear()
@@ -205,65 +210,65 @@ def test_the_issue_32_restyles_keep_the_truths_poses_and_change_only_the_drawing
     assert not (black & ~_of_colour(clip, (0, 0, 0))).any()          # the bar only grows
     grown = _of_colour(clip, (0, 0, 0)) & ~black
     assert grown.any() and np.array_equal(grown, np.any(clip != thrown.frames, axis=-1))
-    bar = next(b for b in vo.thickened_spec(copy.deepcopy(thrown.spec))["bodies"]
+    bar = next(b for b in vr.thickened_spec(copy.deepcopy(thrown.spec))["bodies"]
                if b["id"] == "black_bar")["shape"]
-    assert bar["thickness_px"] == pytest.approx(512 / 50 + vo.THICKER_PX)
+    assert bar["thickness_px"] == pytest.approx(512 / 50 + vr.THICKER_PX)
 
 
 def test_restyles_that_do_not_apply_are_skipped_with_their_reason(specs):
     fall = next(s for s in specs.values() if s["description"].startswith("red ball falls "
                                                                          "freely"))
-    alone = vo.Truth.of(fall, vo.Renderer2D())            # one dynamic body: nothing to swap
+    alone = vc.Truth.of(fall, vc.Renderer2D())            # one dynamic body: nothing to swap
     skipped: dict[str, str] = {}
-    keep = [a for a in vo.APPEARANCES if a.name in ("swapped", "pale") and "2d" in a.dims]
-    clips = list(vo.make_clips(alone, (vo.RIGHT,), skipped, appearances=keep))
+    keep = [a for a in vr.APPEARANCES if a.name in ("swapped", "pale") and "2d" in a.dims]
+    clips = list(vs.make_clips(alone, (vc.RIGHT,), skipped, appearances=keep))
     assert [c.name for c in clips] == ["pale"]
     assert skipped == {"swapped": "1 distinct dynamic-body colour(s): nothing to swap"}
     no_bar = {"dim": "2d", "bodies": [{"shape": {"type": "box", "length_px": 40.0,
                                                  "thickness_px": 30.0}}]}
-    with pytest.raises(vo.NotApplicable, match="no bar"):
-        vo.thickened_spec(no_bar)
+    with pytest.raises(vc.NotApplicable, match="no bar"):
+        vr.thickened_spec(no_bar)
     # 3D: the sky (the page's clear colour) and the floor, 15 % darker; the lights kept
     sky = {"dim": "3d", "render": {"background_rgb": [255, 255, 255],
                                    "lighting": {"hemisphere": {"sky_rgb": [255, 255, 255]}}},
            "world": {"floor": {"y": 0.0, "color_rgb": [148, 148, 148]}}}
-    shaded = vo.shaded_spec(copy.deepcopy(sky))
+    shaded = vr.shaded_spec(copy.deepcopy(sky))
     assert shaded["render"]["background_rgb"] == [217, 217, 217]
     assert shaded["world"]["floor"]["color_rgb"] == [126, 126, 126]
     assert shaded["render"]["lighting"] == sky["render"]["lighting"]
 
 
 def test_the_clips_cache_gives_back_the_same_clips_without_drawing_again(thrown, tmp_path):
-    truth = vo.Truth(thrown.spec, thrown.poses, thrown.frames, _Drawing())
-    cache = vo.ClipCache(tmp_path)
-    keep = [a for a in vo.APPEARANCES if a.name in ("pale", "swapped") and "2d" in a.dims]
-    first = list(vo.make_clips(truth, (vo.RIGHT, vo.STATIC), appearances=keep, cache=cache))
+    truth = vc.Truth(thrown.spec, thrown.poses, thrown.frames, _Drawing())
+    cache = vc.ClipCache(tmp_path)
+    keep = [a for a in vr.APPEARANCES if a.name in ("pale", "swapped") and "2d" in a.dims]
+    first = list(vs.make_clips(truth, (vc.RIGHT, vc.STATIC), appearances=keep, cache=cache))
     drawn = len(truth.renderer.drawn)
-    again = list(vo.make_clips(truth, (vo.RIGHT, vo.STATIC), appearances=keep, cache=cache))
+    again = list(vs.make_clips(truth, (vc.RIGHT, vc.STATIC), appearances=keep, cache=cache))
     assert len(truth.renderer.drawn) == drawn == 1           # swapped drawn once, then cached
     assert [c.name for c in again] == ["pale", "swapped", "static"]
     for a, b in zip(first, again):
         assert np.array_equal(a.frames, b.frames) and (a.what, a.changed) == (b.what, b.changed)
     skipped: dict[str, str] = {}
-    cache.put(thrown.spec, vo.RIGHT, "outline", "a reason")  # a cached skip stays a skip
-    out = list(vo.make_clips(truth, (vo.RIGHT,), skipped, [a for a in vo.APPEARANCES
+    cache.put(thrown.spec, vc.RIGHT, "outline", "a reason")  # a cached skip stays a skip
+    out = list(vs.make_clips(truth, (vc.RIGHT,), skipped, [a for a in vr.APPEARANCES
                                                            if a.name == "outline"], cache=cache))
     assert out == [] and skipped == {"outline": "a reason"}
 
 
 def test_variants_are_selected_by_name_or_group():
-    right, wrong, series = vo.variants_named(["swapped", "gravity_x0.5", "dose"])
+    right, wrong, series = vs.variants_named(["swapped", "gravity_x0.5", "dose"])
     assert {a.name for a in right} == {"swapped"} and [iv.name for iv in wrong] == ["gravity_x0.5"]
     assert [s.name for s in series] == ["gravity", "restitution", "launch", "playback"]
-    right, wrong, series = vo.variants_named(["right"])
-    assert len(right) == len(vo.APPEARANCES) and wrong == [] and series == []
+    right, wrong, series = vs.variants_named(["right"])
+    assert len(right) == len(vr.APPEARANCES) and wrong == [] and series == []
     with pytest.raises(ValueError, match="unknown variant"):
-        vo.variants_named(["sepia"])
+        vs.variants_named(["sepia"])
 
 
 # ---------------------------------------------------------------------------- (ii) physics
-def _edit(name: str, truth: vo.Truth):
-    (iv,) = [iv for iv in vo.INTERVENTIONS if iv.name == name]
+def _edit(name: str, truth: vc.Truth):
+    (iv,) = [iv for iv in vi.INTERVENTIONS if iv.name == name]
     return iv.edit(truth.spec, truth)
 
 
@@ -273,19 +278,19 @@ def test_interventions_change_the_named_parameter(jar, thrown):
     up = _edit("restitution+0.3", jar)[0]
     down = _edit("restitution-0.3", jar)[0]
     for spec, want in ((up, 0.5), (down, 0.0)):       # PHYRE's 0.2 ± 0.3, clamped at 0
-        values = [m["restitution"] for m in vo._materials(spec)]
+        values = [m["restitution"] for m in vp._materials(spec)]
         assert values and all(v == pytest.approx(want) for v in values)
-    high = vo.with_material(jar.spec, "restitution", lambda e: 0.9)
-    lo, hi = vo.RESTITUTION_RANGE
-    clamp = vo.with_material(high, "restitution", lambda e: min(hi, max(lo, e + 0.3)))
-    assert all(m["restitution"] == 0.98 for m in vo._materials(clamp))
+    high = vi.with_material(jar.spec, "restitution", lambda e: 0.9)
+    lo, hi = vi.RESTITUTION_RANGE
+    clamp = vi.with_material(high, "restitution", lambda e: min(hi, max(lo, e + 0.3)))
+    assert all(m["restitution"] == 0.98 for m in vp._materials(clamp))
     assert all(m["friction"] == pytest.approx(0.125)
-               for m in vo._materials(_edit("friction_x0.25", jar)[0]))
+               for m in vp._materials(_edit("friction_x0.25", jar)[0]))
     # a ball at rest is kicked; a thrown ball is thrown faster or mirrored, never kicked
-    assert vo.action_body(jar.spec) == "red_ball"
+    assert vi.action_body(jar.spec) == "red_ball"
     kicked, what = _edit("kick", jar)
     red = next(b for b in kicked["bodies"] if b["id"] == "red_ball")
-    assert abs(red["velocity"]["vx_px_s"]) == vo.KICK_PX_S and "kicked" in what
+    assert abs(red["velocity"]["vx_px_s"]) == vi.KICK_PX_S and "kicked" in what
     assert _edit("speed_x1.5", jar)[0] is None and _edit("kick", thrown)[0] is None
     v0 = next(b for b in thrown.spec["bodies"] if b["id"] == "red_ball")["velocity"]
     fast = next(b for b in _edit("speed_x1.5", thrown)[0]["bodies"] if b["id"] == "red_ball")
@@ -298,23 +303,23 @@ def test_interventions_change_the_named_parameter(jar, thrown):
 
 def test_the_removed_body_is_absent_and_a_clip_equal_to_the_truth_is_skipped(thrown):
     # the thrown ball knocks the green ball off the box: two movers, the second is removed
-    assert vo.removed_body(thrown) == "green_ball"
-    noop = vo.Intervention("noop", lambda spec, truth: (spec, "nothing changed"))
+    assert vi.removed_body(thrown) == "green_ball"
+    noop = vi.Intervention("noop", lambda spec, truth: (spec, "nothing changed"))
     skipped: dict[str, str] = {}
-    (gone,) = [c for c in vo.make_clips(thrown, (vo.WRONG,), skipped, interventions=[
-        noop, *[iv for iv in vo.INTERVENTIONS if iv.name == "remove"]])]
+    (gone,) = [c for c in vs.make_clips(thrown, (vc.WRONG,), skipped, interventions=[
+        noop, *[iv for iv in vi.INTERVENTIONS if iv.name == "remove"]])]
     assert skipped == {"noop": "nothing changed: the clip equals the truth"}
     green = next(b["color_rgb"] for b in thrown.spec["bodies"] if b["id"] == "green_ball")
     assert _of_colour(thrown.frames, green).any(axis=(1, 2)).all()
     assert not _of_colour(gone.frames, green).any()          # absent from every frame
-    assert gone.missing == ["green_ball"] and gone.deviation >= vo.VISIBLE_PX
+    assert gone.missing == ["green_ball"] and gone.deviation >= vi.VISIBLE_PX
 
 
 def test_the_baselines_are_the_first_frame_held_and_the_models_own_extrapolation(thrown,
                                                                                 monkeypatch):
     from visphy_plugins.models import baselines
 
-    still = vo.static_clip(thrown.frames)
+    still = vs.static_clip(thrown.frames)
     assert np.array_equal(still, np.repeat(thrown.frames[:1], len(thrown.frames), axis=0))
     calls = []
 
@@ -323,15 +328,15 @@ def test_the_baselines_are_the_first_frame_held_and_the_models_own_extrapolation
         return "frames", "flow"
 
     monkeypatch.setattr(baselines, "extrapolate", spy)   # the model's own function
-    assert vo.flow_clip(thrown.frames, 5.0) == "frames"
+    assert vs.flow_clip(thrown.frames, 5.0) == "frames"
     ((first, second, a, b, contract),) = calls
     assert (a, b) == (1, 10) and np.array_equal(first, thrown.frames[0])
     assert np.array_equal(second, thrown.frames[9])      # key frames 1 and 10 (1-based)
     assert (contract.fps, contract.n_frames, contract.width, contract.height) == (5.0, 17, 512,
                                                                                   512)
     twin = twin_spec(thrown.spec)
-    assert np.array_equal(vo.twin_clip(thrown), vo.Renderer2D().draw(
-        twin, vo.Renderer2D().simulate(twin)))
+    assert np.array_equal(vs.twin_clip(thrown), vc.Renderer2D().draw(
+        twin, vc.Renderer2D().simulate(twin)))
 
 
 # ------------------------------------------------------------------------------- ordering
@@ -357,12 +362,12 @@ class _M:
 
 
 def _scene(sid, values: dict[str, dict[str, float]], headline: dict[str, float]):
-    kinds = {"pale": vo.RIGHT, "grow": vo.RIGHT, "gravity": vo.WRONG, "remove": vo.WRONG,
-             "static": vo.STATIC, "flow_extrapolate": vo.FLOW}
-    clips = [vo.ClipScore(n, k, "", {m: v[n] for m, v in values.items()}, headline[n],
-                          deviation=9.0 if k == vo.WRONG else None)
+    kinds = {"pale": vc.RIGHT, "grow": vc.RIGHT, "gravity": vc.WRONG, "remove": vc.WRONG,
+             "static": vc.STATIC, "flow_extrapolate": vc.FLOW}
+    clips = [vc.ClipScore(n, k, "", {m: v[n] for m, v in values.items()}, headline[n],
+                          deviation=9.0 if k == vc.WRONG else None)
              for n, k in kinds.items()]
-    return vo.SceneOrder(sid, "2d", clips, {}, {}, {}, 0.0)
+    return vc.SceneOrder(sid, "2d", clips, {}, {}, {}, 0.0)
 
 
 def test_the_summary_counts_scenes_pools_families_and_places_the_headline():
@@ -391,14 +396,14 @@ def test_the_summary_counts_scenes_pools_families_and_places_the_headline():
     assert head["name"] == Headline().name and head["share_means"] == 1.0
     assert head["share_strict"] == 1.0
     place = vo.headline_placement([a, b])
-    assert place["kinds"][vo.STATIC]["mean"] == 0 and place["static_zero"] == 2
+    assert place["kinds"][vc.STATIC]["mean"] == 0 and place["static_zero"] == 2
     assert place["flow_below_every_right"] == 2
     assert place["variants"]["wrong:remove"]["mean"] == pytest.approx(0.3)
     assert a.clips[2].visible(9.0) and not a.clips[2].visible(10.0) and a.clips[0].visible(1e9)
     # only clearly wrong clips: a (ii) clip that departs by 9 px counts up to 9 px
     assert vo.summarise_order([a, b], [], min_px=9.0)["headline"]["scenes"] == 2
     assert vo.summarise_order([a, b], [], min_px=10.0)["headline"]["scenes"] == 0
-    again = vo.SceneOrder.from_json(a.to_json())
+    again = vc.SceneOrder.from_json(a.to_json())
     assert again == a
     why = vo.strict_breakers([a, b])
     assert why["scenes"] == 2 and why["right_vs_wrong"] == 0 and why["wrong_vs_baselines"] == 0
@@ -420,14 +425,14 @@ def test_on_mini_scenes_the_headline_orders_the_four_kinds(jar, thrown):
 
     registry = get_registry()
     names = ("psnr", "spatiotemporal_iou_tol", "weighted_spatial_iou_tol", "track_pos_err")
-    metrics = vo.frame_metrics(registry.get("metrics", n) for n in names)
+    metrics = vs.frame_metrics(registry.get("metrics", n) for n in names)
     assert [m.name for m in metrics] == list(names)
-    seven = [a for a in vo.APPEARANCES if a.name in ISSUE_21]   # issue 21's restyles
-    results = [vo.score_truth(t, metrics, appearances=seven) for t in (jar, thrown)]
+    seven = [a for a in vr.APPEARANCES if a.name in ISSUE_21]   # issue 21's restyles
+    results = [vs.score_truth(t, metrics, appearances=seven) for t in (jar, thrown)]
     for res in results:
         kinds = {c.kind for c in res.clips}
-        assert kinds == set(vo.KINDS), res.skipped
-        assert len([c for c in res.clips if c.kind == vo.RIGHT]) == 7
+        assert kinds == set(vc.KINDS), res.skipped
+        assert len([c for c in res.clips if c.kind == vc.RIGHT]) == 7
         assert set(res.twin) == set(res.floor) == set(names)  # every metric, not only the
         assert res.truth.headline == pytest.approx(1.0)        # headline's components
     table = vo.summarise_order(results, metrics)
@@ -435,8 +440,8 @@ def test_on_mini_scenes_the_headline_orders_the_four_kinds(jar, thrown):
     assert head["scenes"] == 2 and head["share_means"] == 1.0, head
     place = vo.headline_placement(results)
     assert place["static_zero"] == 2 and place["flow_below_every_right"] == 2
-    assert place["kinds"][vo.RIGHT]["mean"] > 0.8
-    assert place["kinds"][vo.WRONG]["mean"] < place["kinds"][vo.RIGHT]["mean"] - 0.2
+    assert place["kinds"][vc.RIGHT]["mean"] > 0.8
+    assert place["kinds"][vc.WRONG]["mean"] < place["kinds"][vc.RIGHT]["mean"] - 0.2
     # observed: PSNR puts the (ii) clips above the (i) clips on average on both scenes (a
     # re-simulated clip keeps the truth's colours; a repaint or a 10 % larger body costs more
     # dB than a ball that lands elsewhere), so it orders neither
@@ -447,7 +452,7 @@ def test_on_mini_scenes_the_headline_orders_the_four_kinds(jar, thrown):
 def test_a_left_out_body_counts_as_a_trajectory_error_only_when_it_moved():
     import dataclasses
 
-    still = vo.ClipScore("remove", vo.WRONG, "", {}, 0.9, deviation=3.0, missing=["b"],
+    still = vc.ClipScore("remove", vc.WRONG, "", {}, 0.9, deviation=3.0, missing=["b"],
                          missing_px=0.4)
     assert not still.visible(20.0) and still.visible(2.0)
     assert dataclasses.replace(still, missing_px=25.0).visible(20.0)      # its motion is lost

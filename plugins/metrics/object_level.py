@@ -5,7 +5,7 @@ colours swapped among the bodies, outlined, anti-aliased, H.264-encoded — bare
 ``paper`` protocol's) are unchanged; which of them enter the headline is the validity study's
 to decide (`visphy_core.scoring.headline`).
 
-Why. The validity study (``plugins/datasets/visphybench/validity_order.py``) finds the headline's
+Why. The validity study (``plugins/studies/validity/``) finds the headline's
 components moving with the drawing: Physics-IQ's motion masks (`motion_masks`) are compared pixel
 for pixel, and a moving body's mask is the band its outline sweeps, so a body drawn 10% larger
 costs the IoUs about as much as a path 15–20 px off; `track_pos_err` follows colour, so a
@@ -109,8 +109,9 @@ the 183 physics-wrong clips scored below the still clip (none with K ≤ 1.5). A
 
 Measured (a harness outside the suite: the first 24 2D scenes of the test split, exact clips,
 unaligned pairing; normalised as the headline does, floor = the still clip, ceiling = the twin,
-clipped to [−1, 1]). Restyles (validity_order's ``APPEARANCES`` and an H.264 crf-23 encoding):
-median over scenes of the drop from the truth's normalised value (the goal: ≤ 0.05):
+clipped to [−1, 1]). Restyles (the validity study's ``restyles.APPEARANCES`` and an H.264
+crf-23 encoding): median over scenes of the drop from the truth's normalised value (the goal:
+≤ 0.05):
 
     restyle          st_iou  st_iou_tol  ws_iou  ws_iou_tol  track_pos_err  track_pos_err_rel
     grow +10%         0.196     0.003     0.196     0.005        0.000          0.000

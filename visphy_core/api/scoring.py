@@ -1,5 +1,6 @@
-"""Scoring clips outside a run, for benchmark tools in plugins (the validity studies): one
-scene's metrics under a scoring protocol (`visphy_core.scoring.score`), the headline
+"""The API for scoring clips outside a run, for plugins that study the metrics themselves
+(study plugins: they make their own clips and score them as a run would): one scene's metrics
+under a scoring protocol (`visphy_core.scoring.score`), the headline
 (`visphy_core.scoring.headline`) and the ground truth's twin
 (`visphy_core.scoring.normalisation`)."""
 

@@ -3,13 +3,13 @@
 Per scene, four series of three doses each move one thing away from the ground truth X in
 growing steps; each dose clip is drawn like X (same renderer, same spec apart from the dose)
 and records its ``deviation`` (image px, 3D positions projected through the camera: the same
-`validity_order.deviation` as the (ii) clips), and dose 0 is X itself (`SceneOrder.truth`):
+`interventions.deviation` as the (ii) clips), and dose 0 is X itself (`SceneOrder.truth`):
 
 * ``gravity``: gravity ×0.9, ×0.75, ×0.5 (re-simulated); dose = 1 − factor;
 * ``restitution``: every restitution (each body's material, the default contact, each pair)
-  −0.1, −0.2, −0.3, clamped to `validity_order.RESTITUTION_RANGE` like the (ii) clips
+  −0.1, −0.2, −0.3, clamped to `interventions.RESTITUTION_RANGE` like the (ii) clips
   (re-simulated); dose = |Δ|;
-* ``launch``: the action body's (`validity_order.action_body`) initial velocity turned +5°,
+* ``launch``: the action body's (`interventions.action_body`) initial velocity turned +5°,
   +10°, +20° toward the vertical (its elevation grows: 2D counter-clockwise for a body thrown
   rightward, clockwise leftward; 3D about the horizontal axis across the velocity; a vertical
   launch turns about the world x axis), its speed kept (re-simulated); dose = degrees. A scene
@@ -49,22 +49,24 @@ from typing import Callable, Iterable
 import numpy as np
 
 from visphy_core.api.metrics import HIGHER, Metric
-from visphy_plugins.datasets.visphybench.validity_order import (
+from visphy_plugins.studies.validity.clips import (
     DOSE,
-    RESTITUTION_RANGE,
-    VISIBLE_PX,
     Clip,
     ClipCache,
     ClipScore,
     NotApplicable,
     SceneOrder,
     Truth,
+    changed_share,
+    made,
+)
+from visphy_plugins.studies.validity.interventions import (
+    RESTITUTION_RANGE,
+    VISIBLE_PX,
     _linear,
     _set_linear,
     action_body,
-    changed_share,
     deviation,
-    made,
     with_gravity,
     with_material,
 )

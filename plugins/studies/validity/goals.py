@@ -4,13 +4,13 @@ metric registry (`visphy_core.api.validity`), the docs' generated pages and the 
 
 Per score — the headline, and every frame and sequence metric — `study_summary` holds:
 
-* **strict** / **means** (`validity_order.summarise_order`, raw values in the score's good
+* **strict** / **means** (`order.summarise_order`, raw values in the score's good
   direction): the share of scenes where every (i) clip > every (ii) clip whose trajectory
   departs from the truth's by ≥ `MIN_PX` (20 px; `ClipScore.visible`: a (ii) clip that leaves a
   body out always counts) > both baselines (``strict``), or mean (i) > mean (ii) > max of the
   baselines (``means``); ``strict_any_px`` / ``means_any_px`` count every (ii) clip that differs
   from the truth at all. In 3D the 20 px are the same projected image pixels
-  (`validity_order.deviation` projects the bodies' positions through the scene's camera): what
+  (`interventions.deviation` projects the bodies' positions through the scene's camera): what
   the clip shows, and what every metric sees, on the same 512-px frames as 2D;
 * **invariance** (`invariance`): per restyle (the (i) variants), the median over scenes of
   |score(restyle) − score(truth clip)| on the headline's scale; ``max_median`` over the
@@ -18,7 +18,7 @@ Per score — the headline, and every frame and sequence metric — `study_summa
 * **physics drop** (`physics_drop`): per intervention, the median over the scenes where its clip
   departs by ≥ `MIN_PX` of score(truth clip) − score(intervention); ``min_median`` over the
   interventions (the goal: ≥ `DROP`);
-* **monotone** (`validity_dose.monotone_summary`): the share of (scene, dose series) cases where
+* **monotone** (`dose.monotone_summary`): the share of (scene, dose series) cases where
   the score falls with the dose (ρ ≤ −0.9), per series, and the share of scenes where every
   series does.
 
@@ -45,23 +45,16 @@ import numpy as np
 
 from visphy_core.api.metrics import HIGHER, Metric
 from visphy_core.api.scoring import Headline, scene_headline
-from visphy_plugins.datasets.visphybench.validity_dose import (
+from visphy_plugins.studies.validity.clips import RIGHT, STATIC, WRONG, ClipScore, SceneOrder
+from visphy_plugins.studies.validity.dose import (
     MONOTONE_RHO,
     monotone_summary,
     series_rho,
 )
-from visphy_plugins.datasets.visphybench.validity_dose import monotone as is_monotone
-from visphy_plugins.datasets.visphybench.validity_order import (
-    APPEARANCES,
-    INTERVENTIONS,
-    RIGHT,
-    STATIC,
-    WRONG,
-    ClipScore,
-    SceneOrder,
-    order_of,
-    summarise_order,
-)
+from visphy_plugins.studies.validity.dose import monotone as is_monotone
+from visphy_plugins.studies.validity.interventions import INTERVENTIONS
+from visphy_plugins.studies.validity.order import order_of, summarise_order
+from visphy_plugins.studies.validity.restyles import APPEARANCES
 
 MIN_PX = 20.0            # a (ii) clip this far from the truth is clearly wrong
 STRICT_SHARE = 0.9       # strict ordering on ≥ 90 % of scenes

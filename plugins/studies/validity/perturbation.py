@@ -43,7 +43,7 @@ UNALIGNED = ScoringProtocol(unaligned=True, aligned=False, paper=False)
 
 def _materials(spec: dict) -> Iterable[dict]:
     """Every material of ``spec``: each body's own, the default contact's and each pair's
-    (also used by `validity_order`)."""
+    (also used by `interventions`)."""
     for b in spec["bodies"]:
         if "material" in b:
             yield b["material"]
