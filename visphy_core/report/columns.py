@@ -3,15 +3,7 @@ other pairings and tracks of the same metrics (see README, *Metrics and scoring 
 
 from __future__ import annotations
 
-from visphy_core.results.columns import (
-    ALIGN_PREFIX,
-    ALIGNED_SUFFIX,
-    JUDGE_PREFIX,
-    NORM_PREFIX,
-    PAPER_PREFIX,
-    SPEC_PREFIX,
-    column_direction,
-)
+from visphy_core.results.columns import JUDGE_PREFIX, column_direction, decompose_column
 
 #: Groups in display order: (key, heading).
 GROUPS = (
@@ -29,19 +21,17 @@ PRIMARY = ("visphy", "judge")
 
 
 def group_of(column: str) -> str:
-    if column.startswith(JUDGE_PREFIX):
-        return "judge"
-    if column.startswith((NORM_PREFIX, SPEC_PREFIX + NORM_PREFIX)):
+    """The group (`GROUPS`) of a column, from its name spelt out
+    (`visphy_core.results.columns.decompose_column`): normalised, then the spec track, then
+    judges, alignments and the pairing."""
+    spelt = decompose_column(column)
+    if spelt.normalised:
         return "norm"
-    if column.startswith(SPEC_PREFIX):
+    if spelt.track == "spec":
         return "spec"
-    if column.startswith((ALIGN_PREFIX, PAPER_PREFIX + ALIGN_PREFIX)):
-        return "align"
-    if column.startswith(PAPER_PREFIX):
-        return "paper"
-    if column.endswith(ALIGNED_SUFFIX):
-        return "aligned"
-    return "visphy"
+    if spelt.kind in ("judge", "alignment"):
+        return "judge" if spelt.kind == "judge" else "align"
+    return str(spelt.pairing)
 
 
 def grouped(columns: list[str]) -> list[tuple[str, list[str]]]:

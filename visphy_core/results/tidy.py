@@ -25,16 +25,14 @@ from __future__ import annotations
 import math
 import re
 from pathlib import Path
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING
 
-from visphy_core.results.columns import (
-    ALIGN_PREFIX,
-    ALIGNED_SUFFIX,
-    JUDGE_PREFIX,
-    NORM_PREFIX,
-    PAPER_PREFIX,
-    SPEC_PREFIX,
+# ScoreColumn, decompose_column and score_column are this module's API too (docs/results/export.md)
+from visphy_core.results.columns import (  # noqa: F401
+    ScoreColumn,
     column_direction,
+    decompose_column,
+    score_column,
 )
 from visphy_core.results.load import RunData, load_run
 
@@ -55,57 +53,6 @@ FIELDS = RUN_FIELDS + SCENE_FIELDS + VALUE_FIELDS
 _TEMPLATE = (re.compile(r"vpb\d+-s\d+-(?:2d|3d)-(t\d+)-v\d+"),  # generated: the template
              re.compile(r"task(\d{5})_\d{3}"),                  # published 2D
              re.compile(r"\d+_(tmpl_\d+)"))                     # published 3D
-
-
-class ScoreColumn(NamedTuple):
-    """A score column's name spelt out (`decompose_column`)."""
-
-    kind: str
-    metric: str
-    pairing: str | None
-    track: str
-    normalised: bool
-
-
-def decompose_column(column: str, headline: str | None = None) -> ScoreColumn:
-    """``spec.norm.psnr.aligned`` → (metric, psnr, aligned, spec, True); ``headline`` names
-    the run's headline column (``physics_score``), reported as kind ``headline``."""
-    name = column
-    track = "program"
-    if name.startswith(SPEC_PREFIX):
-        track, name = "spec", name[len(SPEC_PREFIX):]
-    normalised = name.startswith(NORM_PREFIX)
-    name = name.removeprefix(NORM_PREFIX)
-    if name.startswith(JUDGE_PREFIX):
-        return ScoreColumn("judge", name[len(JUDGE_PREFIX):], None, track, normalised)
-    pairing = "visphy"
-    if name.startswith(PAPER_PREFIX):
-        pairing, name = "paper", name[len(PAPER_PREFIX):]
-    if name.startswith(ALIGN_PREFIX):
-        return ScoreColumn("alignment", name[len(ALIGN_PREFIX):],
-                           "aligned" if pairing == "visphy" else pairing, track, normalised)
-    if pairing == "visphy" and name.endswith(ALIGNED_SUFFIX):
-        pairing, name = "aligned", name[:-len(ALIGNED_SUFFIX)]
-    kind = "headline" if headline is not None and name == headline else "metric"
-    return ScoreColumn(kind, name, pairing, track, normalised)
-
-
-def score_column(kind: str, metric: str, pairing: str | None = "visphy",
-                 track: str = "program", normalised: bool = False) -> str:
-    """The column name of a decomposed score (the inverse of `decompose_column`)."""
-    if kind == "judge":
-        name = JUDGE_PREFIX + metric
-    elif kind == "alignment":
-        name = (PAPER_PREFIX if pairing == "paper" else "") + ALIGN_PREFIX + metric
-    elif pairing == "paper":
-        name = PAPER_PREFIX + metric
-    elif pairing == "aligned":
-        name = metric + ALIGNED_SUFFIX
-    else:
-        name = metric
-    if normalised:
-        name = NORM_PREFIX + name
-    return SPEC_PREFIX + name if track == "spec" else name
 
 
 def template_of(scene_id: str) -> str | None:
