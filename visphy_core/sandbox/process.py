@@ -10,33 +10,54 @@ are reported in ``ProcessResult.limit_hit``; without isolation the program is re
 (``ProcessResult.refused``) unless the user opted out (``sandbox.allow_unisolated``).
 Files the program writes are read back with `read_untrusted` (`visphy_core.infra.files`).
 
-What is and is not isolated, each limit and how it is tested: docs/security.md, "Python engines
-(Manim, Blender): the process sandbox".
+This module holds the probe (`isolation_available`, `isolation_level`) and the runner; the
+bubblewrap command line is in `visphy_core.sandbox.bwrap`, the limits in
+`visphy_core.sandbox.limits`, the output capture in `visphy_core.sandbox.capture` (their names
+are re-exported here). What is and is not isolated, each limit and how it is tested:
+docs/security.md, "Python engines (Manim, Blender): the process sandbox".
 """
-# size: one isolation primitive: namespaces, seccomp, limits and read-back reviewed as one
 
 from __future__ import annotations
 
 import logging
 import math
 import os
-import resource
-import select
 import shutil
 import signal
 import subprocess
-import sys
 import tempfile
 import threading
 import time
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Iterable
 
 from visphy_core.infra.files import ForeignFileError, open_untrusted, read_upto
-from visphy_core.infra.secrets import is_secret_name
 from visphy_core.sandbox import syscall_filter
+from visphy_core.sandbox.bwrap import (  # noqa: F401 - re-exported for callers
+    NOBODY_UID,
+    _bwrap_argv,
+    _bwrap_path,
+    _prepare_workdir,
+    _setpriv_path,
+    child_env,
+    python_ro_paths,
+)
+from visphy_core.sandbox.capture import (  # noqa: F401 - re-exported for callers
+    MAX_OUTPUT_BYTES,
+    _Capture,
+    _feed,
+)
+from visphy_core.sandbox.limits import (  # noqa: F401 - re-exported for callers
+    DISK_POLL_S,
+    Limits,
+    _make_preexec,
+    _rlimits,
+    describe_limit,
+    disk_usage,
+    limit_from_text,
+)
 from visphy_core.sandbox.policy import (
     ALLOW_UNISOLATED_ENV,
     set_allow_unisolated,
@@ -45,38 +66,10 @@ from visphy_core.sandbox.policy import (
 
 log = logging.getLogger(__name__)
 
-#: Bytes of stdout (and, separately, of stderr) kept per run: the first `_HEAD_BYTES` and the last
-#: ``MAX_OUTPUT_BYTES - _HEAD_BYTES``.
-MAX_OUTPUT_BYTES = 1 << 20
-_HEAD_BYTES = 64 << 10
-#: The unprivileged user (and group) the program runs as: Debian's nobody/nogroup.
-NOBODY_UID = 65534
 INSTALL_HINT = ("install bubblewrap and libseccomp's Python binding (`apt-get install bubblewrap "
                 "python3-seccomp`, scripts/setup.sh) on a kernel that allows namespaces and "
                 "seccomp, or opt out explicitly with sandbox.allow_unisolated=true "
                 f"/ {ALLOW_UNISOLATED_ENV}=1 (model-written code then runs unisolated)")
-#: How often the disk watchdog measures the work dir (seconds).
-DISK_POLL_S = 0.2
-
-_MEMORY_PATTERNS = ("MemoryError", "bad_alloc", "Cannot allocate memory", "out of memory",
-                    "Out of memory")
-_FSIZE_PATTERNS = ("File too large", "[Errno 27]")
-_NPROC_PATTERNS = ("Resource temporarily unavailable", "BlockingIOError", "[Errno 11]",
-                   "fork: retry", "Cannot fork", "can't start new thread")
-
-
-@dataclass
-class Limits:
-    """Resource limits of one sandboxed run (seconds, MiB, count)."""
-
-    wall_s: float = 120.0
-    cpu_s: float = 120.0
-    memory_mb: int = 4096       # address space (RLIMIT_AS), not resident memory
-    file_size_mb: int = 1024    # largest single file the program may write
-    disk_mb: int = 2048         # total allocated size of the work dir (watchdog)
-    max_files: int = 20000      # entries in the work dir (watchdog)
-    processes: int = 256        # processes/threads of uid 65534 (RLIMIT_NPROC)
-    shm_mb: int = 64            # size of the private /dev/shm tmpfs
 
 
 @dataclass
@@ -109,34 +102,6 @@ def configure(*, allow_unisolated: bool | None = None) -> None:
 
 
 # ------------------------------------------------------------------------------ the probe
-def _bwrap_path() -> str | None:
-    found = shutil.which("bwrap")
-    if found is None and os.path.exists("/usr/bin/bwrap"):
-        found = "/usr/bin/bwrap"
-    return found
-
-
-def _setpriv_path() -> str | None:
-    found = shutil.which("setpriv")
-    if found is None and os.path.exists("/usr/bin/setpriv"):
-        found = "/usr/bin/setpriv"
-    return found
-
-
-@lru_cache(maxsize=1)
-def _bwrap_disables_userns() -> bool:
-    """Whether this bwrap has ``--disable-userns`` (bubblewrap 0.8 and later)."""
-    bwrap = _bwrap_path()
-    if bwrap is None:
-        return False
-    try:
-        proc = subprocess.run([bwrap, "--help"], capture_output=True, text=True, timeout=10,
-                              env={"PATH": "/usr/bin:/bin"}, cwd="/")
-    except (OSError, subprocess.SubprocessError):
-        return False
-    return "--disable-userns" in proc.stdout + proc.stderr
-
-
 #: What the probe's command prints inside the sandbox when everything holds: the uid, the
 #: seccomp mode of the process, and that a user namespace could not be created.
 _PROBE_SCRIPT = ("id -u; grep '^Seccomp:' /proc/self/status | tr -d ' \\t'; "
@@ -204,270 +169,6 @@ def isolation_level() -> str:
     return "none" if unisolated_allowed() else f"refused: {text}"
 
 
-# ------------------------------------------------------------------------------ environment
-def child_env(workdir: Path, env_extra: dict[str, str] | None = None,
-              allow_secret_env: Iterable[str] = (), path: str | None = None) -> dict[str, str]:
-    """The scrubbed environment of a sandboxed program (see the module docstring)."""
-    env = {
-        "PATH": path or os.environ.get("PATH") or os.defpath,
-        "LANG": "C.UTF-8",
-        "LC_ALL": "C.UTF-8",
-        "TZ": "UTC",
-        "HOME": str(workdir),
-        "TMPDIR": str(workdir / "tmp"),
-        "PYTHONHASHSEED": "0",
-    }
-    allowed = set(allow_secret_env)
-    dropped = []
-    for name, value in (env_extra or {}).items():
-        if is_secret_name(str(name)) and name not in allowed:
-            dropped.append(name)
-            continue
-        env[str(name)] = str(value)
-    if dropped:
-        log.warning("sandbox: not passing secret-looking variables %s (name them in "
-                    "allow_secret_env to pass them)", ", ".join(sorted(dropped)))
-    return env
-
-
-def python_ro_paths(python: str | os.PathLike) -> list[Path]:
-    """The directories a Python interpreter needs read-only in the sandbox: its venv (when it
-    is one) and the installation the venv is based on. ``sys.executable`` gives this process's
-    own ``sys.prefix`` and ``sys.base_prefix``."""
-    exe = Path(python)
-    if not exe.is_absolute():
-        exe = Path(shutil.which(str(exe)) or exe).absolute()
-    out: list[Path] = []
-    if os.path.realpath(exe) == os.path.realpath(sys.executable) or exe == Path(sys.executable):
-        out += [Path(sys.prefix), Path(sys.base_prefix)]
-    venv = exe.parent.parent
-    cfg = venv / "pyvenv.cfg"
-    if cfg.is_file():
-        out.append(venv)
-        try:
-            for line in cfg.read_text().splitlines():
-                key, _, value = line.partition("=")
-                if key.strip() == "home" and value.strip():
-                    out.append(Path(value.strip()).parent)
-        except OSError:
-            pass
-    real = Path(os.path.realpath(exe))
-    out.append(real.parent.parent)
-    seen: list[Path] = []
-    for p in out:
-        p = Path(os.path.realpath(p))
-        if p not in seen and p.is_dir():
-            seen.append(p)
-    return seen
-
-
-# ------------------------------------------------------------------------------ limits
-def _threads_of_uid(uid: int) -> int:
-    """Threads the kernel counts against RLIMIT_NPROC for ``uid`` (best effort, via /proc)."""
-    count = 0
-    try:
-        entries = os.listdir("/proc")
-    except OSError:
-        return 0
-    for entry in entries:
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f"/proc/{entry}/status", "rb") as fh:
-                text = fh.read().decode("ascii", "replace")
-        except OSError:
-            continue
-        uid_ok, threads = False, 1
-        for line in text.splitlines():
-            if line.startswith("Uid:"):
-                uid_ok = line.split()[1] == str(uid)
-            elif line.startswith("Threads:"):
-                threads = int(line.split()[1])
-        if uid_ok:
-            count += threads
-    return count
-
-
-def _capped(res: int, want: int) -> tuple[int, int]:
-    _soft, hard = resource.getrlimit(res)
-    if hard != resource.RLIM_INFINITY:
-        want = min(want, hard)
-    return want, want
-
-
-def _rlimits(limits: Limits, uid: int) -> list[tuple[int, tuple[int, int]]]:
-    cpu = max(1, math.ceil(limits.cpu_s))
-    _s, cpu_hard = resource.getrlimit(resource.RLIMIT_CPU)
-    cpu_pair = (cpu, cpu + 1) if cpu_hard == resource.RLIM_INFINITY else (
-        min(cpu, cpu_hard), min(cpu + 1, cpu_hard))
-    out = [
-        (resource.RLIMIT_CPU, cpu_pair),
-        (resource.RLIMIT_AS, _capped(resource.RLIMIT_AS, int(limits.memory_mb) << 20)),
-        (resource.RLIMIT_FSIZE, _capped(resource.RLIMIT_FSIZE, int(limits.file_size_mb) << 20)),
-        (resource.RLIMIT_CORE, (0, 0)),
-    ]
-    nproc = _threads_of_uid(uid) + max(1, int(limits.processes))
-    out.append((resource.RLIMIT_NPROC, _capped(resource.RLIMIT_NPROC, nproc)))
-    return out
-
-
-def _make_preexec(rlimits: list[tuple[int, tuple[int, int]]]):
-    # Runs between fork and exec: keep it to system calls on precomputed values (no imports, no
-    # allocation-heavy work), so it stays safe even when the parent has other threads.
-    setrlimit = resource.setrlimit
-
-    def preexec() -> None:
-        for res, pair in rlimits:
-            try:
-                setrlimit(res, pair)
-            except (ValueError, OSError):
-                pass
-
-    return preexec
-
-
-# ------------------------------------------------------------------------------ output capture
-class _Capture:
-    """Drain one pipe (a raw fd we own) to EOF or until told to stop, keeping the head and the
-    tail (bounded memory). Never blocks past `stop`: the fd is polled with a short timeout."""
-
-    def __init__(self, fd: int, cap: int = MAX_OUTPUT_BYTES):
-        self.fd = fd
-        os.set_blocking(fd, False)
-        self.head = bytearray()
-        self.tail = bytearray()
-        self.dropped = 0
-        self.head_cap = min(_HEAD_BYTES, cap)
-        self.tail_cap = cap - self.head_cap
-        self.stopping = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _take(self, chunk: bytes) -> None:
-        room = self.head_cap - len(self.head)
-        if room > 0:
-            self.head += chunk[:room]
-            chunk = chunk[room:]
-        if chunk:
-            self.tail += chunk
-            excess = len(self.tail) - self.tail_cap
-            if excess > 0:
-                del self.tail[:excess]
-                self.dropped += excess
-
-    def _run(self) -> None:
-        poller = select.poll()
-        poller.register(self.fd, select.POLLIN | select.POLLHUP | select.POLLERR)
-        while True:
-            try:
-                events = poller.poll(100)
-            except InterruptedError:
-                continue
-            except OSError:
-                return
-            if not events:
-                if self.stopping.is_set():
-                    return
-                continue
-            try:
-                chunk = os.read(self.fd, 65536)
-            except BlockingIOError:
-                continue
-            except OSError:
-                return
-            if not chunk:
-                return
-            self._take(chunk)
-
-    def text(self, join_timeout: float) -> str:
-        self.stopping.set()
-        self.thread.join(join_timeout)
-        try:
-            os.close(self.fd)
-        except OSError:
-            pass
-        middle = (f"\n[... {self.dropped} bytes of output dropped ...]\n".encode()
-                  if self.dropped else b"")
-        return (bytes(self.head) + middle + bytes(self.tail)).decode("utf-8", "replace")
-
-
-def _feed(fd: int, data: bytes) -> None:
-    try:
-        view = memoryview(data)
-        while view:
-            n = os.write(fd, view)
-            view = view[n:]
-    except OSError:
-        pass
-    finally:
-        try:
-            os.close(fd)
-        except OSError:
-            pass
-
-
-def _kill(pid: int, group: bool) -> None:
-    try:
-        if group:
-            os.killpg(pid, signal.SIGKILL)
-        else:
-            os.kill(pid, signal.SIGKILL)
-    except (ProcessLookupError, PermissionError):
-        pass
-
-
-# ------------------------------------------------------------------------------ disk watchdog
-def disk_usage(root: Path, stop_at: tuple[int, int] | None = None) -> tuple[int, int]:
-    """(allocated bytes, entries) below ``root``, without following links; stops early once
-    either exceeds ``stop_at``."""
-    total, entries = 0, 0
-    stack = [str(root)]
-    while stack:
-        path = stack.pop()
-        try:
-            it = os.scandir(path)
-        except OSError:
-            continue
-        with it:
-            for entry in it:
-                entries += 1
-                try:
-                    st = entry.stat(follow_symlinks=False)
-                except OSError:
-                    continue
-                total += st.st_blocks * 512
-                if entry.is_dir(follow_symlinks=False):
-                    stack.append(entry.path)
-                if stop_at and (total > stop_at[0] or entries > stop_at[1]):
-                    return total, entries
-    return total, entries
-
-
-def limit_from_text(text: str) -> str | None:
-    """The resource limit an error message points at (``"memory"``, ``"file_size"``,
-    ``"processes"``) or None: for runners that catch the program's exception themselves."""
-    if any(p in text for p in _MEMORY_PATTERNS):
-        return "memory"
-    if any(p in text for p in _FSIZE_PATTERNS):
-        return "file_size"
-    if any(p in text for p in _NPROC_PATTERNS):
-        return "processes"
-    return None
-
-
-def describe_limit(hit: str | None, limits: Limits, detail: str = "") -> str | None:
-    """The message of a resource-limit hit (``memory``, ``file_size``, ``disk``, ``processes``:
-    the program's ``resource_limit``), the same for every engine; None for any other hit."""
-    what = f": {detail}" if detail else ""
-    return {
-        "memory": f"memory limit ({limits.memory_mb} MB) exceeded{what}",
-        "file_size": f"file size limit ({limits.file_size_mb} MB) exceeded{what}",
-        "disk": (f"disk quota of the work dir ({limits.disk_mb} MB, {limits.max_files} files) "
-                 f"exceeded{what}"),
-        "processes": f"process limit ({limits.processes} processes) reached{what}",
-    }.get(hit or "")
-
-
 # ------------------------------------------------------------------------------ reading results
 def read_untrusted(path: str | os.PathLike, max_bytes: int) -> bytes | None:
     """A regular file a sandboxed program could have tampered with, read by
@@ -482,86 +183,6 @@ def read_untrusted(path: str | os.PathLike, max_bytes: int) -> bytes | None:
         return read_upto(fd, size)
     finally:
         os.close(fd)
-
-
-# ------------------------------------------------------------------------------ work dir
-def _prepare_workdir(workdir: Path, mode: str | None) -> None:
-    workdir.mkdir(parents=True, exist_ok=True)
-    (workdir / "tmp").mkdir(exist_ok=True)
-    os.chmod(workdir, 0o700)
-    if mode != "root":
-        return
-    for root, dirs, files in os.walk(workdir):
-        os.chown(root, NOBODY_UID, NOBODY_UID)
-        for name in dirs + files:
-            os.chown(os.path.join(root, name), NOBODY_UID, NOBODY_UID, follow_symlinks=False)
-
-
-def _under(path: str, roots: Iterable[str]) -> bool:
-    return any(path == r or path.startswith(r.rstrip("/") + "/") for r in roots)
-
-
-def _bwrap_argv(bwrap: str, mode: str, workdir: Path, ro_paths: Sequence[Path],
-                env: dict[str, str], limits: Limits, argv: Sequence[str], *,
-                seccomp_fd: int | None = None) -> list[str]:
-    """The bwrap command line (see the module docstring). ``seccomp_fd``: a descriptor holding
-    the filter's BPF program (`syscall_filter.memfd`), which the caller passes to bwrap."""
-    cmd = [bwrap]
-    if mode == "root":
-        cmd += ["--unshare-ipc", "--unshare-pid", "--unshare-net", "--unshare-uts",
-                "--unshare-cgroup-try"]
-    else:
-        cmd += ["--unshare-all", "--uid", str(NOBODY_UID), "--gid", str(NOBODY_UID)]
-        if _bwrap_disables_userns():
-            cmd += ["--unshare-user", "--disable-userns"]
-    if seccomp_fd is not None:
-        cmd += ["--seccomp", str(seccomp_fd)]
-    cmd += ["--die-with-parent", "--new-session", "--clearenv"]
-    for name, value in env.items():
-        cmd += ["--setenv", name, value]
-    cmd += ["--ro-bind", "/usr", "/usr", "--symlink", "usr/lib", "/lib",
-            "--symlink", "usr/lib64", "/lib64", "--symlink", "usr/bin", "/bin",
-            "--proc", "/proc", "--dev", "/dev"]
-    made: set[str] = {"/", "/usr", "/proc", "/dev", "/tmp"}
-
-    def parents(target: str, mounted: Iterable[str]) -> list[str]:
-        out = []
-        parts = Path(target).parts[1:-1]
-        cur = ""
-        for part in parts:
-            cur += "/" + part
-            if cur in made or _under(cur, mounted):
-                continue
-            made.add(cur)
-            out += ["--perms", "0755", "--dir", cur]
-        return out
-
-    # /tmp is the work dir's tmp/ (mount points below /tmp land there, on the host)
-    work = str(workdir)
-    cmd += ["--bind", str(workdir / "tmp"), "/tmp"]
-    # read-only binds: drop paths below another bound path (nested binds are redundant)
-    ro = sorted({os.path.realpath(p) for p in ro_paths if os.path.isdir(p)})
-    ro = [p for p in ro if not _under(p, ["/usr"]) and
-          not _under(p, [q for q in ro if q != p])]
-    system = [p for p in ("/etc/fonts", "/etc/ld.so.cache", "/var/cache/fontconfig")
-              if os.path.exists(p)]
-    mounted: list[str] = ["/usr"]
-    for p in ro + system:
-        cmd += parents(p, mounted)
-        cmd += ["--ro-bind", p, p]
-        mounted.append(p)
-    if os.path.isdir("/etc") and "/etc/mtab" not in mounted:  # Blender asks for the mount list
-        cmd += parents("/etc/mtab", mounted) + ["--symlink", "/proc/self/mounts", "/etc/mtab"]
-    # the work dir itself, read-write at its own path
-    cmd += parents(work, mounted)
-    cmd += ["--bind", work, work]
-    cmd += ["--perms", "1777", "--size", str(max(1, int(limits.shm_mb)) << 20),
-            "--tmpfs", "/dev/shm"]
-    cmd += ["--chdir", work]
-    if mode == "root":
-        cmd += [_setpriv_path() or "/usr/bin/setpriv", f"--reuid={NOBODY_UID}",
-                f"--regid={NOBODY_UID}", "--clear-groups", "--no-new-privs", "--"]
-    return cmd + [str(a) for a in argv]
 
 
 def _refused(workdir: Path, why: str, refused: bool = True) -> ProcessResult:
@@ -745,3 +366,13 @@ def _outcome(status: int, mode: str | None, hit: list[str], usage, limits: Limit
     elif returncode != 0:
         limit_hit = limit_from_text(stderr[-8000:])
     return returncode, limit_hit
+
+
+def _kill(pid: int, group: bool) -> None:
+    try:
+        if group:
+            os.killpg(pid, signal.SIGKILL)
+        else:
+            os.kill(pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
