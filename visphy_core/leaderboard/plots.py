@@ -9,58 +9,39 @@ from visphy_core.leaderboard.entries import Entry
 from visphy_core.leaderboard.references import Reference
 from visphy_core.leaderboard.ties import Standing
 from visphy_core.report.markup import attr, esc, fmt
+from visphy_core.report.plots import IntervalLayout, IntervalRow, interval_chart
 from visphy_core.report.svg import GRID, MUTED, SERIES, line, n, nice_ticks, svg, text
 
 REFERENCE_COLOUR = "#7b4fc9"
 
 
-def _span(values: list[float]) -> tuple[float, float]:
-    lo, hi = min([0.0, *values]), max([1.0, *values])
-    return lo, hi
+#: The site's headline chart: narrower rows than the report's, one colour per tie rank.
+_LAYOUT = IntervalLayout(width=380.0, top=10.0, row_h=22.0, ticks=6, overhang=4.0, bottom=30.0,
+                         tick_labels=10.0, whisker=5.0, radius=4.5, outlined=True, gap=8.0,
+                         margin=110.0, value_weight="", landmarks=False)
 
 
 def headline_chart(entries: list[Entry], ranks: dict[str, Standing],
                    references: list[Reference]) -> str:
-    """One line per row: the mean as a dot, the interval as a bar; sorted as given."""
+    """One line per row: the mean as a dot, the interval as a bar; sorted as given
+    (`visphy_core.report.plots.interval_chart`)."""
     rows = [(e.label, e.mean, e.ci, ranks.get(e.slug, Standing()).rank, False)
             for e in entries if e.mean is not None]
     rows += [(f"{r.model} {r.engine}".strip() + " (reference)", r.score, r.ci, None, True)
              for r in references if r.score is not None]
     if not rows:
         return '<p class="note">No row has a headline value to plot.</p>'
-    values = [v for _, m, ci, _, _ in rows for v in ([m] + list(ci or ()))]
-    lo_axis, hi_axis = _span(values)
-    left = min(360.0, 30 + 6.6 * max(len(r[0]) for r in rows))
-    width, top, row_h = 380.0, 10.0, 22.0
-    height = top + row_h * len(rows) + 30
-
-    def x(v: float) -> float:
-        return left + (v - lo_axis) / (hi_axis - lo_axis) * width
-
-    body = []
-    for t in nice_ticks(lo_axis, hi_axis, 6):
-        body.append(line(x(t), top - 4, x(t), height - 24))
-        body.append(text(x(t), height - 10, fmt(t, 3), "middle", fill=MUTED))
-    body.append(line(x(0), top - 4, x(0), height - 24, MUTED, 1, ' stroke-dasharray="3 3"'))
-    for i, (label, mean, ci, rank, ref) in enumerate(rows):
-        y = top + row_h * i + row_h / 2
-        colour = REFERENCE_COLOUR if ref else SERIES[((rank or 1) - 1) % len(SERIES)]
-        parts = [text(left - 8, y + 4, label, "end", fill=REFERENCE_COLOUR if ref else "")]
-        if ci:
-            parts += [line(x(ci[0]), y, x(ci[1]), y, colour, 2),
-                      line(x(ci[0]), y - 5, x(ci[0]), y + 5, colour, 2),
-                      line(x(ci[1]), y - 5, x(ci[1]), y + 5, colour, 2)]
-        fill = "#fff" if ref else colour
-        parts.append(f'<circle cx="{n(x(mean))}" cy="{n(y)}" r="4.5" fill="{fill}" '
-                     f'stroke="{colour}" stroke-width="2"/>')
+    drawn = []
+    for label, mean, ci, rank, ref in rows:
         tag = f"  rank {rank}" if rank else ("  reference" if ref else "")
-        parts.append(text(left + width + 8, y + 4, f"{fmt(mean, 3)}{tag}"))
-        body.append(f'<g class="headline-row" data-label={attr(label)} data-mean="{mean!r}" '
-                    f'data-reference="{str(ref).lower()}">' + "".join(parts) + "</g>")
+        drawn.append(IntervalRow(
+            label, mean, ci[0] if ci else None, ci[1] if ci else None, f"{fmt(mean, 3)}{tag}",
+            f'data-label={attr(label)} data-mean="{mean!r}" data-reference="{str(ref).lower()}"',
+            REFERENCE_COLOUR if ref else SERIES[((rank or 1) - 1) % len(SERIES)], ref))
     caption = ("headline mean and 95 % bootstrap interval per row (higher is better; one colour "
                "per tie rank; hollow: a reference number, not measured here)")
-    return (f'<figure class="plot headline-chart"><figcaption>{esc(caption)}</figcaption>'
-            + svg(left + width + 110, height, "".join(body), caption) + "</figure>")
+    layout = _LAYOUT._replace(left=min(360.0, 30 + 6.6 * max(len(r[0]) for r in rows)))
+    return interval_chart(drawn, (0.0, 1.0), caption, "headline-chart", layout)
 
 
 def family_chart(entries: list[Entry]) -> str:

@@ -18,7 +18,7 @@ plotted number is also in the element's ``data-*`` attributes (what the tests re
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 from visphy_core.report.columns import direction_of, group_of
 from visphy_core.report.markup import attr, esc, fmt
@@ -48,6 +48,88 @@ def _finite(value: Any) -> float | None:
 # ------------------------------------------------------------------ run level
 
 
+class IntervalRow(NamedTuple):
+    """One row of an interval chart (`interval_chart`): a mean as a dot, its interval as a bar."""
+
+    label: str
+    mean: float
+    lo: float | None
+    hi: float | None
+    #: the text right of the plot
+    value: str
+    #: the row's ``data-*`` attributes
+    data: str
+    colour: str = SERIES[0]
+    #: drawn hollow, its label in its colour (the leaderboard's reference rows)
+    hollow: bool = False
+
+
+class IntervalLayout(NamedTuple):
+    """Where an interval chart draws, in user units; the defaults are the report's."""
+
+    left: float = 130.0
+    width: float = 300.0
+    top: float = 18.0
+    row_h: float = 26.0
+    ticks: int = 5
+    #: the grid above the first row
+    overhang: float = 6.0
+    #: below the last row; the tick labels stand ``tick_labels`` above the bottom
+    bottom: float = 34.0
+    tick_labels: float = 16.0
+    whisker: float = 6.0
+    radius: float = 5.0
+    #: the dot drawn with an outline in its colour (white when hollow)
+    outlined: bool = False
+    #: between the plot and each row's value, and the room right of the plot
+    gap: float = 10.0
+    margin: float = 170.0
+    value_weight: str = "600"
+    #: the still clip's (0) and the ground truth's (1) lines named under the axis
+    landmarks: bool = True
+
+
+def interval_chart(rows: list[IntervalRow], span: tuple[float, float], caption: str, cls: str,
+                   layout: IntervalLayout = IntervalLayout()) -> str:
+    """The headline chart of the report and of the leaderboard site: one line per row, sorted as
+    given, on an axis covering ``span`` and every value; a dashed line at 0."""
+    values = [v for r in rows for v in (r.mean, r.lo, r.hi) if v is not None]
+    lo_axis, hi_axis = min(span[0], *values), max(span[1], *values)
+    g = layout
+    height = g.top + g.row_h * len(rows) + g.bottom
+    y0, y1 = g.top - g.overhang, g.top + g.row_h * len(rows) + 6
+
+    def x(v: float) -> float:
+        return g.left + (v - lo_axis) / (hi_axis - lo_axis) * g.width
+
+    body = []
+    for t in nice_ticks(lo_axis, hi_axis, g.ticks):
+        body.append(line(x(t), y0, x(t), y1))
+        body.append(text(x(t), height - g.tick_labels, fmt(t, 3), "middle", fill=MUTED))
+    body.append(line(x(0), y0, x(0), y1, MUTED, 1, ' stroke-dasharray="3 3"'))
+    if g.landmarks:
+        body.append(text(x(0), height - 4, "still clip", "middle", fill=MUTED, size=10))
+        if lo_axis <= 1 <= hi_axis:
+            body.append(line(x(1), y0, x(1), y1, "#17803d", 1, ' stroke-dasharray="3 3"'))
+            body.append(text(x(1), height - 4, "ground truth", "middle", fill="#17803d",
+                             size=10))
+    for i, r in enumerate(rows):
+        y = g.top + g.row_h * i + g.row_h / 2
+        parts = [text(g.left - 8, y + 4, r.label, "end", fill=r.colour if r.hollow else "")]
+        if r.lo is not None and r.hi is not None:
+            parts += [line(x(r.lo), y, x(r.hi), y, r.colour, 2),
+                      line(x(r.lo), y - g.whisker, x(r.lo), y + g.whisker, r.colour, 2),
+                      line(x(r.hi), y - g.whisker, x(r.hi), y + g.whisker, r.colour, 2)]
+        fill = "#fff" if r.hollow else r.colour
+        outline = f' stroke="{r.colour}" stroke-width="2"' if g.outlined else ""
+        parts.append(f'<circle cx="{n(x(r.mean))}" cy="{n(y)}" r="{n(g.radius)}" '
+                     f'fill="{fill}"{outline}/>')
+        parts.append(text(g.left + g.width + g.gap, y + 4, r.value, weight=g.value_weight))
+        body.append(f'<g class="headline-row" {r.data}>' + "".join(parts) + "</g>")
+    return (f'<figure class="plot {cls}"><figcaption>{esc(caption)}</figcaption>'
+            + svg(g.left + g.width + g.margin, height, "".join(body), caption) + "</figure>")
+
+
 def headline_plot(summary: dict, clip: Any = None) -> str:
     """The headline mean with its interval, one row per view (all scored scenes, model
     successes)."""
@@ -66,51 +148,23 @@ def headline_plot(summary: dict, clip: Any = None) -> str:
             continue
         lo, hi = ((_finite(ci[0]), _finite(ci[1])) if isinstance(ci, (list, tuple))
                   and len(ci) == 2 else (None, None))
-        rows.append((label_, m, lo, hi, int(count or 0)))
+        count = int(count or 0)
+        interval = f" [{fmt(lo, 3)}, {fmt(hi, 3)}]" if lo is not None and hi is not None else ""
+        rows.append(IntervalRow(
+            label_, m, lo, hi, f"{fmt(m, 3)}{interval}  n={count}",
+            f'data-view={attr(label_)} data-mean="{m!r}" '
+            f'data-lo={attr(repr(lo) if lo is not None else "")} '
+            f'data-hi={attr(repr(hi) if hi is not None else "")} data-n="{count}"'))
     if not rows:
         return _why("no headline plot: no scene has a headline value yet", "headline-plot")
     try:
-        span = [float(clip[0]), float(clip[1])] if clip else list(HEADLINE_SPAN)
+        span = (float(clip[0]), float(clip[1])) if clip else HEADLINE_SPAN
     except (TypeError, ValueError, IndexError):
-        span = list(HEADLINE_SPAN)
-    values = [v for r in rows for v in r[1:4] if v is not None]
-    lo_axis, hi_axis = min(span[0], *values), max(span[1], *values)
-    left, width, top, row_h = 130.0, 300.0, 18.0, 26.0
-    height = top + row_h * len(rows) + 34
-
-    def x(v: float) -> float:
-        return left + (v - lo_axis) / (hi_axis - lo_axis) * width
-
-    body = []
-    for t in nice_ticks(lo_axis, hi_axis, 5):
-        body.append(line(x(t), top - 6, x(t), height - 28))
-        body.append(text(x(t), height - 16, fmt(t, 3), "middle", fill=MUTED))
-    body.append(line(x(0), top - 6, x(0), height - 28, MUTED, 1, ' stroke-dasharray="3 3"'))
-    body.append(text(x(0), height - 4, "still clip", "middle", fill=MUTED, size=10))
-    if lo_axis <= 1 <= hi_axis:
-        body.append(line(x(1), top - 6, x(1), height - 28, "#17803d", 1,
-                         ' stroke-dasharray="3 3"'))
-        body.append(text(x(1), height - 4, "ground truth", "middle", fill="#17803d", size=10))
-    for i, (label_, m, lo, hi, count) in enumerate(rows):
-        y = top + row_h * i + row_h / 2
-        interval = f" [{fmt(lo, 3)}, {fmt(hi, 3)}]" if lo is not None and hi is not None else ""
-        parts = [text(left - 8, y + 4, label_, "end")]
-        if lo is not None and hi is not None:
-            parts += [line(x(lo), y, x(hi), y, SERIES[0], 2),
-                      line(x(lo), y - 6, x(lo), y + 6, SERIES[0], 2),
-                      line(x(hi), y - 6, x(hi), y + 6, SERIES[0], 2)]
-        parts.append(f'<circle cx="{n(x(m))}" cy="{n(y)}" r="5" fill="{SERIES[0]}"/>')
-        parts.append(text(left + width + 10, y + 4, f"{fmt(m, 3)}{interval}  n={count}",
-                          weight="600"))
-        body.append(f'<g class="headline-row" data-view={attr(label_)} data-mean="{m!r}" '
-                    f'data-lo={attr(repr(lo) if lo is not None else "")} '
-                    f'data-hi={attr(repr(hi) if hi is not None else "")} data-n="{count}">'
-                    + "".join(parts) + "</g>")
+        span = HEADLINE_SPAN
     small = " · fewer than 10 scenes: read the interval" if head.get("small_sample") else ""
     caption = (f"headline {head['metric']} ↑ higher is better: mean and 95% bootstrap "
                f"interval (0 = a still clip, 1 = the ground truth){small}")
-    return (f'<figure class="plot headline-plot"><figcaption>{esc(caption)}</figcaption>'
-            + svg(left + width + 170, height, "".join(body), caption) + "</figure>")
+    return interval_chart(rows, span, caption, "headline-plot")
 
 
 def _bar_rows(summary: dict) -> tuple[str, list[tuple[str, list[tuple]]]]:
