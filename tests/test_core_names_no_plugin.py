@@ -37,7 +37,6 @@ GROUPS = r"(?:engine|model|dataset|judge|source|physics)(?:\.name|\.source)?"
 _MEASURED = "a measurement's setup (the run it was measured on), not a dependency"
 _SPEC = ("the scene spec format (`spec/`) names its ground truth's simulator in `world.engine` "
          "and its library conventions; the physics plugins register under those names")
-_HELP = "user-facing examples of real commands in CLI help; they should come from conf/"
 _BROWSER = ("the browser sandbox's comments name the libraries whose behaviour it accommodates "
             "(readiness checks, canvas discovery)")
 _PROCESS = "the process sandbox's comments name the programs whose needs its rules admit"
@@ -54,17 +53,7 @@ ALLOWED: dict[str, tuple[set[str], str]] = {
     "visphy_core/api/scene.py": ({"visphybench"}, "`scene_dim` reads 2D/3D from the published "
                                  "scene-id pattern; it belongs in the dataset plugins"),
     "visphy_core/calls/usage.py": ({"gemini"}, "a provider's token count quoted in a comment"),
-    "visphy_core/cli/build_dataset.py": ({"visphybench"}, "the command's default dataset; it "
-                                         "should come from conf/"),
-    "visphy_core/cli/export.py": ({"hf"}, "export-dataset's `--format hf` writes what the hf "
-                                  "dataset reads; the format list should come from the registry"),
-    "visphy_core/cli/help.py": ({"claude", "gpt5", "oracle", "p5", "threejs"}, _HELP),
-    "visphy_core/cli/intervene.py": ({"threejs", "visphybench"}, "the command's defaults; "
-                                     "they should come from conf/"),
-    "visphy_core/cli/main.py": ({"manim", "oracle", "threejs", "visphybench"}, _HELP),
-    "visphy_core/cli/score.py": ({"gemini", "gpt_frames"}, _HELP),
     "visphy_core/config/check.py": ({"replay"}, "a docstring example of an open value"),
-    "visphy_core/config/rescore.py": ({"gemini", "gpt_frames"}, _HELP),
     "visphy_core/config/schema.py": ({"visphybench"}, "the comment on dataset.source lists the "
                                      "built-in sources; the config reference page is generated "
                                      "from it"),

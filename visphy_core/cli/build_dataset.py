@@ -11,16 +11,20 @@ from pathlib import Path
 
 
 def cmd_build_dataset(argv: list[str]) -> int:
+    from visphy_core.cli.help import default_option, option_config
     from visphy_core.execute.datasets import build_dataset
 
     home = os.environ.get("VISPHY_HOME", "visphy-out")
+    dataset = default_option("dataset")
+    source = str(option_config("dataset", dataset).get("source") or dataset)
     parser = argparse.ArgumentParser(
         prog="visphy build-dataset",
-        description="Generate a dataset that is built, not downloaded (VisPhyBench by default: "
+        description=f"Generate a dataset that is built, not downloaded ({source} by default: "
                     "its catalogue, shipped with visphy for seed 0 and simulated for another "
                     "seed, and the clips of the requested split or scenes).")
-    parser.add_argument("--source", default="generated",
-                        help="the dataset plugin (default: generated, i.e. VisPhyBench)")
+    parser.add_argument("--source", default=source,
+                        help=f"the dataset plugin (default: {source}, the source of the default "
+                             f"dataset config dataset={dataset})")
     parser.add_argument("--split", default=None, help="sub, test or mini (default: all scenes)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--data-dir", default=f"{home}/data")

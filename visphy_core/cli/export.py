@@ -1,7 +1,8 @@
 """``visphy export RUN_DIR --format parquet|csv [-o OUT]``: a run's scores as one tidy table
-(`visphy_core.results.tidy`); ``visphy export-dataset --format hf -o DIR [overrides]``: a
+(`visphy_core.results.tidy`); ``visphy export-dataset --format F -o DIR [overrides]``: a
 dataset's scenes as a folder that Hugging Face ``datasets`` loads, written by the dataset plugin
-that reads it back (``dataset=hf dataset.root=DIR``)."""
+``F`` that reads it back (``dataset=F dataset.root=DIR``; the formats are the installed dataset
+plugins with an ``export``)."""
 
 from __future__ import annotations
 
@@ -56,15 +57,27 @@ def cmd_export(argv: list[str]) -> int:
     return 0
 
 
+def dataset_formats() -> list[str]:
+    """The installed dataset plugins that write a dataset folder (an ``export`` method)."""
+    from visphy_core.api.registry import get_registry
+
+    return sorted(name for name, (cls, _plugin) in get_registry().datasets.items()
+                  if callable(getattr(cls, "export", None)))
+
+
 def cmd_export_dataset(argv: list[str]) -> int:
+    formats = dataset_formats()
+    default = formats[0] if formats else None
     parser = argparse.ArgumentParser(
         prog="visphy export-dataset",
         description="Write a dataset's scenes (the dataset a run with the same overrides "
                     "would evaluate, built first when it is generated) as a Hugging Face "
                     "dataset folder: one Parquet file per split, the clips and trajectories "
-                    "beside it, a dataset card. `dataset=hf dataset.root=DIR` runs on it.")
-    parser.add_argument("--format", default="hf", choices=("hf",),
-                        help="hf: a Hugging Face `datasets` folder (the only format)")
+                    f"beside it, a dataset card. `dataset={default or 'FORMAT'} "
+                    "dataset.root=DIR` runs on it.")
+    parser.add_argument("--format", default=default, choices=formats,
+                        help="the dataset plugin that writes the folder and reads it back: "
+                             f"{', '.join(formats) or 'none installed'} (default: {default})")
     parser.add_argument("-o", "--output", required=True, type=Path, metavar="DIR",
                         help="the folder to write (created; an existing split is replaced)")
     parser.add_argument("--split", action="append", default=None, metavar="SPLIT",
@@ -74,11 +87,11 @@ def cmd_export_dataset(argv: list[str]) -> int:
                         help="a run's dataset overrides: dataset=visphybench_test, "
                              "dataset.limit=N, 'dataset.scenes=[...]', paths.data_dir=...")
     args = parser.parse_args(argv)
-    from visphy_core.api.registry import get_registry
     from visphy_core.config.check import compose
     from visphy_core.execute.datasets import get_dataset, load_dataset
 
-    get_registry()
+    if args.format is None:
+        raise UserError("export-dataset: no installed dataset plugin writes a dataset folder")
     writer = getattr(get_dataset(args.format), "export", None)
     if writer is None:
         raise UserError(f"export-dataset: the dataset plugin {args.format!r} cannot write")
@@ -92,5 +105,5 @@ def cmd_export_dataset(argv: list[str]) -> int:
         print(f"{name}: {len(scenes)} scenes")
     print(f"Hugging Face dataset ready in {args.output} "
           f"(datasets.load_dataset({str(args.output)!r}); "
-          f"visphy dataset=hf dataset.root={args.output})")
+          f"visphy dataset={args.format} dataset.root={args.output})")
     return 0

@@ -46,13 +46,59 @@ def run_usage() -> str:
             continue
         shown = ", ".join(f"{n}*" if defaults.get(group) == n else n for n in names)
         lines.append(f"  {group}: {shown}")
-    lines += ["", "examples:",
-              "  visphy model=gpt5 engine=threejs dataset=visphybench_test",
-              "  visphy model=oracle engine=p5 dataset=mini metrics=fast",
-              "  visphy --multirun model=gpt5,claude engine=threejs,p5   (a study)",
+    lines += ["", "examples:", *(f"  {example}" for example in _run_examples()),
               "", "`visphy run --cfg job` prints the whole composed config; "
               "`visphy run --info` Hydra's view of it."]
     return "\n".join(lines)
+
+
+def _run_examples() -> list[str]:
+    """Runs written with the installed config tree's options: the defaults spelt out, then
+    another option of the same kind as each default (`sibling_option`), and a study of both."""
+    model, engine, dataset = (default_option(g) for g in ("model", "engine", "dataset"))
+    other = {g: sibling_option(g) for g in ("model", "engine", "dataset")}
+    return [f"visphy model={model} engine={engine} dataset={dataset}   (the defaults)",
+            f"visphy model={other['model']} engine={other['engine']} "
+            f"dataset={other['dataset']} metrics=fast",
+            f"visphy --multirun model={model},{other['model']} engine={engine},{other['engine']}"
+            "   (a study)"]
+
+
+def sibling_option(group: str) -> str:
+    """The first other option of ``group`` made like its default: the same schema and, where
+    the default names one, the same ``source`` (``dataset``: another split of the default
+    dataset's source); the default itself where there is none."""
+    default = default_option(group)
+    mine = option_config(group, default, schema=True)
+    for name in config_options().get(group, []):
+        theirs = option_config(group, name, schema=True)
+        if name != default and all(theirs.get(k) == mine[k] for k in ("defaults", "source")
+                                   if k in mine):
+            return name
+    return default
+
+
+def default_option(group: str) -> str:
+    """The root config's default option of ``group`` (``engine`` → the default engine's config
+    name), ``...`` where the defaults list has none."""
+    return _default_options().get(group, "...")
+
+
+def option_config(group: str, option: str, schema: bool = False) -> dict:
+    """The keys the option's own YAML file sets (``dataset``, ``mini`` → its ``source``,
+    ``split``, …), uncomposed, with its ``defaults`` list where ``schema``; empty where the
+    installed config tree has no such file."""
+    from importlib import resources
+
+    from omegaconf import OmegaConf
+
+    path = resources.files("visphy_conf").joinpath(group, f"{option}.yaml")
+    if not path.is_file():
+        return {}
+    values = OmegaConf.to_container(OmegaConf.create(path.read_text()))
+    if not isinstance(values, dict):
+        return {}
+    return {k: v for k, v in values.items() if schema or k != "defaults"}
 
 
 def _default_options() -> dict[str, str]:
@@ -79,7 +125,7 @@ def unknown_command(word: str, commands: list[str]) -> UserError:
     close = difflib.get_close_matches(word, commands, n=1, cutoff=0.6)
     hint = f"; did you mean '{close[0]}'?" if close else ""
     return UserError(f"unknown command '{word}'{hint} (`visphy --help` lists the commands; a "
-                     "run takes overrides such as engine=threejs)")
+                     f"run takes overrides such as engine={default_option('engine')})")
 
 
 def flag_as_override(argv: list[str]) -> UserError | None:

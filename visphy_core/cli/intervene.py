@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from visphy_core.cli.help import default_option, sibling_option
 from visphy_core.infra.errors import UserError
 from visphy_core.spec.intervene import (
     PARAMETERS,
@@ -56,12 +57,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--set", dest="assignments", action="append", default=[], metavar="P=V",
                    required=True, help="a change, e.g. gravity=-20, friction=0.1, "
                                        "mass.red_ball=2, velocity.red_ball=3,0 (repeatable)")
+    dataset = default_option("dataset")
     p.add_argument("--engine", default=None,
                    help="engine whose reference program renders both (default: the run's "
-                        "engine; with --gt threejs)")
+                        f"engine; with --gt {default_option('engine')})")
     p.add_argument("--dataset", default=None,
-                   help="with --gt: the dataset config holding the scene (default: mini; "
-                        "visphybench for any generated scene)")
+                   help=f"with --gt: the dataset config holding the scene (default: {dataset}; "
+                        f"{sibling_option('dataset')} for any other scene of its source)")
     p.add_argument("-o", "--out", default=None,
                    help=f"output folder (default: {home}/interventions/<scene>_<time>)")
     p.add_argument("overrides", nargs="*", default=[], help="Hydra overrides, e.g. run.cache=false")
@@ -81,7 +83,8 @@ def intervene_command(argv: list[str]) -> int:
     if not args.scene or any(c in args.scene for c in ",[]* "):
         raise UserError(f"--scene {args.scene!r}: name exactly one scene id")
     run_cfg = _run_config(args.run) if args.run else None
-    engine_name = args.engine or (str(run_cfg.engine.name) if run_cfg else "threejs")
+    engine_name = args.engine or (str(run_cfg.engine.name) if run_cfg
+                                  else default_option("engine"))
     overrides = [f"engine={engine_name}", "tracking=none"]
     if args.gt:
         overrides += ([f"dataset={args.dataset}"] if args.dataset else []) + [

@@ -3,14 +3,14 @@
 ``visphy --help`` lists the commands with one line each (`COMMANDS`); ``visphy run --help`` lists
 the run's config groups and their options. A first word that is not a command and not an
 override is answered with the closest command; a ``--flag value`` where an override belongs
-with the override to write (``--engine manim`` → ``engine=manim``).
+with the override to write (``--engine E`` → ``engine=E``).
 
 Commands:
   run            evaluate a model on a dataset (the default: overrides alone are a run)
   plugins        list installed plugins and what each registers (also: --plugins)
   metrics        list installed metrics: direction, family, kind, weights, availability here
   setup          install the vendored JavaScript libraries (npm ci into the asset cache)
-  build-dataset  generate VisPhyBench: build-dataset [--split S] [--seed N] [--data-dir DIR]
+  build-dataset  generate a built dataset: build-dataset [--split S] [--seed N] [--data-dir DIR]
   ground-truth   a dataset's normalisation anchors and twin renders ahead of any run, into
                  paths.ground_truth_dir: ground-truth [--workers N] [dataset=… engine=… …]
   normalise      resample a foreign video to a reference clip: normalise IN --like REF -o OUT
@@ -32,7 +32,7 @@ Commands:
                  track RUN_DIR... [--uri URI] [--experiment NAME] [--again]
   export         a run's scores as a tidy table: export RUN_DIR --format parquet|csv [-o OUT]
   export-dataset a dataset as a Hugging Face folder: export-dataset --format hf -o DIR [dataset=…]
-Anything else is a Hydra run: ``python -m visphy_core engine=threejs model=oracle dataset=mini``.
+Anything else is a Hydra run: ``python -m visphy_core engine=E model=M dataset=D``.
 
 Bad input (a config value, a missing dataset, a plugin that does not load, Chromium missing) is
 reported as one line, ``error: ...`` on stderr, exit status 2; a fault of the machine (a full
@@ -53,6 +53,7 @@ from typing import Callable
 from visphy_core.cli.help import (
     HYDRA_FLAGS,
     VALUE_FLAGS,
+    default_option,
     flag_as_override,
     run_usage,
     unknown_command,
@@ -362,7 +363,7 @@ COMMANDS: dict[str, tuple[Callable[[list[str]], int], str]] = {
     "render": (cmd_render, "render one model reply, and score it against a scene (--scene)"),
     "intervene": (cmd_intervene, "change physical parameters, re-simulate, render side by side"),
     "rate": (cmd_rate, "the model-blind human rating page on localhost"),
-    "build-dataset": (cmd_build_dataset, "generate VisPhyBench (or another built dataset)"),
+    "build-dataset": (cmd_build_dataset, "generate a dataset that is built, not downloaded"),
     "ground-truth": (cmd_ground_truth, "a dataset's normalisation anchors, ahead of any run"),
     "normalise": (cmd_normalise, "resample a foreign video to a reference clip's contract"),
     "metrics": (cmd_metrics, "the installed metrics: direction, family, availability here"),
@@ -379,8 +380,8 @@ def usage() -> str:
              "visphy evaluates whether a model understands physics by having it write a "
              "simulator.", "", "commands:"]
     lines += [f"  {name:<{width}}  {summary}" for name, (_, summary) in COMMANDS.items()]
-    lines += ["", "A run is the default command: `visphy model=oracle engine=threejs "
-              "dataset=mini` is `visphy run ...`.",
+    defaults = " ".join(f"{g}={default_option(g)}" for g in ("model", "engine", "dataset"))
+    lines += ["", f"A run is the default command: `visphy {defaults}` is `visphy run ...`.",
               "`visphy run --help` lists the config groups and their options; "
               "`visphy COMMAND --help` a command's own options.",
               "`--traceback` (or VISPHY_TRACEBACK=1) shows full tracebacks; "

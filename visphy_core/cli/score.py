@@ -9,6 +9,10 @@ from pathlib import Path
 
 
 def _parser() -> argparse.ArgumentParser:
+    from visphy_core.cli.help import config_options, default_option
+
+    judges = [j for j in config_options().get("judge", []) if j != default_option("judge")]
+    first, second = (judges + ["JUDGE", "JUDGE"])[:2]
     p = argparse.ArgumentParser(
         prog="visphy score",
         description="Score a finished (or interrupted) run again: other metrics, judges, "
@@ -17,7 +21,7 @@ def _parser() -> argparse.ArgumentParser:
                     "directory <name>.rescored-<time> beside the original (or into the run "
                     "itself with --in-place, after a backup).",
         epilog="examples: score RUN metrics.names=[psnr,ssim,flow_epe_dis] · "
-               "score RUN judge=gemini · score RUN +judge=gpt_frames · score RUN metrics=full")
+               f"score RUN judge={first} · score RUN +judge={second} · score RUN metrics=full")
     p.add_argument("run_dir", help="the run directory (under <VISPHY_HOME>/runs/)")
     p.add_argument("overrides", nargs="*", default=[],
                    help="Hydra overrides of what scoring reads: metrics=…, metrics.*, judge=…, "

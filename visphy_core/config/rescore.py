@@ -1,8 +1,8 @@
 """The config of a re-scored run: the finished run's own config with scoring overrides applied.
 
 Re-scoring may change only what scoring reads: the metrics (``metrics=full``,
-``metrics.names=[…]``, ``+metrics.max_pairs.lpips=8``), the judges (``judge=gemini``,
-``judge=[gemini,gpt_frames]``, ``+judge=gemini`` to add one to the run's, ``judge=none``,
+``metrics.names=[…]``, ``+metrics.max_pairs.lpips=8``), the judges (``judge=J``,
+``judge=[J,K]``, ``+judge=J`` to add one to the run's, ``judge=none``,
 ``judge.<key>.*``), the reference descriptions (``reference.*``), tracking (``tracking=none``,
 ``tracking.*``), where data and cache live (``paths.data_dir``, ``paths.cache_dir``) and
 ``run.progress`` / ``run.cache``. Anything else (model, engine, dataset, prompt, the other
