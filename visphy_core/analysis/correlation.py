@@ -39,28 +39,27 @@ def _finite_pairs(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return x[keep], y[keep]
 
 
-def spearman(x, y) -> tuple[float, float, int]:
-    """(ρ, two-sided p, n) over the pairs where both are finite; NaN when undefined."""
+def _correlation(test, x, y) -> tuple[float, float, int]:
+    """(statistic, two-sided p, n) of ``test`` (a `scipy.stats` correlation) over the pairs
+    where both are finite; NaN when undefined."""
     x, y = _finite_pairs(np.asarray(x, np.float64), np.asarray(y, np.float64))
     n = len(x)
     if n < MIN_N or np.ptp(x) == 0 or np.ptp(y) == 0:
         return float("nan"), float("nan"), n
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = stats.spearmanr(x, y)
+        res = test(x, y)
     return float(res.statistic), float(res.pvalue), n
+
+
+def spearman(x, y) -> tuple[float, float, int]:
+    """(ρ, two-sided p, n) over the pairs where both are finite; NaN when undefined."""
+    return _correlation(stats.spearmanr, x, y)
 
 
 def pearson(x, y) -> tuple[float, float, int]:
     """(r, two-sided p, n) over the pairs where both are finite; NaN when undefined."""
-    x, y = _finite_pairs(np.asarray(x, np.float64), np.asarray(y, np.float64))
-    n = len(x)
-    if n < MIN_N or np.ptp(x) == 0 or np.ptp(y) == 0:
-        return float("nan"), float("nan"), n
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        res = stats.pearsonr(x, y)
-    return float(res.statistic), float(res.pvalue), n
+    return _correlation(stats.pearsonr, x, y)
 
 
 def spearman_long(runs: list[RunData], labels: list[str], columns: list[str],
