@@ -64,7 +64,7 @@ ALLOWED: dict[str, tuple[set[str], str]] = {
                                           "should come from conf/"),
     "visphy_core/execute/render_program.py": ({"visphybench"}, "the default clip shape is a 2D "
                                               "VisPhyBench clip's"),
-    "visphy_core/execute/run.py": ({"gemini25pro"}, "an error message's example"),
+    "visphy_core/execute/run_setup.py": ({"gemini25pro"}, "an error message's example"),
     "visphy_core/execute/scheduler.py": ({"oracle", "threejs", "visphybench"}, _MEASURED),
     "visphy_core/infra/heap.py": ({"oracle", "threejs"}, _MEASURED),
     "visphy_core/infra/png.py": ({"blender"}, "a docstring naming who writes untrusted frames"),

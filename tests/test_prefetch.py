@@ -7,7 +7,7 @@ from __future__ import annotations
 import threading
 from types import SimpleNamespace
 
-import visphy_core.execute.run as run_mod
+import visphy_core.execute.prefetch as run_mod
 
 
 def _services(submitted: list[str]):

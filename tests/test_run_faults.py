@@ -209,7 +209,7 @@ class _Raiser:
 @pytest.mark.parametrize("how, mlflow_status, status", [
     ("exception", "FAILED", "failed"), ("sigterm", "KILLED", "interrupted")])
 def test_an_interrupted_loop_ends_the_mlflow_run(home, how, mlflow_status, status):
-    from visphy_core.execute.run import RunInterrupted
+    from visphy_core.execute.run_signals import RunInterrupted
 
     def action():
         if how == "exception":

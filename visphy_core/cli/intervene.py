@@ -74,7 +74,7 @@ def intervene_command(argv: list[str]) -> int:
     from visphy_core.api.engine import RenderContract
     from visphy_core.api.registry import get_registry
     from visphy_core.config.check import check_overrides
-    from visphy_core.execute.run import _isolation
+    from visphy_core.execute.run_setup import _isolation
     from visphy_core.infra.cache import Cache
 
     args = _parser().parse_intermixed_args(argv)

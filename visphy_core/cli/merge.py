@@ -36,7 +36,7 @@ def _parser() -> argparse.ArgumentParser:
 def _merge_one(shards: list[Path], out: Path, partial: bool) -> None:
     from visphy_core.execute.console import print_summary, print_where_to_look
     from visphy_core.execute.merge import merge_runs
-    from visphy_core.execute.run import write_report
+    from visphy_core.execute.run_record import write_report
 
     merged = merge_runs(shards, out, partial=partial)
     summary = merged.summary

@@ -235,7 +235,7 @@ def _write_merged(out: Path, cfg: DictConfig, shards: list[Shard],
                   results: list[SceneResult], partial: bool) -> Merged:
     from visphy_core.api.registry import get_plugin_manager, get_registry
     from visphy_core.calls.usage import UsageLedger
-    from visphy_core.execute.run import headline_column
+    from visphy_core.execute.run_setup import headline_column
     from visphy_core.infra.cache import Cache
     from visphy_core.scoring.score import ScoringProtocol, score_columns, select_metrics
 

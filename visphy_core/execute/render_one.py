@@ -126,7 +126,7 @@ def render_reply(argv: list[str]) -> int:
                                   seed=cfg.run.seed),
         cache=cache, judges=JudgeCaller(judges, cache, ledger) if judges else None,
         references=ReferenceWriter(cfg.reference, cache))
-    from visphy_core.execute.run import _isolation
+    from visphy_core.execute.run_setup import _isolation
 
     _isolation(cfg)
     try:

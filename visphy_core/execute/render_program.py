@@ -56,7 +56,7 @@ def render_alone(args, reply: Path) -> int:
     from visphy_core.api.registry import get_registry
     from visphy_core.config.check import check_overrides
     from visphy_core.execute.pipeline import _render_with_infra_retry
-    from visphy_core.execute.run import _isolation
+    from visphy_core.execute.run_setup import _isolation
     from visphy_core.infra.cache import Cache
     from visphy_core.results.row import SceneResult
     from visphy_core.results.write import write_artifact as _write

@@ -300,7 +300,7 @@ def rescore_run(run_dir: Path, overrides: list[str], in_place: bool = False) -> 
     """Score a finished (or interrupted) run again under ``overrides``; see the module
     docstring. Raises `UserError` (one line) for a bad run directory or override."""
     from visphy_core.api.registry import get_registry
-    from visphy_core.execute.run import build_judges, reference_model_of
+    from visphy_core.execute.run_setup import build_judges, reference_model_of
 
     src = check_run_dir(run_dir)
     run_cfg = RunDir(src).read_config()
@@ -382,7 +382,8 @@ def _write_run(src: Path, out: Path, cfg: DictConfig, run_cfg: DictConfig, chang
                judge_keys: list[str], made: dict[str, int]) -> Rescored:
 
     from visphy_core.api.registry import get_plugin_manager
-    from visphy_core.execute.run import headline_column, write_report
+    from visphy_core.execute.run_record import write_report
+    from visphy_core.execute.run_setup import headline_column
 
     source, run = RunDir(src), RunDir(out)
     manifest = source.read_manifest()

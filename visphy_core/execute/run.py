@@ -10,39 +10,57 @@ processed, and the cache answers every model call already made. SIGINT/SIGTERM c
 (the scenes in flight are abandoned): results and a partial summary (``"status":
 "interrupted"``) are written, tracking is marked KILLED, and the process exits with 128 + the
 signal number (130 / 143).
+
+This module holds the run's lifecycle in the order it happens; its pieces are built in
+`visphy_core.execute.run_setup`, its model calls prefetched and closed in
+`visphy_core.execute.prefetch`, its signals handled in `visphy_core.execute.run_signals`, and
+its manifest, summary and closing lines written by `visphy_core.execute.run_record`.
 """
-# size: one run's lifecycle (open, resume, schedule, close), in the order it happens
 
 from __future__ import annotations
 
 import datetime as dt
-import errno
 import logging
 import os
-import platform
-import signal
 import sys
-import threading
 import time
-from contextlib import contextmanager, nullcontext
-from dataclasses import dataclass
-from functools import partial
+from contextlib import nullcontext
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from omegaconf import DictConfig
 
 from visphy_core.api.registry import get_plugin_manager, get_registry
 from visphy_core.api.run_context import RunContext
 from visphy_core.api.scene import Scene
-from visphy_core.calls.generation import ModelCaller, get_service
+from visphy_core.calls.generation import ModelCaller
 from visphy_core.calls.judging import JudgeCaller
 from visphy_core.calls.prompts.build import PromptSettings
 from visphy_core.calls.references import ReferenceWriter
 from visphy_core.calls.usage import CostCapReached, UsageLedger, call_cost_bound
-from visphy_core.execute.console import print_summary, print_where_to_look, stage_progress
+from visphy_core.execute.console import stage_progress
 from visphy_core.execute.datasets import load_dataset
-from visphy_core.execute.pipeline import PipelineSettings, SceneServices, first_call, process_scene
+from visphy_core.execute.pipeline import PipelineSettings, SceneServices, process_scene
+from visphy_core.execute.prefetch import _close_calls, _Prefetch, _wait_for_calls
+from visphy_core.execute.run_record import (
+    _ClosingWrites,
+    _host_fault_line,
+    _open_run,
+    _print_end,
+    _run_summary,
+)
+from visphy_core.execute.run_setup import (
+    RunSetup,
+    _check_ready,
+    _isolation,
+    build_judges,
+    reference_model_of,
+)
+from visphy_core.execute.run_signals import (
+    RunInterrupted,
+    _deferred_signals,
+    _signals_close_the_run,
+)
 from visphy_core.execute.scheduler import (
     SceneScheduler,
     StageGates,
@@ -51,7 +69,7 @@ from visphy_core.execute.scheduler import (
     work_order,
 )
 from visphy_core.infra.cache import Cache
-from visphy_core.infra.errors import ConfigError, HostFault, describe_host_fault, host_fault
+from visphy_core.infra.errors import HostFault, host_fault
 from visphy_core.infra.heap import release_free_memory
 from visphy_core.infra.secrets import install_log_redaction
 from visphy_core.results.row import SceneResult
@@ -61,7 +79,6 @@ from visphy_core.results.run_dir import (
     FAILED,
     FINISHED,
     INTERRUPTED,
-    RUNNING,
     RunDir,
     RunLock,
     claim_run_dir,
@@ -69,81 +86,11 @@ from visphy_core.results.run_dir import (
     find_resumable,
     new_run_dir,
 )
-from visphy_core.results.summary import HeadlineColumn, summarise
 from visphy_core.scoring.ground_truth import open_store, store_path
-from visphy_core.scoring.headline import Headline, summary_entry
-from visphy_core.scoring.score import ScoringProtocol, score_columns, select_metrics
+from visphy_core.scoring.headline import Headline
+from visphy_core.scoring.score import ScoringProtocol, select_metrics
 
 log = logging.getLogger("visphy.run")
-
-
-
-class RunInterrupted(SystemExit):
-    """SIGINT/SIGTERM during a run. A `SystemExit` (exit status 128 + signal number), so no
-    ``except Exception`` in a scene's code swallows it and the CLI exits without a traceback."""
-
-    def __init__(self, signum: int):
-        super().__init__(128 + signum)
-        self.signum = signum
-
-
-@dataclass
-class RunSetup:
-    """How the run was set up, as its manifest and summary record it."""
-
-    config_hash: str
-    isolation: dict[str, Any]
-    model: dict[str, Any]
-    workers: dict[str, int]
-    #: A resumed run: where the killed process's run was tracked (its manifest's ``tracking``).
-    resumed_from: dict[str, dict[str, Any]]
-
-
-def headline_column(headline: Headline | None) -> HeadlineColumn | None:
-    """The run's headline as its summary reports it (`visphy_core.results.summary.summarise`)."""
-    return HeadlineColumn(headline.name, partial(summary_entry, headline)) \
-        if headline is not None else None
-
-
-def _isolation(cfg: DictConfig) -> dict[str, Any]:
-    """Configure the sandboxes from ``sandbox.*`` and record the isolation they provide.
-
-    ``allow_unisolated=false`` leaves the choice to ``$VISPHY_ALLOW_UNISOLATED`` (either opt-out
-    suffices); the probes run once per process.
-    """
-    from visphy_core.sandbox import browser, process
-
-    allow = bool(cfg.sandbox.allow_unisolated)
-    process.configure(allow_unisolated=True if allow else None)
-    browser.configure(allow_unisolated=True if allow else None,
-                      memory_mb=int(cfg.sandbox.browser_memory_mb))
-    return {"allow_unisolated": allow or process.unisolated_allowed(),
-            "process": process.isolation_level(), "browser": browser.browser_isolation_level()}
-
-
-def _manifest(ctx: RunContext, setup: RunSetup) -> dict:
-    pm = get_plugin_manager()
-    from visphy_core.api.registry import describe_plugins
-
-    return {
-        "visphy_version": _version(),
-        "python": sys.version.split()[0],
-        "platform": platform.platform(),
-        "argv": sys.argv,
-        "started": dt.datetime.now().isoformat(timespec="seconds"),
-        "status": RUNNING,
-        "config_hash": setup.config_hash,
-        "isolation": setup.isolation,
-        "plugins": {p.name: {"distribution": p.distribution, "version": p.version}
-                    for p in describe_plugins(pm)},
-        "scenes": [s.scene_id for s in ctx.scenes],
-        "datasets": sorted({s.dataset for s in ctx.scenes if s.dataset}),
-        "metrics": [m.describe() for m in ctx.metrics],
-        "model": setup.model,
-        "judges": ctx.judges,
-        "cost_cap_usd": ctx.cfg.run.get("cost_cap_usd"),
-        "workers": setup.workers,
-    }
 
 
 def run_stages(services: SceneServices) -> list[str]:
@@ -156,112 +103,6 @@ def run_stages(services: SceneServices) -> list[str]:
     if services.judges is not None:
         stages.append("judge")
     return stages
-
-
-def write_report(run_dir: Path) -> Path | None:
-    """The run's HTML report (`visphy_core.report.write_run_report`) when that module is
-    installed; a report that fails is a warning, never a failed run."""
-    from importlib.util import find_spec
-
-    if find_spec("visphy_core.report") is None:
-        return None
-    try:
-        from visphy_core.report import write_run_report
-
-        return Path(write_run_report(run_dir))
-    except Exception as exc:  # noqa: BLE001 - the run's results are already written
-        log.warning("the HTML report of %s failed: %s: %s", run_dir, type(exc).__name__, exc)
-        return None
-
-
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("visphy")
-    except PackageNotFoundError:
-        return "source"
-
-
-@contextmanager
-def _signals_close_the_run() -> Iterator[None]:
-    """SIGINT/SIGTERM raise `RunInterrupted` in the main thread (the scene in progress is
-    abandoned: it is redone on resume); a second signal while the run closes exits at once."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    state: dict[str, int | None] = {"signum": None}
-
-    def handler(signum, frame):
-        if state["signum"] is None:
-            state["signum"] = signum
-            raise RunInterrupted(signum)
-        os._exit(128 + signum)
-
-    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        state["signum"] = state["signum"] or -1  # closing: a further signal exits at once
-        for sig, old in previous.items():
-            signal.signal(sig, old)
-
-
-@contextmanager
-def _deferred_signals() -> Iterator[list[int]]:
-    """Hold SIGINT/SIGTERM while the run's files are closed; re-delivered afterwards."""
-    if threading.current_thread() is not threading.main_thread():
-        yield []
-        return
-    pending: list[int] = []
-    previous = {sig: signal.signal(sig, lambda s, f: pending.append(s))
-                for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield pending
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
-
-
-def build_judges(cfg: DictConfig, registry) -> list[tuple[str, Any]]:
-    """The selected judges as (selection key, Judge) pairs (a run and re-scoring alike)."""
-    judges = []
-    for key, node in (cfg.get("judge") or {}).items():
-        judges.append((str(key), registry.get("judges", str(node.name))(node)))
-    return judges
-
-
-def reference_model_of(cfg: DictConfig, registry):
-    """The captioning model of ``reference.source=llm`` (a model config from conf/model/)."""
-    if str(cfg.reference.source) != "llm":
-        return None
-    if not cfg.reference.model:
-        raise ConfigError("reference.source=llm needs reference.model=<a model config name>, "
-                          "e.g. reference.model=gemini25pro")
-    from visphy_core.config.check import compose
-
-    node = compose([f"model={cfg.reference.model}"]).model
-    return registry.get("models", str(node.name))(node)
-
-
-def _check_ready(cfg: DictConfig, model, judges, reference_model) -> None:
-    """Before any work: keys present, and a cost cap only where every call has a price."""
-    for thing in [model, *(j for _, j in judges), reference_model]:
-        if thing is not None:
-            thing.check_ready()
-    cap = cfg.run.get("cost_cap_usd")
-    if cap is None:
-        return
-    reference = ([(f"reference.model={cfg.reference.model}", reference_model.cfg)]
-                 if reference_model is not None and reference_model.cfg is not None else [])
-    for what, node in [(f"model={cfg.model.name}", cfg.model),
-                       *((f"judge={k}", j.cfg) for k, j in judges), *reference]:
-        price = node.get("price") if hasattr(node, "get") else None
-        if price is not None and (price.get("input_usd_per_mtok") is None
-                                  or price.get("output_usd_per_mtok") is None):
-            raise ConfigError(f"run.cost_cap_usd={cap:g} needs prices for every call, but "
-                              f"{what} has no price (set its price.input_usd_per_mtok and "
-                              "price.output_usd_per_mtok)")
 
 
 def run_experiment(cfg: DictConfig) -> dict:
@@ -324,112 +165,6 @@ def run_experiment(cfg: DictConfig) -> dict:
         return _run(cfg, pm, root, cache, scenes, services, run_dir, restored, setup, ledger)
     finally:
         lock.release()
-
-
-class _Prefetch:
-    """Starts the first model call of the next ``window`` scenes while earlier ones render.
-
-    A scene is prefetched only after its inputs check out (`_sendable`: a ``data_error`` scene
-    is never sent to the model); the pipeline later asks for the same request and joins the call
-    in flight. Called by the scheduler's workers as they take scenes (thread-safe).
-    """
-
-    def __init__(self, scenes: list[Scene], services: SceneServices, window: int):
-        self.scenes = scenes
-        self.services = services
-        self.window = window
-        self.next = 0
-        self._taken = -1  # the scheduler takes scenes in order: all up to here are taken
-        self._stopped = False
-        self._lock = threading.Lock()
-
-    def stop(self) -> None:
-        """No call is submitted after this (the run is ending: a call sent now would be neither
-        waited for nor cached, and the next run would pay for it again)."""
-        with self._lock:
-            self._stopped = True
-
-    def advance(self, position: int) -> None:
-        """Called as scene ``position`` is taken: prefetch the scenes after it. A scene already
-        taken by a worker is never prefetched (its pipeline makes its own call): the check and
-        the submission hold the lock its dispatch takes, so a slow look at one scene's inputs
-        cannot send a second call after that scene's own call has finished."""
-        settings = self.services.settings
-        frames = settings.prompt.frames[:1] if settings.prompt.forecast_only \
-            else settings.prompt.frames
-        with self._lock:
-            self._taken = max(self._taken, position)
-        while True:
-            with self._lock:  # the scenes after ``position``: its own call is its own
-                if self._stopped:
-                    return
-                self.next = max(self.next, position + 1)
-                if self.next >= min(len(self.scenes), position + 1 + self.window):
-                    return
-                index = self.next
-                scene = self.scenes[index]
-                self.next += 1
-            try:
-                if not _sendable(scene, tuple(frames) or (1,)):
-                    continue
-                request = first_call(scene, self.services).request
-                with self._lock:
-                    if index > self._taken and not self._stopped:
-                        self.services.caller.submit(request)
-            except Exception:  # noqa: BLE001 - the pipeline classifies this scene itself
-                continue
-
-
-def _sendable(scene: Scene, key_frames: tuple[int, ...]) -> bool:
-    """Whether a scene's inputs look sound enough to send it to the model ahead of its turn:
-    what `Scene.check_inputs` checks, with the ground-truth clip probed (frame count and size
-    from its header) instead of decoded, so each clip is decoded once, by its scene."""
-    import av
-
-    if scene.load_error:
-        return False
-    try:
-        scene.detection, scene.spec, scene.trajectory  # noqa: B018 - read (and kept) now
-        with av.open(str(scene.video_path)) as container:
-            stream = container.streams.video[0]
-            n, width, height = int(stream.frames), stream.width, stream.height
-    except Exception:  # noqa: BLE001 - check_inputs names the fault when the scene runs
-        return False
-    c = scene.clip
-    return (n == c.n_frames and n >= max(key_frames) and (width, height) == (c.width, c.height))
-
-
-def _wait_for_calls(caller: ModelCaller) -> None:
-    """Let the model calls in flight finish: each reply is cached on arrival, so a resumed run
-    never pays for it again. A (further) SIGINT/SIGTERM abandons them."""
-    pending = caller.pending()
-    if not pending:
-        return
-    print(f"waiting for {pending} model call(s) in flight (their replies are cached for the "
-          "next run; interrupt again to abandon them)", file=sys.stderr)
-    abandon = threading.Event()
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        previous = {sig: signal.signal(sig, lambda s, f: abandon.set())
-                    for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        while caller.pending() and not abandon.is_set():
-            caller.wait_pending(0.2)
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
-
-
-def _close_calls(services: SceneServices) -> None:
-    """Close the clients of the model, the reference writer and the judges."""
-    for thing in (services.model, services.references.model if services.references else None):
-        if thing is not None:
-            try:
-                get_service().run(thing.aclose())
-            except Exception as exc:  # noqa: BLE001
-                log.warning("closing %s failed: %s", thing.name, exc)
-    if services.judges is not None:
-        services.judges.close()
 
 
 def _ground_truth_stage(cfg: DictConfig, services: SceneServices, scenes: list[Scene],
@@ -507,70 +242,6 @@ def _let_scenes_stop(scheduler: SceneScheduler) -> None:
             log.warning("%d scene thread(s) still running after %.0f s", left, STOP_WAIT_S)
 
 
-class _ClosingWrites:
-    """The run's closing writes: a fault of the machine (a full disk) in one is recorded and
-    the others are still tried (the rows in results.jsonl are already safe); any other error
-    is raised."""
-
-    def __init__(self, faults: list[OSError]):
-        self.faults = faults
-
-    def do(self, write, *args, **kwargs) -> None:
-        try:
-            write(*args, **kwargs)
-        except OSError as exc:
-            fault = host_fault(exc)
-            if fault is None:
-                raise
-            self.faults.append(fault)
-
-
-def _tree_bytes(path: Path) -> int:
-    total = 0
-    for folder, _, names in os.walk(path):
-        for name in names:
-            try:
-                total += os.lstat(os.path.join(folder, name)).st_size
-            except OSError:
-                continue
-    return total
-
-
-def _host_fault_line(fault: OSError, run_dir: Path, results: list[SceneResult],
-                     scenes: list[Scene]) -> str:
-    """One line: the machine's refusal (`describe_host_fault`), what is kept, what the rest
-    of the run needs, and how to go on."""
-    left = len(scenes) - len(results)
-    need = ""
-    if results and left and fault.errno in (errno.ENOSPC, errno.EDQUOT):
-        per_scene = sum(_tree_bytes(RunDir(run_dir).scene_dir(r.scene_id)) for r in results) \
-            / len(results)
-        need = (f"; the {left} scene(s) left need about "
-                f"{max(per_scene * left, 1) / 2**20:.1f} MB in the run directory, plus the "
-                "cache's share")
-    what = "free some space" if fault.errno in (errno.ENOSPC, errno.EDQUOT) else "fix that"
-    return (f"{describe_host_fault(fault)}; {len(results)}/{len(scenes)} scenes kept in "
-            f"{run_dir}{need}: {what}, then rerun the same command to resume")
-
-
-def _open_run(cfg: DictConfig, root: Path, cache: Cache, scenes: list[Scene], metrics,
-              judge_keys: list[str], files: RunDir, run_dir: Path,
-              restored: list[SceneResult], setup: RunSetup) -> tuple[RunContext, dict]:
-    """Write the run's config and manifest; the context the lifecycle hooks receive, with the
-    rows a resume restored."""
-    files.write_config(cfg)  # no credentials in URLs
-    ctx = RunContext(cfg=cfg, run_dir=run_dir, root=root, scenes=scenes,
-                     model_name=cfg.model.name, engine_name=cfg.engine.name, metrics=metrics,
-                     cache=cache, judges=judge_keys, config_hash=setup.config_hash,
-                     resumed_from=dict(setup.resumed_from))
-    manifest = _manifest(ctx, setup)
-    if restored:
-        manifest["resumed_rows"] = len(restored)
-    files.write_manifest(manifest)
-    ctx.results.extend(restored)
-    return ctx, manifest
-
-
 def _close_services(services: SceneServices, engine, cfg: DictConfig,
                     gates: StageGates | None, scheduler: SceneScheduler | None) -> None:
     """Close model calls and the engine, and let the scenes still in flight stop."""
@@ -581,59 +252,6 @@ def _close_services(services: SceneServices, engine, cfg: DictConfig,
     _close_engine(engine, cfg, gates)
     if scheduler is not None:
         _let_scenes_stop(scheduler)
-
-
-def _run_summary(ctx: RunContext, cfg: DictConfig, services: SceneServices, setup: RunSetup,
-                 ledger: UsageLedger, cache: Cache, resumed_rows: int, status: str,
-                 raised: BaseException | None, cost_stop: CostCapReached | None,
-                 ground_truth: dict[str, Any] | None) -> dict:
-    """The run's summary: `summarise` of its rows, with how the run ended."""
-    scenes, metrics = ctx.scenes, services.metrics
-    summary = summarise(ctx.results, metrics, score_columns(metrics, services.protocol),
-                        cache_stats=cache.stats(), judges=ctx.judges, usage=ledger.totals(),
-                        headline=headline_column(services.headline))
-    summary.update({"status": status, "run_dir": str(ctx.run_dir), "model": cfg.model.name,
-                    "model_output": services.model.output_kind,
-                    "model_baseline": services.model.baseline,
-                    "engine": cfg.engine.name, "dataset": cfg.dataset.name,
-                    "n_selected": len(scenes), "resumed_rows": resumed_rows,
-                    "config_hash": setup.config_hash,
-                    "isolation_levels": setup.isolation})
-    if ground_truth:
-        summary["ground_truth"] = ground_truth
-    if cost_stop is not None:
-        done_ids = {r.scene_id for r in ctx.results}
-        summary["cost_cap"] = {
-            "cap_usd": cost_stop.cap_usd, "spent_usd": ledger.spent_usd,
-            "not_run": [s.scene_id for s in scenes if s.scene_id not in done_ids],
-            "message": f"{cost_stop}; {len(scenes) - len(done_ids)} of {len(scenes)} "
-                       "scenes not run: raise run.cost_cap_usd and rerun the same command "
-                       "to continue"}
-    if cache.warnings:
-        summary["cache_warnings"] = list(cache.warnings)
-    if status == INTERRUPTED:
-        summary["interrupted_by"] = signal.Signals(raised.signum).name
-    elif status == FAILED:
-        summary["error"] = f"{type(raised).__name__}: {raised}"
-    return summary
-
-
-def _print_end(summary: dict, ctx: RunContext, cfg: DictConfig, status: str,
-               started: float) -> None:
-    """What a person reads when the run ends: the summary and where to look, or why it
-    stopped."""
-    scenes, run_dir = ctx.scenes, ctx.run_dir
-    if status in (FINISHED, COST_CAP):
-        print_summary(summary, ctx.results, mode=str(cfg.run.get("summary", "short")),
-                      wall_s=time.monotonic() - started)
-        print_where_to_look(write_report(run_dir), ctx.where_to_look)
-    if summary.get("tracking_failed"):
-        print(summary["tracking_failed"], file=sys.stderr)
-    if status == COST_CAP:
-        print(f"stopped: {summary['cost_cap']['message']}", file=sys.stderr)
-    elif status != FINISHED:
-        print(f"run {status} after {len(ctx.results)}/{len(scenes)} scenes; partial results in "
-              f"{run_dir} (rerun the same command to resume)", file=sys.stderr)
 
 
 def _run(cfg: DictConfig, pm, root: Path, cache: Cache, scenes: list[Scene],
