@@ -93,6 +93,7 @@
   };
 
   const perf = window.performance;
+  const realPerfNow = perf.now;  // the host's capture budget is real time; the page sees `now`
   Object.defineProperty(perf, 'now', { value: () => now, configurable: true });
   const RealDate = Date;
   function VDate(...args) {
@@ -128,6 +129,7 @@
   const closedPorts = new WeakSet();
   let messages = [];
   const RealMessageChannel = window.MessageChannel;
+  const realPortPost = typeof MessagePort === 'function' ? MessagePort.prototype.postMessage : null;
   if (typeof RealMessageChannel === 'function' && typeof MessagePort === 'function') {
     const realPost = MessagePort.prototype.postMessage;
     const realClose = MessagePort.prototype.close;
@@ -316,6 +318,7 @@
   // another colour space or format, a lost context, a bitmap or WebGPU context) is read with
   // toDataURL as before. Every built-in used here is taken before the program runs.
   const apply = Reflect.apply;
+  const defineProperty = Object.defineProperty;
   const construct = Reflect.construct;
   const getPrototypeOf = Object.getPrototypeOf;
   const fromCharCode = String.fromCharCode;
@@ -465,7 +468,8 @@
     if (!read) return null;
     const enc = encodeRuns(read.data);
     if (!enc) return null;
-    return { [enc.kind]: base64(enc.bytes), width: read.width, height: read.height,
+    const data = base64(enc.bytes);
+    return { kind: enc.kind, data, size: data.length, width: read.width, height: read.height,
              flipY: read.flipY };
   }
 
@@ -480,6 +484,44 @@
         logs.push(`[${level}] ` + line);
       }
     };
+  }
+
+  // A real task boundary between two frames of one span: the page's pending microtasks (promise
+  // chains resumed by the last animation tick) run before the next frame is stepped, as they do
+  // between two host calls. A private channel of the real MessageChannel, wired before any
+  // program runs; the page's own channels are virtual (delivered in advanceTo).
+  const spanChannel = typeof RealMessageChannel === 'function' && realPortPost
+    ? new RealMessageChannel() : null;
+  let spanWake = null;
+  if (spanChannel) spanChannel.port1.onmessage = () => { const wake = spanWake; spanWake = null; if (wake) wake(); };
+  const RealPromise = Promise;
+  function taskBoundary() {
+    return new RealPromise((resolve) => {
+      if (!spanChannel) { resolve(); return; }
+      spanWake = resolve;
+      apply(realPortPost, spanChannel.port2, [0]);
+    });
+  }
+
+  // One frame at `t` ms: raw where exact (`raw` true), else a PNG data URL; `png: null` without
+  // a canvas. `lastPayloadChars`: the size of the frame's payload (0 without a canvas).
+  let lastPayloadChars = 0;
+  function capture(t, raw) {
+    advanceTo(t);
+    lastPayloadChars = 0;
+    const c = pickCanvas();
+    if (!c) return { png: null, width: 0, height: 0 };
+    let out = null;
+    if (raw) {
+      try { out = readRaw(c); } catch (e) { out = null; }
+    }
+    if (out) {
+      lastPayloadChars = out.size;
+      return { [out.kind]: out.data, width: out.width, height: out.height, flipY: out.flipY };
+    }
+    const png = apply(realToDataURL, c, ['image/png']);
+    lastPayloadChars = png.length;
+    return { png, width: c.width, height: c.height };
   }
 
   const api = {
@@ -508,20 +550,26 @@
       return { drawable: hasDrawable() };
     },
     // Advance to `t` ms and return the chosen canvas as a PNG data URL (or null without canvas).
-    captureAt(t) {
-      advanceTo(t);
-      const c = pickCanvas();
-      if (!c) return { png: null, width: 0, height: 0 };
-      return { png: realToDataURL.call(c, 'image/png'), width: c.width, height: c.height };
-    },
+    captureAt(t) { return capture(t, false); },
     // The same frame, read raw (`runs` or `raw`, base64) where that is exact, else as `png`.
-    captureRawAt(t) {
-      advanceTo(t);
-      const c = pickCanvas();
-      if (!c) return { png: null, width: 0, height: 0 };
-      let out = null;
-      try { out = readRaw(c); } catch (e) { out = null; }
-      return out || { png: realToDataURL.call(c, 'image/png'), width: c.width, height: c.height };
+    captureRawAt(t) { return capture(t, true); },
+    // Several frames in one call (one host round trip instead of one per frame): the answers of
+    // captureRawAt (`raw` true) or captureAt for `times` in order, stopping after the first frame
+    // without a canvas, or once `budgetMs` of real time or `maxChars` of payload have been spent
+    // (at least one frame is always taken); the host asks again from where it stopped.
+    async captureSpan(times, raw, budgetMs, maxChars) {
+      const start = apply(realPerfNow, perf, []);
+      const out = [];
+      let chars = 0;
+      for (let i = 0; i < times.length; i++) {
+        if (i > 0) await taskBoundary();
+        const shot = capture(times[i], raw);
+        defineProperty(out, i, { value: shot, writable: true, enumerable: true, configurable: true });
+        chars += lastPayloadChars;
+        if (lastPayloadChars === 0 || chars >= maxChars
+            || apply(realPerfNow, perf, []) - start >= budgetMs) break;
+      }
+      return out;
     },
   };
   // The host's handle cannot be replaced or deleted by the page.
