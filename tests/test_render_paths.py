@@ -317,6 +317,35 @@ def test_frames_spread_over_several_page_calls_are_the_same_frames(paths, monkey
             [frame_digest(f) for f in whole.frames]
 
 
+def test_a_page_starts_no_browser_ui_renderer(paths):
+    """Each context opens a hidden browser window; Chromium must not give it a WebUI renderer
+    of its own (the omnibox pop-up's, ~400 modules loaded per page)."""
+    import os
+
+    from visphy_core.sandbox.chromium import descendants
+
+    import time
+
+    def renderers() -> list[bytes]:
+        out = []
+        for pid in descendants(os.getpid()):
+            try:  # (Chromium rewrites its title: its arguments become one string)
+                command = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")
+            except OSError:
+                continue
+            if b"--type=renderer" in command:
+                out.append(command)
+        return out
+
+    assert paths["fast"]["threejs"].render(TASK_DRIVEN, SMALL).ok
+    deadline = time.monotonic() + 20
+    while not renderers() and time.monotonic() < deadline:
+        time.sleep(0.1)  # the next page is being prepared (its window opens with it)
+    time.sleep(1.5)
+    assert renderers()
+    assert not [c for c in renderers() if b"--top-chrome-webui" in c]
+
+
 def test_every_page_records_where_its_time_went(paths):
     cap, _, _ = paths["fast"]["threejs"].capture_page(TASK_DRIVEN, SMALL)
     assert {"page", "load", "ready", "frames", "decode", "state"} <= set(cap.timings)

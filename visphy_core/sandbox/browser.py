@@ -137,9 +137,12 @@ CHROMIUM_ARGS = [
     "--block-new-web-contents",
     # No spare renderer: Chromium keeps a renderer process started ahead for the next page,
     # besides the page the pool prepares itself (`visphy_core.sandbox.prepared`), which the
-    # next program takes; the spare held 75 MiB. (The launcher merges this list with
-    # Playwright's: `chromium.MERGE_FEATURES_SH`.)
-    "--disable-features=SpareRendererForSitePerProcess",
+    # next program takes; the spare held 75 MiB. No omnibox pop-up: each context opens a
+    # (hidden) browser window, and recent Chromium gives every window a WebUI renderer for its
+    # omnibox pop-up that loads ~400 JavaScript modules: 0.25-0.35 CPU-s per page, spent while
+    # the next page is prepared, beside the scoring of the last clip. (The launcher merges this
+    # list with Playwright's: `chromium.MERGE_FEATURES_SH`.)
+    "--disable-features=SpareRendererForSitePerProcess,WebUIOmniboxPopup,WebUIOmniboxAimPopup",
 ]
 
 #: V8 options for Playwright's Node.js driver (added to ``$NODE_OPTIONS`` while it starts):
