@@ -344,8 +344,8 @@ def test_canonicalise_merges_import_maps_and_injects_the_constraint(engines):
     imports = json.loads(maps[0])["imports"]
     assert imports["three"].startswith("/vendor/")
     assert imports["gsap"] == "https://cdn.example.org/gsap.js"
-    assert "constraint2d.js" in html
-    assert "constraint2d.js" not in engines["threejs"].canonicalise(source, "3d")
+    assert "__visphyConstrain2D" in html
+    assert "__visphyConstrain2D" not in engines["threejs"].canonicalise(source, "3d")
 
 
 # ------------------------------------------------------------------------------ pool robustness

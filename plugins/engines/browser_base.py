@@ -30,6 +30,7 @@ failure detail.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -80,7 +81,6 @@ export * from '{CANNON_ES_REAL}';
 import {{ World }} from '{CANNON_ES_REAL}';
 if (typeof window !== 'undefined' && window.__visphyConstrain2D) window.__visphyConstrain2D(World);
 """
-CONSTRAINT_2D_URL = "/vendor/visphy/constraint2d.js"
 
 #: Attempts a program makes on its own (script-driven), as opposed to passive resources (an
 #: ``<img>`` or a ``<script>`` from another host is refused and logged, not a violation): any of
@@ -195,7 +195,6 @@ class BrowserEngine(Engine):
         vendor = self.vendor
         overlay = {
             "vendor/cannon-es.js": CANNON_ES_WRAPPER,
-            CONSTRAINT_2D_URL.lstrip("/"): TEMPLATES / "constraint2d.js",
         }
         # r187's three.module.js imports ./three.core.js: keep /vendor/three.module.js loadable.
         if "vendor/npm/three-esm/build/three.core.js" in vendor:
@@ -207,12 +206,15 @@ class BrowserEngine(Engine):
         return []
 
     def canonicalise(self, source: str, dim: str = "2d") -> str:
-        """The program inside the trusted template: pinned libraries first, then the program."""
+        """The program inside the trusted template: pinned libraries first, then the program
+        (a page that loads its libraries itself, as upstream's pages do)."""
         return self.canonicalise_noted(source, dim)[0]
 
-    def canonicalise_noted(self, source: str, dim: str = "2d"
+    def canonicalise_noted(self, source: str, dim: str = "2d", preload_tags: bool = True
                            ) -> tuple[str, list[Substitution]]:
-        """`canonicalise`, and every library URL of the program it pointed at a vendored copy."""
+        """`canonicalise`, and every library URL of the program it pointed at a vendored copy.
+        ``preload_tags=False``: without the preloaded libraries' tags, for a page that runs them
+        before its own scripts (`BrowserPool.render_page`'s ``preload``)."""
         preloaded = {f"/vendor/{name}" for name in self.preload}
         notes: list[Substitution | None] = []
 
@@ -239,9 +241,10 @@ class BrowserEngine(Engine):
         body, import_map = _merge_import_maps(body, notes)
         body = _URL_LITERAL.sub(url_literal, body)
         head = ['<script type="importmap">' + json.dumps(import_map) + "</script>"]
-        head += [f'<script src="/vendor/{name}"></script>' for name in self.preload]
+        if preload_tags:
+            head += [f'<script src="/vendor/{name}"></script>' for name in self.preload]
         if dim != "3d" and self.constrain_2d:
-            head.append(f'<script src="{CONSTRAINT_2D_URL}"></script>')
+            head.append(f"<script>\n{constraint_2d_js()}</script>")
         head += self.head_extras(dim)
         if self.expects_recording_call:
             head.append(RECORDING_PROBE)
@@ -267,12 +270,12 @@ class BrowserEngine(Engine):
                      ) -> tuple[PageCapture, str, list[Substitution]]:
         """Run the program's page (`render` without classifying): what the page did, the
         canonical HTML and its library notes. Benchmarks time the two halves apart."""
-        html, notes = self.canonicalise_noted(program.source, contract.dim)
+        html, notes = self.canonicalise_noted(program.source, contract.dim, preload_tags=False)
         capture = (self.pool or shared_pool()).render_page(
             html, self.assets, contract.frame_times_ms(), width=contract.width,
             height=contract.height, timeout_s=contract.timeout_s, seed=contract.seed,
             tick_ms=tick_ms_for(contract.fps), capture=self.capture,
-            warm=[f"vendor/{name}" for name in self.preload])
+            preload=[f"vendor/{name}" for name in self.preload])
         return capture, html, notes
 
     def note_libraries(self, result: RenderResult, notes: list[Substitution],
@@ -304,6 +307,12 @@ class BrowserEngine(Engine):
 
     def close(self) -> None:
         close_shared_pool()
+
+
+@functools.lru_cache(maxsize=1)
+def constraint_2d_js() -> str:
+    """The 2D constraint helper, inlined in a 2D page's head after its libraries."""
+    return (TEMPLATES / "constraint2d.js").read_text()
 
 
 def replay_payload_2d(scene, engine_name: str) -> dict:

@@ -32,8 +32,9 @@ path of ``toDataURL``); ``"screenshot"`` advances virtual time, seeks the docume
 without a canvas: SVG, DOM).
 
 Set-up is paid ahead (`visphy_core.sandbox.prepared`): after each page the pool prepares the
-next one, a fresh context whose blank page has already loaded the libraries the last page named
-(``warm``), and closes the finished context in the background. Every `PageCapture` records how
+next one, a fresh context whose init (the virtual clock, then the libraries the engine preloads:
+``preload``) is registered and already compiled in its renderer, and closes the finished context
+in the background. Every `PageCapture` records how
 long each phase took (``timings``).
 """
 # size: one browser pool: its thread, page lifecycle and capture protocol reviewed as one
@@ -73,12 +74,13 @@ from visphy_core.sandbox.policy import (
     set_allow_unisolated,
     unisolated_allowed,
 )
-from visphy_core.sandbox.prepared import PreparedPage, discard, open_page
+from visphy_core.sandbox.prepared import PageInit, PreparedPage, discard, open_page
 from visphy_core.sandbox.readback import frame_from_capture, png_bytes_to_rgb
 from visphy_core.sandbox.routing import (  # noqa: F401
     ORIGIN,
     ORIGIN_HOST,
     Asset,
+    asset_text,
     close_quietly,
     on_console,
     on_popup,
@@ -160,6 +162,21 @@ SPAN_MAX_CHARS = 8 << 20
 _OOM_MARKERS = ("javascript OOM", "Reached heap limit", "Last few GCs",
                 "Fatal JavaScript out of memory", "Fatal process out of memory",
                 "Out of memory: ", "OOM in ")
+
+
+def page_init(assets: Mapping[str, Asset], preload: Sequence[str], *, tick_ms: float,
+              seed: int, capture: str, real_webrtc: bool = False) -> PageInit:
+    """A page's init: the virtual clock with its configuration, then the sources of the
+    ``preload`` paths of ``assets``, in order."""
+    config = {"tickMs": tick_ms, "seed": seed, "capture": capture, "origin": ORIGIN,
+              "realWebRTC": real_webrtc}
+    scripts = [f"window.__VISPHY_CONFIG__ = {json.dumps(config)};\n{VIRTUAL_TIME_JS}"]
+    for path in preload:
+        key = path.lstrip("/")
+        if key not in assets:
+            raise ValueError(f"the preloaded library {path!r} is not among the page's assets")
+        scripts.append(asset_text(assets[key]))
+    return PageInit(tuple(scripts))
 
 
 class BrowserUnavailable(RuntimeError):
@@ -476,14 +493,16 @@ class BrowserPool:
     def render_page(self, html: str, assets: Mapping[str, Asset], times_ms: list[float], *,
                     width: int, height: int, timeout_s: float, seed: int = 0,
                     tick_ms: float = 1000 / 60, capture: str = "canvas",
-                    inject_fault: str | None = None, warm: Sequence[str] = ()) -> PageCapture:
+                    inject_fault: str | None = None, preload: Sequence[str] = ()
+                    ) -> PageCapture:
         """Load ``html`` at the fake origin and capture a frame at each virtual time.
 
         ``assets`` maps URL paths (``vendor/...``) to files or to their content (bytes/str).
         ``capture``: ``"canvas"`` reads back the main canvas; ``"screenshot"`` screenshots the
         viewport (0, 0, width, height) after seeking document animations to the virtual time.
-        ``warm``: paths of ``assets`` (the libraries the engine's template loads) that the next
-        prepared page loads ahead, before its program is known.
+        ``preload``: paths of ``assets`` (the engine's libraries) run at the start of every
+        document of the page, after the virtual clock and before the page's own scripts, as the
+        first scripts of its head would be (prepared pages have them compiled ahead).
         ``inject_fault`` (tests only): ``"crash"`` crashes the renderer after the first frame;
         ``"real-webrtc"`` leaves the page the browser's own ``RTCPeerConnection`` (to show that
         the network namespace and Chromium's WebRTC policy hold on their own).
@@ -493,7 +512,7 @@ class BrowserPool:
             raise ValueError(f"capture must be one of {CAPTURE_MODES}, not {capture!r}")
         return self._run(self._render(html, assets, times_ms, width, height,
                                       timeout_s, seed, tick_ms, capture, inject_fault,
-                                      tuple(warm)))
+                                      tuple(preload)))
 
     async def _browser_for_page(self) -> ChromiumProcess:
         """The browser the next page runs in (started or restarted as needed)."""
@@ -511,7 +530,7 @@ class BrowserPool:
         self._uses += 1
         return proc
 
-    async def _page_for(self, proc: ChromiumProcess, width: int, height: int,
+    async def _page_for(self, proc: ChromiumProcess, width: int, height: int, init: PageInit,
                         assets: Mapping[str, Asset]) -> PreparedPage:
         """The page prepared for ``proc`` when it fits, else a new one (made now, no warm-up)."""
         task = self._prepared.pop(id(proc), None)
@@ -520,22 +539,24 @@ class BrowserPool:
                 prepared = await task
             except Exception:
                 prepared = None
-            if prepared is not None and prepared.usable(proc, (width, height)):
+            if prepared is not None and prepared.usable(proc, (width, height), init):
                 prepared.ahead = True
                 return prepared
             if prepared is not None:
                 self._close_later(prepared.context)
-        return await open_page(proc, width, height, assets=assets, cap_factory=PageCapture)
+        return await open_page(proc, width, height, init, assets=assets,
+                               cap_factory=PageCapture)
 
     def _prepare_next(self, proc: ChromiumProcess, width: int, height: int,
-                      warm: tuple[str, ...], assets: Mapping[str, Asset]) -> None:
-        """Start preparing ``proc``'s next page (same size, ``warm`` libraries loaded)."""
+                      init: PageInit, assets: Mapping[str, Asset]) -> None:
+        """Start preparing ``proc``'s next page (same size and init, the init compiled)."""
         if not self.prepare_pages or self._restart_due or id(proc) in self._prepared:
             return
         if proc not in self._browsers or not proc.browser.is_connected():
             return
         self._prepared[id(proc)] = asyncio.ensure_future(asyncio.wait_for(
-            open_page(proc, width, height, warm=warm, assets=assets, cap_factory=PageCapture),
+            open_page(proc, width, height, init, warm=True, assets=assets,
+                      cap_factory=PageCapture),
             60))
 
     def _close_later(self, context) -> None:
@@ -552,9 +573,11 @@ class BrowserPool:
         task.add_done_callback(self._closing.discard)
 
     async def _render(self, html, assets, times_ms, width, height, timeout_s, seed, tick_ms,
-                      capture="canvas", inject_fault=None, warm=()):
+                      capture="canvas", inject_fault=None, preload=()):
         from playwright.async_api import TimeoutError as PlaywrightTimeout
 
+        init = page_init(assets, preload, tick_ms=tick_ms, seed=seed, capture=capture,
+                         real_webrtc=inject_fault == "real-webrtc")
         proc = await self._browser_for_page()
         browser = proc.browser
         # The page's clock starts once a browser is up (starting one is ours, not the page's).
@@ -586,10 +609,10 @@ class BrowserPool:
             return max(0.05, deadline - time.perf_counter())
 
         try:
-            prepared = await asyncio.wait_for(self._page_for(proc, width, height, assets), left())
+            prepared = await asyncio.wait_for(
+                self._page_for(proc, width, height, init, assets), left())
             context, page, crashed = prepared.context, prepared.page, prepared.crashed
-            await self._load(prepared, html, assets, cap, seed, tick_ms, capture, inject_fault,
-                             deadline, left, lap)
+            await self._load(prepared, html, assets, cap, deadline, left, lap)
             await self._capture_frames(context, page, cap, times_ms, width, height, capture,
                                        inject_fault, crashed, left, lap)
             state = await asyncio.wait_for(page.evaluate(
@@ -615,23 +638,19 @@ class BrowserPool:
         finally:
             watchdog.cancel()
             await self._end_page(proc, browser, context, cap, bool(crashed or killed), stderr_at,
-                                 killed, width, height, warm, assets)
+                                 killed, width, height, init, assets)
             lap("close")
         cap.wall_s = time.perf_counter() - start
         return cap.detached()
 
-    async def _load(self, prepared: PreparedPage, html, assets, cap: PageCapture, seed, tick_ms,
-                    capture, inject_fault, deadline: float, left, lap) -> None:
+    async def _load(self, prepared: PreparedPage, html, assets, cap: PageCapture,
+                    deadline: float, left, lap) -> None:
         """Load the program into the prepared page and wait until it says it is ready."""
         context, page = prepared.context, prepared.page
         cap.page_prepared = prepared.ahead
         prepared.slot.load(html, assets, cap)
         context.set_default_timeout(left() * 1000)
         context.set_default_navigation_timeout(left() * 1000)
-        config = {"tickMs": tick_ms, "seed": seed, "capture": capture, "origin": ORIGIN,
-                  "realWebRTC": inject_fault == "real-webrtc"}
-        await asyncio.wait_for(context.add_init_script(
-            f"window.__VISPHY_CONFIG__ = {json.dumps(config)};\n{VIRTUAL_TIME_JS}"), left())
         page.on("popup", lambda popup: on_popup(popup, cap))
         page.on("console", lambda msg: on_console(msg, cap))
         lap("page")
@@ -652,9 +671,11 @@ class BrowserPool:
                                        lap)
             return
         cdp = None
-        for t in times_ms:
+        for i, t in enumerate(times_ms):
             if cap.navigations:
                 break  # the page tried to leave: what is left of it is not the program's
+            if i == 1 and inject_fault == "crash":
+                await self._crash_renderer(context, page, crashed)
             info = await asyncio.wait_for(
                 page.evaluate("t => window.__visphy.prepareScreenshot(t)", t), left())
             if not isinstance(info, dict) or not info.get("drawable"):
@@ -708,8 +729,8 @@ class BrowserPool:
         shots = frame = shot = None  # noqa: F841 - a finished coroutine's frame may outlive it
 
     async def _end_page(self, proc: ChromiumProcess, browser, context, cap: PageCapture,
-                        died: bool, stderr_at: int, killed: list[str], width, height, warm,
-                        assets) -> None:
+                        died: bool, stderr_at: int, killed: list[str], width, height,
+                        init: PageInit, assets) -> None:
         """After a page: classify a crash, close (or hand back) its context, and restart the
         pool or prepare the browser's next page."""
         if cap.timed_out:
@@ -741,7 +762,7 @@ class BrowserPool:
         if restart:
             await self._restart()
         else:
-            self._prepare_next(proc, width, height, warm, assets)
+            self._prepare_next(proc, width, height, init, assets)
 
     def _classify_crash(self, cap: PageCapture, proc: ChromiumProcess, stderr_at: int,
                         killed: list[str]) -> None:

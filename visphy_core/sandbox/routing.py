@@ -58,6 +58,23 @@ def _asset_body(item: Asset) -> bytes:
     return body
 
 
+_TEXTS: dict = {}
+
+
+def asset_text(item: Asset) -> str:
+    """An asset as UTF-8 text (a library run as an init script), decoded once per body."""
+    if isinstance(item, str):
+        return item
+    body = _asset_body(item)
+    key = id(body)
+    entry = _TEXTS.get(key)
+    if entry is None or entry[0] is not body:
+        if len(_TEXTS) > 64:
+            _TEXTS.clear()
+        entry = _TEXTS[key] = (body, body.decode("utf-8"))
+    return entry[1]
+
+
 def make_router(slot: PageSlot):
     """The request handler of a context: the slot's document once, its assets, nothing else."""
 

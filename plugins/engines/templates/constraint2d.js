@@ -1,4 +1,4 @@
-// visphy 2D constraint helper (MISSION §4), injected by the trusted template for 2D scenes.
+// visphy 2D constraint helper, inlined by the trusted template in the head of 2D pages.
 // A 3D rigid-body engine used for a 2D scene keeps every moving body in the x-y plane: bodies
 // start at z = 0, and around every fixed sub-step (World.prototype.internalStep; step() where a
 // build has none) out-of-plane position and velocity are clamped to zero, as are the angular
