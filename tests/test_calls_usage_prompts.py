@@ -625,7 +625,7 @@ class TestUsageLedger:
 
     def test_unpriced_calls_cannot_trip_the_cap(self):
         """The ledger cannot price calls without a price: it never stops them (the run refuses
-        a cost cap with an unpriced model before any call, in `run._check_ready`)."""
+        a cost cap with an unpriced model before any call, in `run_setup._check_ready`)."""
         ledger = UsageLedger(cap_usd=0.01)
         for _ in range(20):
             ledger.record(_rec(cost=None, input_tokens=10_000), ticket=ledger.reserve())

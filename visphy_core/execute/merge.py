@@ -12,10 +12,11 @@ systems), a ``manifest.json`` that records ``merged_from``, and a ``summary.json
 afresh from all rows by `visphy_core.results.summary.summarise` (so the means are over every
 scene, never means of shard means).
 
-The merged run goes through the tracking hooks like any run (one MLflow run, its metrics and
-files), and each shard's MLflow run in the same store becomes its child (``mlflow.parentRunId``);
-when the shards were the jobs of one study, the merged run takes their place as the study's
-child.
+The merged run goes through the lifecycle hooks like any run, with ``merged_from`` on its
+context (each shard's run directory, config hash and MLflow run): the tracking plugin
+(`visphy_core.tracking.shards`) makes each shard's MLflow run in the same store a child of the
+merged one (``mlflow.parentRunId``), and when the shards were the jobs of one study, the merged
+run takes their place as the study's child.
 """
 
 from __future__ import annotations
@@ -228,7 +229,8 @@ def merge_runs(shard_dirs: list[Path], out: Path, *, partial: bool = False) -> M
 def _merged_from(shards: list[Shard]) -> list[dict]:
     return [{"run_dir": str(s.run_dir), "shard": f"{s.index[0]}/{s.index[1]}",
              "config_hash": s.manifest.get("config_hash"), "n_scenes": len(s.rows),
-             "mlflow_run_id": s.mlflow.get("run_id")} for s in shards]
+             "mlflow_run_id": s.mlflow.get("run_id"),
+             "mlflow_tracking_uri": s.mlflow.get("tracking_uri")} for s in shards]
 
 
 def _write_merged(out: Path, cfg: DictConfig, shards: list[Shard],
@@ -291,51 +293,11 @@ def _write_merged(out: Path, cfg: DictConfig, shards: list[Shard],
                      config_hash=chash, merged_from=merged_from)
     pm = get_plugin_manager()
     pm.hook.visphy_run_start(run=ctx)
-    linked: list[str] = []
     if ctx.tracking:
         manifest["tracking"] = dict(ctx.tracking)
         run.write_manifest(manifest)
-    if ctx.tracking.get("mlflow"):
-        linked = adopt_shard_runs(ctx.tracking["mlflow"], shards)
     pm.hook.visphy_run_end(run=ctx, summary=summary)
     run.write_summary(summary)
+    linked = list((summary.get("mlflow") or {}).get("shard_runs") or [])
     return Merged(run_dir=out, summary=summary, results=results, linked=linked,
                   where_to_look=ctx.where_to_look)
-
-
-def adopt_shard_runs(merged: dict, shards: list[Shard]) -> list[str]:
-    """Make each shard's MLflow run (in the merged run's store) a child of the merged run; if
-    they were all children of one run (a study's), the merged run becomes its child instead.
-    Returns the shard run ids linked; a shard tracked elsewhere is named in a warning."""
-    from visphy_core.tracking import store_lock
-
-    with store_lock(merged["tracking_uri"]):
-        return _adopt_shard_runs(merged, shards)
-
-
-def _adopt_shard_runs(merged: dict, shards: list[Shard]) -> list[str]:
-    from mlflow.tracking import MlflowClient
-
-    client = MlflowClient(tracking_uri=merged["tracking_uri"])
-    linked, parents, study = [], set(), None
-    for shard in shards:
-        info = shard.mlflow
-        if not info.get("run_id"):
-            continue
-        if info.get("tracking_uri") != merged["tracking_uri"]:
-            log.warning("merge: the MLflow run of %s is in %s, not in %s: not linked",
-                        shard.label, info.get("tracking_uri"), merged["tracking_uri"])
-            continue
-        run_tags = client.get_run(info["run_id"]).data.tags
-        parents.add(run_tags.get("mlflow.parentRunId"))
-        study = run_tags.get("visphy.study") or study
-        client.set_tag(info["run_id"], "mlflow.parentRunId", merged["run_id"])
-        client.set_tag(info["run_id"], "visphy.merged_into", merged["run_id"])
-        linked.append(info["run_id"])
-    client.set_tag(merged["run_id"], "visphy.merged_shards", str(len(shards)))
-    if len(parents) == 1 and None not in parents:
-        parent = parents.pop()
-        client.set_tag(merged["run_id"], "mlflow.parentRunId", parent)
-        if study:
-            client.set_tag(merged["run_id"], "visphy.study", study)
-    return linked

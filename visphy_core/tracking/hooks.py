@@ -18,6 +18,7 @@ from omegaconf import OmegaConf
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.results.layout import RUN_FILES
 from visphy_core.results.run_dir import RunDir
+from visphy_core.tracking.shards import adopt_shard_runs
 from visphy_core.tracking.store import (
     log_metrics,
     log_params,
@@ -311,9 +312,15 @@ def _end_locked(client, run_id: str, run, summary: dict, report: Path | None) ->
     if summary.get("prompt_versions"):
         client.set_tag(run_id, "visphy.prompt_version", ",".join(summary["prompt_versions"]))
     _log_run_files(client, run_id, run, summary, report)
+    linked = []
+    if run.merged_from:
+        linked = adopt_shard_runs(client, run_id, run.tracking["mlflow"]["tracking_uri"],
+                                  run.merged_from)
     status = _MLFLOW_STATUS.get(summary.get("status", "finished"), "FAILED")
     client.set_terminated(run_id, status=status)
     summary["mlflow"] = dict(run.tracking["mlflow"], status=status)
+    if linked:
+        summary["mlflow"]["shard_runs"] = linked
     run.where_to_look.append(f"MLflow: {mlflow_command(run.tracking['mlflow']['tracking_uri'])}")
 
 
@@ -333,6 +340,7 @@ class FinishedRun:
     tracking: dict[str, dict[str, Any]] = field(default_factory=dict)
     resumed_from: dict[str, dict[str, Any]] = field(default_factory=dict)
     rescored_from: dict[str, Any] | None = None
+    merged_from: list[dict[str, Any]] = field(default_factory=list)
     where_to_look: list[str] = field(default_factory=list)
 
 
@@ -351,7 +359,8 @@ def log_finished_run(data, uri: str | None = None, experiment: str | None = None
     root = Path(OmegaConf.select(cfg, "paths.root", default=None) or data.run_dir.parents[1])
     run = FinishedRun(cfg=cfg, run_dir=data.run_dir, root=root, model_name=data.model,
                       engine_name=data.engine, results=data.results,
-                      datasets=sorted({str(d) for d in data.manifest.get("datasets") or [] if d}))
+                      datasets=sorted({str(d) for d in data.manifest.get("datasets") or [] if d}),
+                      merged_from=list(data.manifest.get("merged_from") or []))
     summary = dict(data.summary)
     _start(run)
     client, run_id = _ACTIVE.pop(id(run))
