@@ -70,9 +70,7 @@ ALLOWED: dict[str, tuple[set[str], str]] = {
     "visphy_core/infra/png.py": ({"blender"}, "a docstring naming who writes untrusted frames"),
     "visphy_core/infra/video.py": ({"visphybench"}, "the published clips' encoding, which the "
                                    "lossy ground truth reproduces"),
-    "visphy_core/sandbox/browser.py": ({"p5"}, _BROWSER),
     "visphy_core/sandbox/bwrap.py": ({"blender"}, _PROCESS),
-    "visphy_core/sandbox/prepared.py": ({"three.js", "p5"}, _BROWSER),
     "visphy_core/sandbox/process.py": ({"blender", "manim"}, _PROCESS),
     "visphy_core/sandbox/syscall_filter.py": ({"blender", "manim"}, _PROCESS),
     "visphy_core/sandbox/virtual_time.js": ({"three.js", "p5"}, _BROWSER),

@@ -307,14 +307,14 @@ def test_a_prepared_page_carries_nothing_from_earlier_programs(paths):
 def test_frames_spread_over_several_page_calls_are_the_same_frames(paths, monkeypatch):
     """A page hands back as many frames per call as fit its budget: with no budget each call
     brings one frame, with a payload limit of one frame too, and the clip is the same."""
-    import visphy_core.sandbox.browser as browser
+    import visphy_core.sandbox.page as page_steps
 
     engine = paths["fast"]["threejs"]
     whole, _, _ = engine.capture_page(TASK_DRIVEN, SMALL)
     assert whole.frame_calls < SMALL.n_frames
-    for budget_ms, max_chars in ((0, browser.SPAN_MAX_CHARS), (10_000, 1)):
-        monkeypatch.setattr(browser, "SPAN_BUDGET_MS", budget_ms)
-        monkeypatch.setattr(browser, "SPAN_MAX_CHARS", max_chars)
+    for budget_ms, max_chars in ((0, page_steps.SPAN_MAX_CHARS), (10_000, 1)):
+        monkeypatch.setattr(page_steps, "SPAN_BUDGET_MS", budget_ms)
+        monkeypatch.setattr(page_steps, "SPAN_MAX_CHARS", max_chars)
         split, _, _ = engine.capture_page(TASK_DRIVEN, SMALL)
         assert split.frame_calls == SMALL.n_frames
         assert [frame_digest(f) for f in split.frames] == \

@@ -2,7 +2,7 @@
 program is known, so the next render does not wait for them.
 
 Why: creating a context and its page starts a new renderer process, and compiling the engine's
-libraries (three.js, p5...) is most of a page's load; both cost as much as the whole frame
+libraries is most of a page's load; both cost as much as the whole frame
 capture of a 2D clip. A prepared page pays them while the previous program's results are being
 handled. Isolation is unchanged: each program still gets a context of its own, used by no other
 program, and what was prepared in it is visphy's, not a program's.
