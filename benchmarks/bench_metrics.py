@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/bench_metrics.py [--data-dir visphy-out/data] [--n2d 10] [--n3d 3]
         [--metrics psnr,ssim,...] [--json out.json]
 
-Targets (issue 9): ≤ 0.5 s per 2D scene (17 frames of 512², 5 fps) and ≤ 2 s per 3D scene
+Targets: ≤ 0.5 s per 2D scene (17 frames of 512², 5 fps) and ≤ 2 s per 3D scene
 (75 frames of 512², 15 fps) on 2 cores, under the default protocol (visphy unaligned + aligned,
 and the paper's pairing). Each video is decoded once per scene (not timed: decoding is the
 pipeline's, shared by every metric) and models load once per process (the load is timed

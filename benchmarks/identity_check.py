@@ -1,6 +1,6 @@
 """Same run, two revisions: are the frames, scores and run directories identical?
 
-A refactoring (issue 23 laid the core out by concern) must not change what a run produces. This
+A refactoring must not change what a run produces. This
 script checks out two revisions side by side (``git worktree``), runs the main job on each
 (``dataset=mini model=oracle engine=threejs metrics=default``, cold cache, tracking off) with
 the same data directory, and compares the two run directories file by file:

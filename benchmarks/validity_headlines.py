@@ -1,5 +1,5 @@
 """Which headline? Every candidate set of components scored against the validity goals, offline,
-from a validity study's checkpoint (issue 32: "re-weigh or replace headline components from the
+from a validity study's checkpoint ("re-weigh or replace headline components from the
 study's numbers, not by taste").
 
     .venv/bin/python benchmarks/validity_headlines.py CHECKPOINT.jsonl

@@ -20,8 +20,8 @@ validity ordering.
    frame held; `flow_extrapolate`: DIS flow between the key frames extrapolated) — the means.
 Prints both tables as Markdown (the README's).
 
-``--order`` runs the validity ordering instead (issue 21,
-`visphy_plugins.studies.validity.study`, `.order`): every scene of the ``test`` split (every
+``--order`` runs the validity ordering instead
+(`visphy_plugins.studies.validity.study`, `.order`): every scene of the ``test`` split (every
 ``N``-th with ``--every N``; 2D in-process, 3D through Chromium), four kinds of clip —
 (i) the physics of the truth drawn differently, (ii) the physics changed and re-simulated,
 (iii) the static baseline, (iv) the flow_extrapolate baseline — scored by the default offline
@@ -311,7 +311,7 @@ def print_goals(goals: dict) -> None:
     """The issue-32 tables: per score, per dose series (headline), per scene, and the
     discriminative power."""
     g = goals["goals"]
-    print(f"\n### Goals (issue 32): strict on ≥ {g['strict_share']:.0%} of scenes ((ii) clips "
+    print(f"\n### Goals: strict on ≥ {g['strict_share']:.0%} of scenes ((ii) clips "
           f"departing ≥ {g['min_px']:g} px), each restyle ≤ {g['invariance']:g} and each "
           f"intervention ≥ {g['physics_drop']:g} (medians, the headline's scale), monotone in "
           f"the dose (ρ ≤ {g['monotone_rho']:g}) on ≥ {g['monotone_share']:.0%}\n")
@@ -360,7 +360,7 @@ def main() -> None:
     parser.add_argument("--json", default=None)
     parser.add_argument("--skip-ranking", action="store_true")
     parser.add_argument("--order", action="store_true",
-                        help="the validity ordering (issue 21) instead of the other studies")
+                        help="the validity ordering instead of the other studies")
     parser.add_argument("--every", type=int, default=1,
                         help="--order: every N-th scene of the test split")
     parser.add_argument("--dims", default="2d,3d", help="--order: 2d, 3d or 2d,3d")

@@ -1,11 +1,11 @@
-"""Guards on the default headline (issue 32), on the five 2D scenes of the ``mini`` split: a
-restyle (the drawing changes, the physics does not) moves it by no more than the validity bound,
-and it falls as the physics error of a dose series grows. A change to the headline's components,
+"""Guards on the default headline (docs/metrics.md, Validity II), on the five 2D scenes of the
+``mini`` split: a restyle (the drawing changes, the physics does not) moves it by no more than
+the validity bound, and it falls as the physics error of a dose series grows. A change to the headline's components,
 their metrics or the motion masks that breaks either fails here before the whole study is rerun.
 
 Measured on these scenes when the headline was chosen (median |change| per restyle): 0.000–0.026
 for every restyle but the 4-px outline, 0.060 for it (a dark ring 4 px deep inside bodies a few
-tens of px across: the open part of issue 32, held to 0.1 here); dose series: gravity falls on
+tens of px across: the open part of the goals, held to 0.1 here); dose series: gravity falls on
 all five scenes, 12 of 15 series (gravity, restitution, playback) fall (Spearman ρ ≤ −0.9)."""
 
 from __future__ import annotations

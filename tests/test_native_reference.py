@@ -1,4 +1,4 @@
-"""Native-drawing reference programs (issue 21): `Engine.native_program_from_spec` and the
+"""Native-drawing reference programs: `Engine.native_program_from_spec` and the
 oracle's ``model.style=native`` (plugins/engines/native.py, plugins/engines/templates/*_native_*).
 
 The exact reference programs reproduce the benchmark's alias-free raster, so the exact oracle is

@@ -1,4 +1,4 @@
-"""Validity ordering (issue 21): physics-right clips drawn differently > physics-wrong clips > the
+"""Validity ordering: physics-right clips drawn differently > physics-wrong clips > the
 static and flow_extrapolate baselines (`visphy_plugins.studies.validity`: `study`, `order`; the
 README's table comes from ``benchmarks/validity_study.py --order`` on the test split).
 
@@ -427,7 +427,7 @@ def test_on_mini_scenes_the_headline_orders_the_four_kinds(jar, thrown):
     names = ("psnr", "spatiotemporal_iou_tol", "weighted_spatial_iou_tol", "track_pos_err")
     metrics = vs.frame_metrics(registry.get("metrics", n) for n in names)
     assert [m.name for m in metrics] == list(names)
-    seven = [a for a in vr.APPEARANCES if a.name in ISSUE_21]   # issue 21's restyles
+    seven = [a for a in vr.APPEARANCES if a.name in ISSUE_21]   # the first seven restyles
     results = [vs.score_truth(t, metrics, appearances=seven) for t in (jar, thrown)]
     for res in results:
         kinds = {c.kind for c in res.clips}

@@ -279,7 +279,7 @@ def test_hostile_program_is_contained(canary, tmp_path, monkeypatch, kind, case,
 
 
 # ------------------------------------------------------------------------------ seccomp filter
-# Nested namespaces and other kernel surfaces (issue 20, item 4): a sandboxed program must not
+# Nested namespaces and other kernel surfaces: a sandboxed program must not
 # be able to unshare(CLONE_NEWUSER) (a full capability set in a nested user namespace) or create
 # any other namespace, trace, mount, or reach keyrings, bpf, perf, userfaultfd or io_uring, while
 # threads, fork/exec and multiprocessing keep working.

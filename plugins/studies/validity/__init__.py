@@ -6,7 +6,7 @@ made here); the clips are drawn like the generated benchmark's ground truth
 nothing.
 
 * `perturbation`: one physical parameter pushed away from the truth in growing steps; does
-  every metric worsen monotonically? (issue 9; also `scene_of`: a `Scene` for a spec in memory)
+  every metric worsen monotonically? (also `scene_of`: a `Scene` for a spec in memory)
 * the validity ordering (issues 21, 32): does a score put physics above drawing, and both above
   "nothing moves"?
 
@@ -20,6 +20,6 @@ nothing.
   * `order`: how each score orders the kinds (`summarise_order`), the headline's placement
     and its alternatives;
   * `dose`: the dose series, and whether a score is monotone in the dose;
-  * `goals`: issue 32's goals measured, and the summary the study writes
+  * `goals`: the validity goals measured, and the summary the study writes
     (`visphy_core/api/validity_summary.json`).
 """

@@ -12,7 +12,7 @@
 * ``grow`` / ``shrink``: every body drawn `SIZE` (10 %) larger or smaller about its own
   origin at the truth's poses (a dilated or eroded body; the motion is the truth's);
 
-and, issue 32:
+and, for the validity goals:
 
 * ``dark``: every body colour blended `DARK` (40 %) toward black (with ``pale``: colour
   ±40 %);
@@ -290,7 +290,7 @@ APPEARANCES: list[Appearance] = [
                redrawn(resized_spec(1.0 + SIZE))),
     Appearance("shrink", f"every body drawn {SIZE:.0%} smaller at the truth's poses",
                redrawn(resized_spec(1.0 - SIZE))),
-    # issue 32: more restyles
+    # more restyles, for the validity goals
     Appearance("dark", f"body colours {DARK:.0%} toward black (2D: repainted by colour)",
                per_frame(recoloured(dark_rgb)), ("2d",)),
     Appearance("dark", f"body colours {DARK:.0%} toward black (spec recoloured)",

@@ -26,7 +26,7 @@ the static clip are scored with every metric, not only the headline's components
 headline (`order.rescored_headline`, `order.headline_alternatives`) is recomputed from a
 checkpoint without scoring a clip again. ``clips_cache`` (`clips.ClipCache`) keeps the
 rendered clips as compressed npz so that scoring them again with other metrics skips simulating
-and drawing. How the scores order the kinds: `order`; issue 32's goals: `goals`.
+and drawing. How the scores order the kinds: `order`; the validity goals: `goals`.
 """
 
 from __future__ import annotations
