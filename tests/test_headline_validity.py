@@ -1,7 +1,8 @@
 """Guards on the default headline (docs/metrics.md, Validity II), on the five 2D scenes of the
 ``mini`` split: a restyle (the drawing changes, the physics does not) moves it by no more than
-the validity bound, and it falls as the physics error of a dose series grows. A change to the headline's components,
-their metrics or the motion masks that breaks either fails here before the whole study is rerun.
+the validity bound, and it falls as the physics error of a dose series grows. A change to the
+headline's components, their metrics or the motion masks that breaks either fails here before
+the whole study is rerun.
 
 Measured on these scenes when the headline was chosen (median |change| per restyle): 0.000–0.026
 for every restyle but the 4-px outline, 0.060 for it (a dark ring 4 px deep inside bodies a few
