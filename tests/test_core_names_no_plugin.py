@@ -42,7 +42,6 @@ _BROWSER = ("the browser sandbox's comments name the libraries whose behaviour i
 _PROCESS = "the process sandbox's comments name the programs whose needs its rules admit"
 #: file -> (names it may contain, why).
 ALLOWED: dict[str, tuple[set[str], str]] = {
-    "visphy_core/analysis/load.py": ({"oracle", "threejs"}, "a docstring example of a run label"),
     "visphy_core/analysis/params.py": ({"visphybench"}, "the paper's published numbers for "
                                        "VisPhyBench, quoted as a reference row"),
     "visphy_core/analysis/retry.py": ({"three.js", "p5", "threejs"}, "the paper's published retry "
@@ -52,8 +51,6 @@ ALLOWED: dict[str, tuple[set[str], str]] = {
     "visphy_core/api/physics.py": ({"box2d", "cannon-es"}, _SPEC),
     "visphy_core/api/scene.py": ({"visphybench"}, "`scene_dim` reads 2D/3D from the published "
                                  "scene-id pattern; it belongs in the dataset plugins"),
-    "visphy_core/calls/usage.py": ({"gemini"}, "a provider's token count quoted in a comment"),
-    "visphy_core/config/check.py": ({"replay"}, "a docstring example of an open value"),
     "visphy_core/config/schema.py": ({"visphybench"}, "the comment on dataset.source lists the "
                                      "built-in sources; the config reference page is generated "
                                      "from it"),
@@ -64,10 +61,8 @@ ALLOWED: dict[str, tuple[set[str], str]] = {
                                           "should come from conf/"),
     "visphy_core/execute/render_program.py": ({"visphybench"}, "the default clip shape is a 2D "
                                               "VisPhyBench clip's"),
-    "visphy_core/execute/run_setup.py": ({"gemini25pro"}, "an error message's example"),
     "visphy_core/execute/scheduler.py": ({"oracle", "threejs", "visphybench"}, _MEASURED),
     "visphy_core/infra/heap.py": ({"oracle", "threejs"}, _MEASURED),
-    "visphy_core/infra/png.py": ({"blender"}, "a docstring naming who writes untrusted frames"),
     "visphy_core/infra/video.py": ({"visphybench"}, "the published clips' encoding, which the "
                                    "lossy ground truth reproduces"),
     "visphy_core/sandbox/bwrap.py": ({"blender"}, _PROCESS),
@@ -75,12 +70,9 @@ ALLOWED: dict[str, tuple[set[str], str]] = {
     "visphy_core/sandbox/syscall_filter.py": ({"blender", "manim"}, _PROCESS),
     "visphy_core/sandbox/virtual_time.js": ({"three.js", "p5"}, _BROWSER),
     "visphy_core/scoring/normalisation.py": ({"box2d", "cannon-es"}, _SPEC),
-    "visphy_core/scoring/scene_scores.py": ({"oracle"}, "a comment naming the privileged model"),
     "visphy_core/spec/spec2d.py": ({"box2d"}, _SPEC),
     "visphy_core/spec/spec3d.py": ({"cannon-es", "three.js"}, _SPEC),
     "visphy_core/spec/spec_track.py": ({"box2d", "cannon-es"}, _SPEC),
-    "visphy_core/study/callback.py": ({"static"}, "a docstring example of a progress line"),
-    "visphy_core/study/finish.py": ({"static"}, "a docstring example of an override"),
 }
 
 

@@ -7,7 +7,8 @@ page may add ``human_ratings.jsonl``. `find_runs` accepts run directories and an
 them (``visphy-out/runs``, a Hydra multirun sweep), and follows a study's job records
 (``jobs/<n>/visphy_job.json``) to the runs they made, so a study is analysed by pointing at its
 folder. Labels say ``model/engine`` and, when two runs compared share that, what sets them apart
-(``oracle/threejs prompt.detection=false``): tables and figures need names a reader can tell apart.
+(``<model>/<engine> prompt.detection=false``): tables and figures need names a reader can tell
+apart.
 """
 
 from __future__ import annotations

@@ -93,7 +93,7 @@ def _empty_totals() -> dict[str, Any]:
 
 
 #: input tokens assumed for one call before any is paid: the prompt text, the object list and
-#: two key frames come to about 2,500 (4,500 for Gemini 3's image tokens)
+#: two key frames come to about 2,500 (4,500 where a provider counts image tokens higher)
 PROMPT_TOKENS_BOUND = 5000
 
 

@@ -441,8 +441,8 @@ def check_frames_with_forecast(cfg: DictConfig) -> None:
 
 
 def check_required(cfg: DictConfig) -> None:
-    """Every value a config leaves open (``???``: e.g. ``model=replay``'s ``model.source``) is
-    set; else one line naming the key and how to set it."""
+    """Every value a config leaves open (``???``: e.g. a model config's ``model.source``, left
+    to the command line) is set; else one line naming the key and how to set it."""
     missing = sorted(k for k in OmegaConf.missing_keys(cfg) if not str(k).startswith("hydra."))
     if not missing:
         return

@@ -64,7 +64,7 @@ def reference_model_of(cfg: DictConfig, registry):
         return None
     if not cfg.reference.model:
         raise ConfigError("reference.source=llm needs reference.model=<a model config name>, "
-                          "e.g. reference.model=gemini25pro")
+                          "e.g. reference.model=<a model config>")
     from visphy_core.config.check import compose
 
     node = compose([f"model={cfg.reference.model}"]).model

@@ -530,9 +530,9 @@ class BrowserPool:
             prepared = await asyncio.wait_for(
                 self._page_for(proc, width, height, init, assets), left())
             context, page, crashed = prepared.context, prepared.page, prepared.crashed
-            await load_program(prepared, html, assets, cap, deadline, left, lap)
+            await load_program(prepared, html, assets, cap, left, lap)
             await capture_frames(context, page, cap, times_ms, width, height, capture,
-                                 self.readback, inject_fault, crashed, left, lap)
+                                 self.readback, inject_fault, crashed, deadline, left, lap)
             state = await asyncio.wait_for(page.evaluate(
                 "() => [window.__visphy.errors(), window.__visphy.logs(),"
                 " window.__visphy.attempts()]"), left())

@@ -95,9 +95,9 @@ def page_init(assets: Mapping[str, Asset], preload: Sequence[str], *, tick_ms: f
     return PageInit(tuple(scripts))
 
 
-async def load_program(prepared: PreparedPage, html, assets, cap: PageCapture,
-                deadline: float, left, lap) -> None:
-    """Load the program into the prepared page and wait until it says it is ready."""
+async def load_program(prepared: PreparedPage, html, assets, cap: PageCapture, left,
+                       lap) -> None:
+    """Load the program into the prepared page (until its load event)."""
     context, page = prepared.context, prepared.page
     cap.page_prepared = prepared.ahead
     prepared.slot.load(html, assets, cap)
@@ -110,19 +110,20 @@ async def load_program(prepared: PreparedPage, html, assets, cap: PageCapture,
     await asyncio.wait_for(page.goto(f"{ORIGIN}/index.html", wait_until="load",
                                      timeout=left() * 1000), left())
     lap("load")
-    await asyncio.wait_for(wait_ready(
-        page, cap, min(READY_WAIT_S, deadline - time.perf_counter())), left())
-    lap("ready")
 
 
 async def capture_frames(context, page, cap: PageCapture, times_ms, width, height, capture,
-                         readback: str, inject_fault, crashed: list, left, lap) -> None:
-    """One frame per virtual time in ``times_ms``, into ``cap.frames``: the canvas read back
-    by the page, or a CDP screenshot of the page."""
+                         readback: str, inject_fault, crashed: list, deadline: float, left,
+                         lap) -> None:
+    """One frame per virtual time in ``times_ms``, into ``cap.frames``, once the page says it
+    is ready: the canvas read back by the page, or a CDP screenshot of the page."""
     if capture == "canvas":
         await capture_canvas(context, page, cap, times_ms, readback, inject_fault, crashed,
-                             left, lap)
+                             deadline, left, lap)
         return
+    await asyncio.wait_for(wait_ready(
+        page, cap, min(READY_WAIT_S, deadline - time.perf_counter())), left())
+    lap("ready")
     cdp = None
     for i, t in enumerate(times_ms):
         if cap.navigations:
@@ -148,23 +149,35 @@ async def capture_frames(context, page, cap: PageCapture, times_ms, width, heigh
         lap("decode")
     shot = None  # noqa: F841 - a finished coroutine's frame may outlive it
 
+
 async def capture_canvas(context, page, cap: PageCapture, times_ms, readback: str,
-                         inject_fault, crashed: list, left, lap) -> None:
+                         inject_fault, crashed: list, deadline: float, left, lap) -> None:
     """Canvas frames in spans: the page steps and reads back as many frames as fit in
     `SPAN_BUDGET_MS` of real time (and `SPAN_MAX_CHARS` of payload) per call, so a clip
-    costs a few round trips, and a page that stalls or crashes keeps the frames it gave."""
-    done = 0
+    costs a few round trips, and a page that stalls or crashes keeps the frames it gave. The
+    first call checks that the page is ready (else the host waits for it, `wait_ready`)."""
+    done, first = 0, True
+    lap("ready")  # (waiting, if any, is added to it below)
     while done < len(times_ms) and not cap.navigations:
         if done == 1 and inject_fault == "crash":
             await crash_renderer(context, page, crashed)
         # (with a crash to inject, the first span is the first frame alone)
         todo = times_ms[done:done + 1] if inject_fault == "crash" and done == 0 else \
             times_ms[done:]
-        shots = await asyncio.wait_for(page.evaluate(
-            "([ts, raw, ms, chars]) => window.__visphy.captureSpan(ts, raw, ms, chars)",
-            [todo, readback == "raw", SPAN_BUDGET_MS, SPAN_MAX_CHARS]), left())
+        answer = await asyncio.wait_for(page.evaluate(
+            "([ts, raw, ms, chars, first]) => window.__visphy.captureSpan(ts, raw, ms, chars, "
+            "first)", [todo, readback == "raw", SPAN_BUDGET_MS, SPAN_MAX_CHARS, first]), left())
+        if first and isinstance(answer, dict) and answer.get("notReady"):
+            lap("frames")
+            await asyncio.wait_for(wait_ready(
+                page, cap, min(READY_WAIT_S, deadline - time.perf_counter())), left())
+            lap("ready")
+            first = False
+            continue
+        first = False
         lap("frames")
         cap.frame_calls += 1
+        shots = answer.get("frames") if isinstance(answer, dict) else None
         if not isinstance(shots, list) or not shots or len(shots) > len(todo):
             cap.no_canvas = True
             break
@@ -179,7 +192,7 @@ async def capture_canvas(context, page, cap: PageCapture, times_ms, readback: st
         if cap.no_canvas:
             break
         done += len(shots)
-    shots = frame = shot = None  # noqa: F841 - a finished coroutine's frame may outlive it
+    answer = shots = frame = shot = None  # noqa: F841 - a finished coroutine's frame may outlive it
 
 
 async def crash_renderer(context, page, crashed: list) -> None:

@@ -556,8 +556,12 @@
     // Several frames in one call (one host round trip instead of one per frame): the answers of
     // captureRawAt (`raw` true) or captureAt for `times` in order, stopping after the first frame
     // without a canvas, or once `budgetMs` of real time or `maxChars` of payload have been spent
-    // (at least one frame is always taken); the host asks again from where it stopped.
-    async captureSpan(times, raw, budgetMs, maxChars) {
+    // (at least one frame is always taken); the host asks again from where it stopped. `first`:
+    // answer `{notReady: true}` instead while a ready check does not hold (the host then waits
+    // for it). The page's state (errors, logs, attempts) is read by a call of its own: in the
+    // time that call takes, a navigation the last frames started reaches the host's handlers.
+    async captureSpan(times, raw, budgetMs, maxChars, first) {
+      if (first && !api.isReady()) return { notReady: true };
       const start = apply(realPerfNow, perf, []);
       const out = [];
       let chars = 0;
@@ -569,7 +573,7 @@
         if (lastPayloadChars === 0 || chars >= maxChars
             || apply(realPerfNow, perf, []) - start >= budgetMs) break;
       }
-      return out;
+      return { frames: out };
     },
   };
   // The host's handle cannot be replaced or deleted by the page.

@@ -124,8 +124,8 @@ def _spec_track(scene: Scene, reference: np.ndarray, spec: dict | None,
     program, scored under the same protocol with ``spec.``-prefixed columns.
 
     When S replayed gives exactly the model's own clip (a program that is the reference program
-    of its S, e.g. the oracle's), a metric that reads only the clips has the value it already
-    has on that clip: it is taken from ``own`` instead of being computed again."""
+    of its S, e.g. a privileged model's), a metric that reads only the clips has the value it
+    already has on that clip: it is taken from ``own`` instead of being computed again."""
     if spec is None or spec_valid is None:
         result.spec_track = "no_spec"
         return

@@ -70,7 +70,7 @@ def count_jobs(sweep: dict[str, str]) -> int | None:
 
 def study_progress_line(sweep_dir: Path, study: dict, num: int, label: str,
                         now: dt.datetime | None = None) -> str:
-    """``study leaderboard: job 3/6 (model=static) · 2 done, 0 failed · 4 min 10 s elapsed ·
+    """``study leaderboard: job 3/6 (model=<name>) · 2 done, 0 failed · 4 min 10 s elapsed ·
     ETA 8 min 20 s``: where a sweep is, as a job starts (from the job records on disk)."""
     from visphy_core.infra.progress import duration
 

@@ -70,7 +70,7 @@ def analyse_runs(run_dirs: list[Path], study_dir: Path, study: str) -> dict[str,
 
 
 def swept_values(job: dict, keys) -> dict[str, str]:
-    """The job's value of each swept key, from its overrides (``model=static`` → model)."""
+    """The job's value of each swept key, from its overrides (``model=<name>`` → model)."""
     values = {}
     for override in job.get("overrides") or []:
         key, _, value = str(override).partition("=")
