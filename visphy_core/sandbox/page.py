@@ -121,8 +121,7 @@ async def capture_frames(context, page, cap: PageCapture, times_ms, width, heigh
         await capture_canvas(context, page, cap, times_ms, readback, inject_fault, crashed,
                              deadline, left, lap)
         return
-    await asyncio.wait_for(wait_ready(
-        page, cap, min(READY_WAIT_S, deadline - time.perf_counter())), left())
+    await asyncio.wait_for(wait_ready(page, cap, deadline), left())
     lap("ready")
     cdp = None
     for i, t in enumerate(times_ms):
@@ -169,8 +168,7 @@ async def capture_canvas(context, page, cap: PageCapture, times_ms, readback: st
             "first)", [todo, readback == "raw", SPAN_BUDGET_MS, SPAN_MAX_CHARS, first]), left())
         if first and isinstance(answer, dict) and answer.get("notReady"):
             lap("frames")
-            await asyncio.wait_for(wait_ready(
-                page, cap, min(READY_WAIT_S, deadline - time.perf_counter())), left())
+            await asyncio.wait_for(wait_ready(page, cap, deadline), left())
             lap("ready")
             first = False
             continue
@@ -210,9 +208,11 @@ async def crash_renderer(context, page, crashed: list) -> None:
         pass  # the session died with the renderer
 
 
-async def wait_ready(page, cap: PageCapture, budget_s: float) -> None:
-    """Poll the page's ready checks (real time): a library's asynchronous start-up finishes
-    outside virtual time. A page still not ready is captured anyway (and noted)."""
+async def wait_ready(page, cap: PageCapture, deadline: float) -> None:
+    """Poll the page's ready checks (real time) for up to `READY_WAIT_S`, within the page's
+    ``deadline``: a library's asynchronous start-up finishes outside virtual time. A page still
+    not ready is captured anyway (and noted)."""
+    budget_s = min(READY_WAIT_S, deadline - time.perf_counter())
     end = time.perf_counter() + max(0.0, budget_s)
     while True:
         if await page.evaluate("() => window.__visphy.isReady()"):
