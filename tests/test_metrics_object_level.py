@@ -203,27 +203,39 @@ def test_at_zero_tolerance_the_tolerant_ious_are_the_plain_ones():
     rng = np.random.default_rng(0)
     ref = rng.random((6, 40, 50)) < 0.2
     gen = rng.random((6, 40, 50)) < 0.3
-    st, ws = OL.tolerant_ious(ref, gen, OL.near(ref, 0.0), OL.near(gen, 0.0))
+    dr, dg = OL.distances(ref), OL.distances(gen)
+    st, ws = OL.tolerant_ious(ref, gen, dr, dg, 0.0)
     assert st == pytest.approx(MM.spatiotemporal_iou(ref, gen), abs=1e-12)
     assert ws == pytest.approx(MM.weighted_spatial_iou(ref, gen), abs=1e-12)
-    # a tolerance only adds matches; both are NaN where the reference never moves
-    st2, ws2 = OL.tolerant_ious(ref, gen, OL.near(ref, 2.0), OL.near(gen, 2.0))
+    # a tolerance only adds matches, and a ramp beyond it partial ones (to the spatiotemporal
+    # IoU; the weighted one keeps the hard edge)
+    st2, ws2 = OL.tolerant_ious(ref, gen, dr, dg, 2.0)
     assert st2 > st and ws2 > ws
-    assert all(math.isnan(x) for x in OL.tolerant_ious(ref & False, gen, ref & False, gen))
+    st3, ws3 = OL.tolerant_ious(ref, gen, dr, dg, 2.0, 3.0)
+    assert st3 > st2 and ws3 == ws2
+    none = ref & False
+    assert all(math.isnan(x) for x in OL.tolerant_ious(none, gen, OL.distances(none), dg, 1.0))
 
 
 @pytest.mark.parametrize("rho", [1.0, 1.5, 2.4, 3.7])
-def test_near_is_within_rho_of_the_mask(rho):
+def test_closeness_is_one_within_rho_and_falls_linearly_over_the_ramp(rho):
     rng = np.random.default_rng(1)
     masks = rng.random((3, 64, 64)) < 0.01
     masks[2] = False
-    got = OL.near(masks, rho)
-    for m, g in zip(masks, got):
+    dist = OL.distances(masks)
+    assert np.all(np.isinf(dist[2]))
+    hard, soft = OL.closeness(dist, rho), OL.closeness(dist, rho, 2.5)
+    for m, d, h, g in zip(masks, dist, hard, soft):
         if not m.any():
-            assert not g.any()
+            assert not h.any() and not g.any()
             continue
-        dist = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-        assert np.array_equal(g, dist <= rho)
+        exact = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        assert np.allclose(d, exact, atol=1e-5) and np.allclose(d * d, np.rint(d * d), atol=1e-4)
+        assert np.array_equal(h == 1, exact <= rho) and np.array_equal(h == 0, exact > rho)
+        assert np.all(g[exact <= rho] == 1) and np.all(g[exact >= rho + 2.5] == 0)
+        mid = (exact > rho) & (exact < rho + 2.5)
+        assert mid.any()
+        assert np.allclose(g[mid], 1 - (exact[mid] - rho) / 2.5, atol=1e-6)
 
 
 def test_the_tolerance_follows_the_moving_bodies_sizes(scenes):

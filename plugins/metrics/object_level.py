@@ -183,6 +183,7 @@ _MEMO_KEY = "object_level"
 
 RHO_FRACTION = 0.15         # mask tolerance ρ: this fraction of the typical moving body's radius
 RHO_FLOOR_PX = 1.0          # ...and at least one working pixel
+RAMP_FRACTION = 0.15        # beyond ρ a match counts less, down to nothing at ρ + this · radius
 FALLBACK_RADIUS_FRACTION = 0.04  # no palette: a body radius of 4% of the longer side
 COLOUR_THRESHOLD = 20       # masks: a blurred RGB channel changing by more than this moves too
 CAP_RADII = 1.5             # K: a body's error in a pair is K·tanh(d / (K·r)) radii...
@@ -290,7 +291,8 @@ def clip_masks(inp: MetricInput, role: str) -> np.ndarray:
 
 
 def tolerance(inp: MetricInput) -> dict:
-    """The scene's mask tolerance: ``rho_px`` (working px), the typical radius it comes from
+    """The scene's mask tolerance: ``rho_px`` and ``ramp_px`` (working px), the typical radius
+    they come from
     (``radius_px``, px of the full frame, and ``radius_from``) and the working ``scale``."""
     memo = inp.extra.setdefault(_MEMO_KEY, {})
     if "rho" not in memo:
@@ -298,30 +300,45 @@ def tolerance(inp: MetricInput) -> dict:
         h, w = np.shape(inp.reference)[1:3]
         scale = max(MM.DEFAULT_PARAMS.working_shape(h, w)) / max(h, w)
         memo["rho"] = {"rho_px": max(RHO_FLOOR_PX, RHO_FRACTION * radius * scale),
+                       "ramp_px": RAMP_FRACTION * radius * scale,
                        "radius_px": radius, "radius_from": source, "scale": scale}
     return memo["rho"]
 
 
-def near(masks: np.ndarray, rho: float) -> np.ndarray:
-    """Per frame, the pixels within Euclidean distance ``rho`` of the frame's mask (a dilation
-    by the disc of radius ρ: exactly the distance transform's ``≤ ρ``)."""
-    r = int(math.floor(rho))
-    y, x = np.mgrid[-r:r + 1, -r:r + 1]
-    disc = (x * x + y * y <= rho * rho).astype(np.uint8)
-    return np.stack([cv2.dilate(m.view(np.uint8), disc) > 0 for m in masks]) if len(masks) \
-        else masks.copy()
+def distances(masks: np.ndarray) -> np.ndarray:
+    """Per frame, each pixel's Euclidean distance to the frame's mask (K×h×w float32; inf in
+    a frame without a moving pixel). Exact: OpenCV's precise transform can differ in the last
+    bit with the buffer's alignment, so each squared distance (an integer) is rounded and the
+    root taken again — the same frames give the same distances, run after run."""
+    out = np.full(masks.shape, np.inf, dtype=np.float32)
+    for i, m in enumerate(masks):
+        if m.any():
+            d = cv2.distanceTransform((~m).view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+            out[i] = np.sqrt(np.rint(d * d))
+    return out
 
 
-def tolerant_ious(ref: np.ndarray, gen: np.ndarray, ref_near: np.ndarray, gen_near: np.ndarray
-                  ) -> tuple[float, float]:
-    """(spatiotemporal, weighted spatial) tolerant IoU of K paired masks (K×h×w bool) and
-    their ρ-neighbourhoods (module docstring); NaN when ``ref`` never moves."""
+def closeness(dist: np.ndarray, rho: float, ramp: float = 0.0) -> np.ndarray:
+    """How much a pixel at distance ``dist`` from the other clip's mask counts as explained: 1
+    within ``rho`` (exactly the disc dilation's ``≤ ρ``), falling linearly to 0 at
+    ``rho + ramp`` (``ramp`` 0: a hard edge)."""
+    if ramp > 0:
+        return np.clip(1.0 - (dist - rho) / ramp, 0.0, 1.0)
+    return (dist <= rho).astype(np.float32)
+
+
+def tolerant_ious(ref: np.ndarray, gen: np.ndarray, ref_dist: np.ndarray, gen_dist: np.ndarray,
+                  rho: float, ramp: float = 0.0) -> tuple[float, float]:
+    """(spatiotemporal, weighted spatial) tolerant IoU of K paired masks (K×h×w bool), from
+    each one's `distances` (module docstring): the spatiotemporal one with the ramp, the
+    weighted one with the hard edge at ``rho``; NaN when ``ref`` never moves."""
     n_r, n_g = int(np.count_nonzero(ref)), int(np.count_nonzero(gen))
     if n_r == 0:
         return float("nan"), float("nan")
-    t = (np.count_nonzero(ref & gen_near) + np.count_nonzero(gen & ref_near)) / 2.0
+    t = (float(closeness(gen_dist[ref], rho, ramp).sum(dtype=np.float64))
+         + float(closeness(ref_dist[gen], rho, ramp).sum(dtype=np.float64))) / 2.0
     cr, cg = np.count_nonzero(ref, axis=0), np.count_nonzero(gen, axis=0)
-    nr, ng = np.count_nonzero(ref_near, axis=0), np.count_nonzero(gen_near, axis=0)
+    nr, ng = np.count_nonzero(ref_dist <= rho, axis=0), np.count_nonzero(gen_dist <= rho, axis=0)
     m = (np.minimum(cr, ng).sum() + np.minimum(cg, nr).sum()) / 2.0
     return float(t / (n_r + n_g - t)), float(m / (n_r + n_g - m))
 
@@ -340,16 +357,15 @@ def mask_values(inp: MetricInput, alignment) -> dict[str, float]:
     if len(ri) == 0:
         out = dict.fromkeys(MASK_NAMES, float("nan"))
     else:
-        rho = tolerance(inp)["rho_px"]
-        masks, grown = {}, {}
+        tol = tolerance(inp)
+        masks, dist = {}, {}
         for role in ("ref", "gen"):
             masks[role] = clip_masks(inp, role)
-            nkey = ("near", role, rho)
-            if nkey not in memo:  # each clip's once per scene (pairings share frames)
-                memo[nkey] = near(masks[role], rho)
-            grown[role] = memo[nkey]
-        st, ws = tolerant_ious(masks["ref"][ri], masks["gen"][gi], grown["ref"][ri],
-                               grown["gen"][gi])
+            if ("dist", role) not in memo:  # each clip's once per scene (pairings share frames)
+                memo[("dist", role)] = distances(masks[role])
+            dist[role] = memo[("dist", role)]
+        st, ws = tolerant_ious(masks["ref"][ri], masks["gen"][gi], dist["ref"][ri],
+                               dist["gen"][gi], tol["rho_px"], tol["ramp_px"])
         out = {"spatiotemporal_iou_tol": st, "weighted_spatial_iou_tol": ws}
     memo[key] = out
     return out
@@ -383,17 +399,24 @@ class GenObjects:
 
 def generated_objects(inp: MetricInput, palette: TR.Palette) -> GenObjects:
     """The generated clip's objects (module docstring), once per clip and scene."""
+    return clip_objects(inp, inp.generated, palette.background)
+
+
+def clip_objects(inp: MetricInput, clip: np.ndarray, background: tuple = ()) -> GenObjects:
+    """A clip's objects (blobs of one drawn colour touching in one frame, joined; module
+    docstring), once per clip and scene: its blobs are cut away from ``background`` (the
+    scene palette's background colours) and the clip's own dominant colours."""
     memo = inp.extra.setdefault(_MEMO_KEY, {})
-    key = ("gen_objects", id(inp.generated))
+    key = ("gen_objects", id(clip))
     if key in memo:
         return memo[key]
-    frames = np.asarray(inp.generated)
+    frames = np.asarray(clip)
     kept = inp.extra.get("tracks.blobs") or {}
-    if kept.get("key") == id(inp.generated):  # the track metrics' blobs of this clip
+    if kept.get("key") == id(clip):  # the track metrics' blobs of this clip
         blobs = kept["blobs"]
     else:
         s = TR.grid_stride(*frames.shape[1:3])
-        blobs = find_blobs(frames, palette.background + tuple(dominant_colours(frames, s)), s,
+        blobs = find_blobs(frames, tuple(background) + tuple(dominant_colours(frames, s)), s,
                            TR.MIN_SAMPLES)
     m = len(blobs)
     if m == 0:
@@ -552,6 +575,10 @@ class _TolerantIoU(Metric):
 
 class SpatiotemporalIoUTol(_TolerantIoU):
     name = "spatiotemporal_iou_tol"
+    version = "2"  # 2: the ramp beyond ρ (`RAMP_FRACTION`)
+
+    def identity(self) -> str:
+        return f"{super().identity()}/ramp={RAMP_FRACTION}"
 
 
 class WeightedSpatialIoUTol(_TolerantIoU):

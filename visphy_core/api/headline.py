@@ -11,6 +11,13 @@ from __future__ import annotations
 #: candidates it orders the most scenes strictly (44/49; with `weighted_spatial_iou_tol`, the
 #: 17-scene choice, 38/49), as monotone in the dose and as invariant to the drawing.
 DEFAULT_COMPONENTS = ("spatiotemporal_iou_tol",)
+#: Metrics subtracted from the mean of the normalised components, each times its weight (a
+#: metric a still clip cannot fail, so it has no floor to normalise against): the drawn bodies'
+#: area drift beyond the reference's (`visphy_plugins.metrics.area_drift`), so a clip whose
+#: bodies smear or tear (the flow extrapolation) does not score above one whose bodies move
+#: rigidly somewhere wrong. Weight 0.5: the middle of the range the study's goals hold
+#: (0.3–0.6, docs/metrics.md).
+DEFAULT_PENALTIES = {"body_area_drift": 0.5}
 DEFAULT_NAME = "physics_score"
 #: Where each component's 1 comes from: ``"ideal"`` (the metric's best value) or ``"twin"`` (what
 #: the ground truth's twin scores, where the scene has one; the ideal elsewhere).

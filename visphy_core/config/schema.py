@@ -24,7 +24,12 @@ from typing import Any, Optional
 from omegaconf import MISSING
 
 from visphy_core.api.config_schema import EngineConfig, JudgeConfig, ModelConfig
-from visphy_core.api.headline import DEFAULT_CEILING, DEFAULT_COMPONENTS, DEFAULT_NAME
+from visphy_core.api.headline import (
+    DEFAULT_CEILING,
+    DEFAULT_COMPONENTS,
+    DEFAULT_NAME,
+    DEFAULT_PENALTIES,
+)
 from visphy_core.api.hookspecs import hookimpl
 
 
@@ -152,6 +157,8 @@ class HeadlineConfig:
     clip: list[float] = field(default_factory=lambda: [-1.0, 1.0])
     # each component's 1: ideal (the metric's best value) or twin (the ground truth's twin)
     ceiling: HeadlineCeiling = HeadlineCeiling[DEFAULT_CEILING]
+    # metric -> weight: subtracted from the components' mean (weight × value); {} for none
+    penalties: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_PENALTIES))
 
 
 @dataclass

@@ -17,7 +17,11 @@ extrapolation), and each component is put on one scale by two anchors the scene 
 A component's value ``m`` becomes ``(m − f) / (c − f)``, clipped to ``clip`` (default
 [−1, 1]: a component cannot carry the mean alone), and the headline is the mean of the
 components the scene defines (a component is undefined when it has no value, or when its
-anchors do not separate: ``c`` not better than ``f``, e.g. a scene where nothing moves). So a
+anchors do not separate: ``c`` not better than ``f``, e.g. a scene where nothing moves).
+From that mean each **penalty** (``metrics.headline.penalties``: metric → weight) subtracts
+weight × its value, and the result is clipped to ``clip`` again: a penalty is a metric a still
+clip cannot fail (the default, ``body_area_drift``: drawn bodies that do not keep their size, a
+still clip's being 0), so it has no floor to be normalised against. So a
 still clip scores exactly 0 and the ground truth about 1, on every dataset.
 
 The per-scene value is the score column ``<name>`` (``score_<name>`` in results tables); the
@@ -33,7 +37,13 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from visphy_core.api.headline import CEILINGS, DEFAULT_CEILING, DEFAULT_COMPONENTS, DEFAULT_NAME
+from visphy_core.api.headline import (
+    CEILINGS,
+    DEFAULT_CEILING,
+    DEFAULT_COMPONENTS,
+    DEFAULT_NAME,
+    DEFAULT_PENALTIES,
+)
 from visphy_core.api.metrics import HIGHER, Metric
 
 BOOTSTRAP_RESAMPLES = 2000
@@ -48,6 +58,8 @@ class Headline:
     components: tuple[str, ...] = DEFAULT_COMPONENTS
     clip: tuple[float, float] = (-1.0, 1.0)
     ceiling: str = DEFAULT_CEILING
+    #: (metric, weight): subtracted from the components' mean, weight × value
+    penalties: tuple[tuple[str, float], ...] = tuple(DEFAULT_PENALTIES.items())
 
     @classmethod
     def from_cfg(cls, cfg: Any) -> "Headline | None":
@@ -64,8 +76,17 @@ class Headline:
         ceiling = str(getattr(ceiling, "value", ceiling))
         if ceiling not in CEILINGS:
             raise ValueError(f"metrics.headline.ceiling={ceiling}: one of {', '.join(CEILINGS)}")
+        penalties = node.get("penalties")
+        penalties = DEFAULT_PENALTIES if penalties is None else penalties
+        weights = []
+        for metric, weight in dict(penalties).items():
+            weight = float(weight)
+            if not (math.isfinite(weight) and weight >= 0):
+                raise ValueError(f"metrics.headline.penalties.{metric}={weight}: a weight is a "
+                                 "finite number ≥ 0")
+            weights.append((str(metric), weight))
         return cls(name=str(node.get("name") or DEFAULT_NAME), components=components,
-                   clip=(clip[0], clip[1]), ceiling=ceiling)
+                   clip=(clip[0], clip[1]), ceiling=ceiling, penalties=tuple(weights))
 
     @classmethod
     def for_run(cls, cfg: Any, metrics: Iterable[Metric]) -> "Headline | None":
@@ -78,6 +99,11 @@ class Headline:
         """The run's metrics that are components (in the components' order)."""
         by_name = {m.name: m for m in metrics}
         return [by_name[c] for c in self.components if c in by_name]
+
+    def penalties_of(self, metrics: Iterable[Metric]) -> list[tuple[Metric, float]]:
+        """The run's metrics that are penalties, each with its weight (zero weights left out)."""
+        by_name = {m.name: m for m in metrics}
+        return [(by_name[n], w) for n, w in self.penalties if n in by_name and w > 0]
 
 
 def ideal(metric: Metric) -> float | None:
@@ -105,7 +131,10 @@ def scene_headline(headline: Headline, metrics: list[Metric], values: dict[str, 
                    floor: dict[str, float | None], twin: dict[str, float | None]
                    ) -> tuple[float | None, dict]:
     """The scene's headline value and its details (``headline.json``). ``twin``: what the
-    ground truth's twin scored (empty without a twin: the ideal values are the ceilings)."""
+    ground truth's twin scored (empty without a twin: the ideal values are the ceilings).
+    The mean of the defined components, less each penalty's weight × value (a penalty without a
+    value subtracts nothing and says why), clipped to ``headline.clip``; None when no component
+    is defined."""
     parts: dict[str, dict] = {}
     used = []
     twin = twin if headline.ceiling == "twin" else {}
@@ -121,11 +150,27 @@ def scene_headline(headline: Headline, metrics: list[Metric], values: dict[str, 
             parts[m.name]["undefined"] = why
         else:
             used.append(norm)
+    penalties: dict[str, dict] = {}
     value = float(np.mean(used)) if used else None
-    return value, {"metric": headline.name, "value": value, "clip": list(headline.clip),
-                   "ceiling": headline.ceiling,
-                   "floor": "the first key frame held (the static baseline / fallback clip)",
-                   "components": parts}
+    for m, weight in headline.penalties_of(metrics):
+        v = values.get(m.name)
+        entry: dict = {"value": v, "weight": weight}
+        if v is None or not math.isfinite(v):
+            entry["undefined"] = "no value"
+        else:
+            entry["subtracted"] = weight * v
+            if value is not None:
+                value -= weight * v
+        penalties[m.name] = entry
+    if value is not None:
+        value = float(min(max(value, headline.clip[0]), headline.clip[1]))
+    out = {"metric": headline.name, "value": value, "clip": list(headline.clip),
+           "ceiling": headline.ceiling,
+           "floor": "the first key frame held (the static baseline / fallback clip)",
+           "components": parts}
+    if penalties:
+        out["penalties"] = penalties
+    return value, out
 
 
 def bootstrap_ci(values: list[float], level: float = 0.95) -> list[float] | None:
@@ -154,4 +199,4 @@ def summary_entry(headline: Headline, success: list[float], with_fallbacks: list
             "view": "all scored scenes (a fallback clip scores 0)",
             "mean_model_success": ok_mean, "ci_model_success": ok_ci, "n_model_success": ok_n,
             "components": list(headline.components), "ceiling": headline.ceiling,
-            "small_sample": n < 10}
+            "penalties": dict(headline.penalties), "small_sample": n < 10}
