@@ -54,11 +54,6 @@ ALLOWED: dict[str, tuple[set[str], str]] = {
     "visphy_core/config/schema.py": ({"visphybench"}, "the comment on dataset.source lists the "
                                      "built-in sources; the config reference page is generated "
                                      "from it"),
-    "visphy_core/execute/render_one.py": ({"blender", "gemini", "gpt_frames", "manim", "p5",
-                                           "replay", "threejs", "visphybench"},
-                                          "the render command's help, its default dataset "
-                                          "config and its use of the replay model; they "
-                                          "should come from conf/"),
     "visphy_core/execute/render_program.py": ({"visphybench"}, "the default clip shape is a 2D "
                                               "VisPhyBench clip's"),
     "visphy_core/execute/scheduler.py": ({"oracle", "threejs", "visphybench"}, _MEASURED),

@@ -102,6 +102,14 @@ class ReferenceConfig:
 
 
 @dataclass
+class RenderConfig:
+    """``visphy render``'s defaults (`visphy_core.execute.render_one`)."""
+
+    dataset: str = MISSING   # the dataset config holding --scene when --dataset is not given
+    model: str = MISSING     # the model that plays a reply file back (no model call)
+
+
+@dataclass
 class DatasetConfig:
     name: str = MISSING
     # a dataset plugin's name (`python -m visphy_core plugins`): generated (VisPhyBench regenerated
@@ -219,6 +227,7 @@ class RootConfig:
     run: RunConfig = field(default_factory=RunConfig)
     sandbox: SandboxConfig = field(default_factory=SandboxConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
+    render: RenderConfig = field(default_factory=RenderConfig)
 
 
 GROUP_SCHEMAS = {

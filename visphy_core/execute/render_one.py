@@ -2,14 +2,14 @@
 
 What a user does to debug one program: the reply file (a model's whole reply, or a bare
 ``.html``/``.py`` program) goes through exactly the pipeline a run uses (extraction, S
-validation, the sandboxed render, scoring), as the ``replay`` model, with no model call, no
-tracking and no repair call. Only the named scene is loaded (a generated dataset builds that one
-scene, not its split). Without ``--scene`` the program is rendered alone and nothing is scored
-(`visphy_core.execute.render_program`). Everything lands in one folder: the program, the render
-log, the video, the scores. The terminal gets a few lines: the video with its frames and render
-time, the scores this scene has (every column is in ``scores.json`` / ``result.json``). Exit
-status 0 when the program rendered, 1 when it failed (the class and the reason are printed), 2
-for bad input.
+validation, the sandboxed render, scoring), played back by the model the root config's
+``render.model`` names, with no model call, no tracking and no repair call. Only the named
+scene is loaded (a generated dataset builds that one scene, not its split). Without ``--scene``
+the program is rendered alone and nothing is scored (`visphy_core.execute.render_program`).
+Everything lands in one folder: the program, the render log, the video, the scores. The
+terminal gets a few lines: the video with its frames and render time, the scores this scene has
+(every column is in ``scores.json`` / ``result.json``). Exit status 0 when the program rendered,
+1 when it failed (the class and the reason are printed), 2 for bad input.
 """
 
 from __future__ import annotations
@@ -33,22 +33,43 @@ from visphy_core.scoring.headline import Headline
 from visphy_core.scoring.score import ScoringProtocol, select_metrics
 
 
+def render_defaults() -> dict[str, str]:
+    """The root config's ``render`` node (conf/config.yaml): the default dataset config and the
+    model that plays a reply back."""
+    from importlib import resources
+
+    from omegaconf import OmegaConf
+
+    node = OmegaConf.create(resources.files("visphy_conf").joinpath("config.yaml").read_text())
+    return {k: str(v) for k, v in (node.get("render") or {}).items()}
+
+
+def _installed(kind: str) -> str:
+    from visphy_core.api.registry import get_registry
+
+    return ", ".join(sorted(getattr(get_registry(), kind)))
+
+
 def _parser() -> argparse.ArgumentParser:
     home = os.environ.get("VISPHY_HOME", "visphy-out")
+    defaults = render_defaults()
     p = argparse.ArgumentParser(
         prog="visphy render",
         description="Extract, render and score one reply file against one scene (only that "
                     "scene is loaded or built); without --scene, render the program alone "
                     "and score nothing.")
     p.add_argument("reply", help="a reply file (analysis + fenced program) or a bare program")
-    p.add_argument("--engine", required=True, help="threejs, p5, svg, manim, blender, ...")
+    p.add_argument("--engine", required=True,
+                   help=f"the engine config: {_installed('engines')}")
     p.add_argument("--scene", default=None,
                    help="scene id, e.g. vpb3-s0-2d-t001-v00 (omitted: render only, no score)")
-    p.add_argument("--dataset", default="visphybench",
-                   help="dataset config holding the scene (default: visphybench)")
+    p.add_argument("--dataset", default=defaults["dataset"],
+                   help=f"dataset config holding the scene (default: {defaults['dataset']}, "
+                        "render.dataset in conf/config.yaml)")
     p.add_argument("--metrics", default=None, help="comma-separated metric names")
     p.add_argument("--judge", default=None,
-                   help="judge config(s), e.g. gemini or gemini,gpt_frames")
+                   help=f"judge config(s), comma-separated; installed judges: "
+                        f"{_installed('judges')}")
     p.add_argument("-o", "--out", default=None,
                    help=f"output folder (default: {home}/render/<scene>_<engine>_<time>)")
     p.add_argument("--fps", type=float, default=DEFAULT_FPS,
@@ -85,8 +106,9 @@ def render_reply(argv: list[str]) -> int:
     if not args.scene or any(c in args.scene for c in ",[]* "):
         raise UserError(f"--scene {args.scene!r}: name exactly one scene id, e.g. "
                         "--scene task10001_000")
+    player = render_defaults()["model"]
     overrides = [f"engine={args.engine}", f"dataset={args.dataset}",
-                 f"dataset.scenes=[{args.scene}]", "model=replay",
+                 f"dataset.scenes=[{args.scene}]", f"model={player}",
                  f"model.source={json.dumps(str(reply))}", "tracking=none", "run.retry=false"]
     if reply.suffix.lower() in (".mp4", ".webm", ".mov", ".mkv", ".avi"):
         overrides.append("model.output=video")  # a pixel-space model's video
@@ -97,7 +119,7 @@ def render_reply(argv: list[str]) -> int:
     overrides += args.overrides
     (cfg,) = check_overrides(overrides, inputs=True)[:1]
     registry = get_registry()
-    model = registry.get("models", "replay")(cfg.model)
+    model = registry.get("models", str(cfg.model.name))(cfg.model)
     judges = [(str(k), registry.get("judges", str(n.name))(n))
               for k, n in (cfg.get("judge") or {}).items()]
     for judge in judges:
