@@ -156,67 +156,68 @@ def _finditer(pattern: str, src: str, flags: int = 0):
 _MATCH_CACHE: list[Any] = [None, None]  # [source, {open index: close index}]
 
 
-def _bracket_pairs(src: str) -> dict[int, int]:
-    """Matching brackets of a whole source in one pass (quotes end at a newline, so a stray
-    apostrophe in text cannot hide the rest of the program)."""
-    if _MATCH_CACHE[0] is src:
-        return _MATCH_CACHE[1]
-    pairs: dict[int, int] = {}
-    stack: list[tuple[str, int]] = []
+def _brackets(src: str, start: int, end: int, quotes: str, newline_ends_quote: bool):
+    """The brackets of ``src[start:end]`` outside quoted text, in order: (position, closer)
+    for an opener, (position, None) for a closer (then the character itself is ``src[pos]``).
+    A backslash inside quotes skips the next character; with ``newline_ends_quote`` a newline
+    ends a quote too."""
     quote = None
-    j, n = 0, len(src)
-    while j < n:
-        c = src[j]
-        if quote:
-            if c == "\\":
-                j += 2
-                continue
-            if c == quote or c == "\n":
-                quote = None
-        elif c in "'\"":
-            quote = c
-        elif c in _OPEN:
-            stack.append((_OPEN[c], j))
-        elif c in ")]}":
-            while stack and stack[-1][0] != c:  # unbalanced opener: drop it
-                stack.pop()
-            if stack:
-                _, k = stack.pop()
-                pairs[k] = j
-        j += 1
-    _MATCH_CACHE[0], _MATCH_CACHE[1] = src, pairs
-    return pairs
-
-
-def _block(src: str, i: int) -> str | None:
-    """Inner text of the bracket opening at ``src[i]`` (None when unbalanced or too long)."""
-    if i >= len(src) or src[i] not in _OPEN:
-        return None
-    if len(src) > 2 * MAX_BLOCK:
-        k = _bracket_pairs(src).get(i)
-        return src[i + 1:k] if k is not None and k - i <= MAX_BLOCK else None
-    stack, quote = [_OPEN[src[i]]], None
-    end = min(len(src), i + MAX_BLOCK)
-    j = i + 1
+    j = start
     while j < end:
         c = src[j]
         if quote:
             if c == "\\":
                 j += 2
                 continue
-            if c == quote:
+            if c == quote or (newline_ends_quote and c == "\n"):
                 quote = None
-        elif c in "'\"`":
+        elif c in quotes:
             quote = c
         elif c in _OPEN:
-            stack.append(_OPEN[c])
+            yield j, _OPEN[c]
         elif c in ")]}":
-            if c != stack[-1]:
-                return None
+            yield j, None
+        j += 1
+
+
+def _bracket_pairs(src: str) -> dict[int, int]:
+    """Matching brackets of a whole source in one pass (quotes end at a newline, so a stray
+    apostrophe in text cannot hide the rest of the program; an unbalanced opener is dropped)."""
+    if _MATCH_CACHE[0] is src:
+        return _MATCH_CACHE[1]
+    pairs: dict[int, int] = {}
+    stack: list[tuple[str, int]] = []
+    for j, closer in _brackets(src, 0, len(src), "'\"", True):
+        if closer is not None:
+            stack.append((closer, j))
+            continue
+        while stack and stack[-1][0] != src[j]:  # unbalanced opener: drop it
+            stack.pop()
+        if stack:
+            pairs[stack.pop()[1]] = j
+    _MATCH_CACHE[0], _MATCH_CACHE[1] = src, pairs
+    return pairs
+
+
+def _block(src: str, i: int) -> str | None:
+    """Inner text of the bracket opening at ``src[i]`` (None when unbalanced or too long).
+    Within `MAX_BLOCK` characters the scan is strict (template literals are quotes, a
+    mismatched closer ends it); a longer source uses the whole source's `_bracket_pairs`."""
+    if i >= len(src) or src[i] not in _OPEN:
+        return None
+    if len(src) > 2 * MAX_BLOCK:
+        k = _bracket_pairs(src).get(i)
+        return src[i + 1:k] if k is not None and k - i <= MAX_BLOCK else None
+    stack = [_OPEN[src[i]]]
+    for j, closer in _brackets(src, i + 1, min(len(src), i + MAX_BLOCK), "'\"`", False):
+        if closer is not None:
+            stack.append(closer)
+        elif src[j] != stack[-1]:
+            return None
+        else:
             stack.pop()
             if not stack:
                 return src[i + 1:j]
-        j += 1
     return None
 
 
