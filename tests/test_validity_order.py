@@ -9,6 +9,8 @@ rest, one thrown), scored by the headline's components and PSNR only (seconds, n
 
 from __future__ import annotations
 
+import json
+
 import colorsys
 import copy
 import math
@@ -254,6 +256,17 @@ def test_the_clips_cache_gives_back_the_same_clips_without_drawing_again(thrown,
     out = list(vs.make_clips(truth, (vc.RIGHT,), skipped, [a for a in vr.APPEARANCES
                                                            if a.name == "outline"], cache=cache))
     assert out == [] and skipped == {"outline": "a reason"}
+    # a clip cached before a field was recorded is made again, not read with the field empty
+    path = cache.path(thrown.spec, vc.RIGHT, "swapped")
+    with np.load(path) as z:
+        meta = json.loads(str(z["meta"]))
+        frames = z["frames"]
+    meta.pop("missing_px")
+    np.savez_compressed(path, meta=np.array(json.dumps(meta)), frames=frames)
+    assert cache.get(thrown.spec, vc.RIGHT, "swapped") is None
+    list(vs.make_clips(truth, (vc.RIGHT,), appearances=keep, cache=cache))
+    assert len(truth.renderer.drawn) == drawn + 1
+    assert isinstance(cache.get(thrown.spec, vc.RIGHT, "swapped"), vc.Clip)
 
 
 def test_variants_are_selected_by_name_or_group():

@@ -140,6 +140,10 @@ class Clip:
     missing_px: float | None = None  # (ii): how far the missing bodies move in the truth (px)
 
 
+#: what a cached clip must record besides its frames (`ClipCache.get`)
+_RECORDED = frozenset(f.name for f in dataclasses.fields(Clip)) - {"frames"}
+
+
 def changed_share(frames: np.ndarray, truth: np.ndarray) -> float:
     return float(np.any(frames != truth, axis=-1).mean()) if frames.shape == truth.shape \
         else 1.0
@@ -174,6 +178,8 @@ class ClipCache:
             meta = json.loads(str(z["meta"]))
             if meta.get("skipped") is not None:
                 return str(meta["skipped"])
+            if not _RECORDED <= meta.keys():  # written before a field was recorded: make it
+                return None                   # again, so every clip records the same
             return Clip(frames=z["frames"], **meta)
 
     def put(self, spec: dict, kind: str, name: str, clip: "Clip | str") -> None:
