@@ -22,7 +22,7 @@ def test_scene_and_template_counts(catalogue):
     assert len({(s["dim"], s["template_id"]) for s in specs}) == 108
     ids = [s["scene_id"] for s in specs]
     assert len(set(ids)) == 209
-    from visphy_core.api.scene import scene_dim
+    from visphy_plugins.datasets.original import scene_dim
 
     assert all(scene_dim(sid) == s["dim"] for sid, s in zip(ids, specs))
     assert sum(s["dim"] == "3d" for s in specs) == 30

@@ -49,13 +49,9 @@ ALLOWED: dict[str, tuple[set[str], str]] = {
     "visphy_core/api/hookspecs.py": ({"box2d", "cannon-es"}, _SPEC + "; the hook reference "
                                      "page is generated from this docstring"),
     "visphy_core/api/physics.py": ({"box2d", "cannon-es"}, _SPEC),
-    "visphy_core/api/scene.py": ({"visphybench"}, "`scene_dim` reads 2D/3D from the published "
-                                 "scene-id pattern; it belongs in the dataset plugins"),
     "visphy_core/config/schema.py": ({"visphybench"}, "the comment on dataset.source lists the "
                                      "built-in sources; the config reference page is generated "
                                      "from it"),
-    "visphy_core/execute/render_program.py": ({"visphybench"}, "the default clip shape is a 2D "
-                                              "VisPhyBench clip's"),
     "visphy_core/execute/scheduler.py": ({"oracle", "threejs", "visphybench"}, _MEASURED),
     "visphy_core/infra/heap.py": ({"oracle", "threejs"}, _MEASURED),
     "visphy_core/infra/video.py": ({"visphybench"}, "the published clips' encoding, which the "

@@ -38,7 +38,7 @@ from visphy_core.api.dataset import Dataset, FinishedRun, GroundTruth
 from visphy_core.api.errors import ConfigError
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.media import ClipInfo
-from visphy_core.api.scene import Scene, read_json, scene_dim
+from visphy_core.api.scene import Scene, read_json
 from visphy_core.api.storage import files
 from visphy_plugins.datasets.layout import locate_in_layout
 
@@ -170,6 +170,22 @@ def probe_clip(path: Path) -> ClipInfo:
     if width <= 0 or height <= 0:
         raise ValueError(f"unreadable video {path}: no frame size in the header")
     return ClipInfo(fps=fps, n_frames=n_frames, width=width, height=height)
+
+
+def scene_dim(scene_id: str) -> str:
+    """Infer 2D/3D from a scene id: published VisPhyBench `taskNNNNN_NNN` is 2D, `NN_tmpl_NN`
+    is 3D; visphy's generated `vpb<version>-s<seed>-<2d|3d>-t…-v…` says it."""
+    generated = re.fullmatch(r"vpb\d+-s\d+-(2d|3d)-t\d+-v\d+", scene_id)
+    if generated:
+        return generated.group(1)
+    if re.fullmatch(r"task\d{5}_\d{3}", scene_id):
+        return "2d"
+    if re.fullmatch(r"\d+_tmpl_\d+", scene_id):
+        return "3d"
+    raise ValueError(
+        f"scene id {scene_id!r} is neither 2D (taskNNNNN_NNN) nor 3D (NN_tmpl_NN) nor a "
+        "generated id (vpb3-s0-2d-t001-v00)"
+    )
 
 
 def default_template_id(scene_id: str) -> str:

@@ -22,24 +22,6 @@ from visphy_core.infra.video import ClipInfo, decode_video
 SPEC_SCHEMA = "visphy-scene/1"
 
 
-def scene_dim(scene_id: str) -> str:
-    """Infer 2D/3D from a scene id: published VisPhyBench `taskNNNNN_NNN` is 2D, `NN_tmpl_NN`
-    is 3D; visphy's generated `vpb<version>-s<seed>-<2d|3d>-t…-v…` says it."""
-    import re
-
-    generated = re.fullmatch(r"vpb\d+-s\d+-(2d|3d)-t\d+-v\d+", scene_id)
-    if generated:
-        return generated.group(1)
-    if re.fullmatch(r"task\d{5}_\d{3}", scene_id):
-        return "2d"
-    if re.fullmatch(r"\d+_tmpl_\d+", scene_id):
-        return "3d"
-    raise ValueError(
-        f"scene id {scene_id!r} is neither 2D (taskNNNNN_NNN) nor 3D (NN_tmpl_NN) nor a "
-        "generated id (vpb3-s0-2d-t001-v00)"
-    )
-
-
 def read_json(path: Path) -> Any:
     """Read a JSON file, naming the file in the one-line error when it is missing or malformed."""
     if not path.is_file():

@@ -3,7 +3,7 @@
 What debugging one program needs when there is no scene to compare it with: no dataset is
 loaded or built, no model, no metric. The reply (a model's whole reply, or a bare ``.html`` /
 ``.py`` program) is extracted and validated by the engine and rendered in the sandbox at the
-clip shape given by ``--fps``, ``--frames`` and ``--size`` (default: a 2D VisPhyBench clip, 17
+clip shape given by ``--fps``, ``--frames`` and ``--size`` (default: the paper's 2D clip, 17
 frames of 512×512 at 5 fps), through the render cache. The folder gets the program, the
 render log, ``video.mp4`` and ``result.json``; the terminal gets a few lines: the video, its
 frames and the render's time (or the failure class and its reason). Exit status 0 when it
@@ -20,7 +20,7 @@ from visphy_core.api.engine import ProgramRejected, RenderContract, classify_fra
 from visphy_core.api.extract import fenced_blocks
 from visphy_core.infra.errors import UserError
 
-#: a 2D VisPhyBench clip (``world.video_fps``, ``world.n_frames``, ``units.canvas_px``)
+#: the paper's 2D clip shape: 5 fps, 17 frames, 512×512
 DEFAULT_FPS, DEFAULT_FRAMES, DEFAULT_SIZE = 5.0, 17, "512x512"
 FENCE_FOR = {".html": "html", ".py": "python"}
 MAX_REPLY = 4 << 20
