@@ -34,7 +34,6 @@ COMMON = {"original", "generated", "tiny", "static", "replay", "svg", "hf", "thr
 EXTRA_ASSET_NAMES = {"three.js"}
 GROUPS = r"(?:engine|model|dataset|judge|source|physics)(?:\.name|\.source)?"
 
-_MEASURED = "a measurement's setup (the run it was measured on), not a dependency"
 _SPEC = ("the scene spec format (`spec/`) names its ground truth's simulator in `world.engine` "
          "and its library conventions; the physics plugins register under those names")
 _BROWSER = ("the browser sandbox's comments name the libraries whose behaviour it accommodates "
@@ -52,8 +51,6 @@ ALLOWED: dict[str, tuple[set[str], str]] = {
     "visphy_core/config/schema.py": ({"visphybench"}, "the comment on dataset.source lists the "
                                      "built-in sources; the config reference page is generated "
                                      "from it"),
-    "visphy_core/execute/scheduler.py": ({"oracle", "threejs", "visphybench"}, _MEASURED),
-    "visphy_core/infra/heap.py": ({"oracle", "threejs"}, _MEASURED),
     "visphy_core/infra/video.py": ({"visphybench"}, "the published clips' encoding, which the "
                                    "lossy ground truth reproduces"),
     "visphy_core/sandbox/bwrap.py": ({"blender"}, _PROCESS),

@@ -66,19 +66,19 @@ WORKER_MEMORY_BYTES = 1536 * 2**20
 BASE_MEMORY_BYTES = 1536 * 2**20
 #: torch's intra-op threads (`visphy_plugins.metrics._torch`), pinned by `pin_torch_threads`.
 TORCH_THREADS_ENV = "VISPHY_TORCH_THREADS"
-#: Clip pixels (frames × width × height, summed over the scenes in the ``score`` stage) that
-#: may be scored at once: ``$VISPHY_SCORE_MPX`` million, else this. Measured (oracle × threejs,
-#: default suite, 2 workers): a 3D scene (75 frames of 512², 19.7 M pixels) holds about
-#: 0.35 GiB while it scores (its ground truth, clip, twin, still and paper clips, 59 MB each,
-#: and the largest metric's buffers, up to 0.2 GiB), a 2D scene (17 frames, 4.5 M) about a
-#: quarter of that; two 3D scenes scoring at once were the run's peak. 32 M lets a 3D scene
-#: score beside 2D scenes, never beside another 3D scene.
+#: Clip pixels (frames × width × height, summed over the scenes in the ``score`` stage) that may be
+#: scored at once: ``$VISPHY_SCORE_MPX`` million, else this. Measured (the default model and engine,
+#: default suite, 2 workers): a 3D scene (75 frames of 512², 19.7 M pixels) holds about 0.35 GiB
+#: while it scores (its ground truth, clip, twin, still and paper clips, 59 MB each, and the largest
+#: metric's buffers, up to 0.2 GiB), a 2D scene (17 frames, 4.5 M) about a quarter of that; two 3D
+#: scenes scoring at once were the run's peak. 32 M lets a 3D scene score beside 2D scenes, never
+#: beside another 3D scene.
 SCORE_PIXELS = 32_000_000
 SCORE_PIXELS_ENV = "VISPHY_SCORE_MPX"
 #: Clip pixels of the scenes in flight (taken by a worker thread, not finished), in all:
 #: ``$VISPHY_INFLIGHT_MPX`` million, else this. A scene decodes its ground truth as it starts
 #: and holds it while it waits for its reply, the render lane or a slot: measured with the
-#: oracle in the 3D part of the split, three scenes waited so, 56 MB each. 64 M keeps 3D
+#: default model in the 3D part of the split, three scenes waited so, 56 MB each. 64 M keeps 3D
 #: scenes to three in flight (the two slot holders and the next), 2D scenes to the threads.
 INFLIGHT_PIXELS = 64_000_000
 INFLIGHT_PIXELS_ENV = "VISPHY_INFLIGHT_MPX"
@@ -169,7 +169,7 @@ def clip_pixels(item: object) -> int:
 
 def work_order(items: Sequence[T]) -> list[T]:
     """The order a run takes its scenes in: the large ones — clips too large for two to score
-    side by side (`SCORE_PIXELS`), e.g. the 3D scenes of VisPhyBench — spread evenly among the
+    side by side (`SCORE_PIXELS`), e.g. a benchmark's 3D scenes — spread evenly among the
     others, each group in its own order. Taken as listed, the 3D scenes (all at the end of the
     split) would score one at a time while the other worker waited; spread out, each scores
     beside 2D scenes and renders while they score. A list whose scenes are all large or all

@@ -10,8 +10,8 @@ buffers of one to a few hundred megabytes. Three things kept memory that no scen
   and torch alone brings hundreds of thousands of those. Playwright's page listeners and the
   stack traces it captures for its calls hold each page's capture in such cycles (the sandbox
   now hands its captures over detached, `visphy_core.sandbox.browser.PageCapture.detached`),
-  as does any exception caught with its traceback's frames. Measured (oracle × threejs,
-  default suite, 2 workers, 40 2D scenes): lists of frames no scene held grew by 14 MiB per
+  as does any exception caught with its traceback's frames. Measured (the default model and
+  engine, default suite, 2 workers, 40 2D scenes): lists of frames no scene held grew by 14 MiB per
   scene, to 0.6 GiB; the memory in use (glibc's count) from 0.74 to 1.25 GiB.
   `release_free_memory` runs a full collection first (about 0.2 s with the metric models
   loaded; ``VISPHY_SCENE_GC=0`` turns it off).
@@ -62,12 +62,12 @@ ARENAS_ENV = "VISPHY_MALLOC_ARENAS"
 DEFAULT_ARENAS = 1
 #: the RSS (MiB) above which `BudgetTrim` hands free pages back (``0``: never)
 BUDGET_ENV = "VISPHY_RSS_BUDGET_MB"
-#: The run's own process at rest holds about 1.3 GiB (Python, torch and its libraries, the
-#: metric models, a 128 MiB per-frame cache); Chromium and Playwright's driver beside it peak
-#: at 1.1–1.2 GiB. Measured (oracle × threejs, default suite, 2 workers, 21 scenes, 3 of them
-#: 3D, per-frame cache 128 MiB, a busy machine): the run process peaked at 2.10 GiB without the
-#: budget and 1.87 with it (tree 3.11 → 2.91 GiB), for +10 % CPU: the pages a trim returns are
-#: faulted in again (106 trims returned 20 GiB in all).
+#: The run's own process at rest holds about 1.3 GiB (Python, torch and its libraries, the metric
+#: models, a 128 MiB per-frame cache); Chromium and Playwright's driver beside it peak at 1.1–1.2
+#: GiB. Measured (the default model and engine, default suite, 2 workers, 21 scenes, 3 of them 3D,
+#: per-frame cache 128 MiB, a busy machine): the run process peaked at 2.10 GiB without the budget
+#: and 1.87 with it (tree 3.11 → 2.91 GiB), for +10 % CPU: the pages a trim returns are faulted in
+#: again (106 trims returned 20 GiB in all).
 DEFAULT_BUDGET_MB = 1600
 #: mallopt's parameter number for the arena limit (malloc.h: ``M_ARENA_MAX``)
 _M_ARENA_MAX = -8
