@@ -5,6 +5,7 @@ study's numbers, not by taste").
     .venv/bin/python benchmarks/validity_headlines.py CHECKPOINT.jsonl
         [--pool spatiotemporal_iou,weighted_spatial_iou,track_pos_err,...] [--max-size 3]
         [--top 15] [--clip -1,1] [--ceiling twin|ideal] [--json out.json]
+        [--penalties body_area_drift=0.5|none] [--weights 0,0.25,0.5,0.75,1]
 
 The checkpoint is what ``benchmarks/validity_study.py --order --checkpoint F`` writes: every
 clip of every scene scored with every frame metric, the still clip and the twin included, so a
@@ -15,7 +16,12 @@ study computes them (`visphy_plugins.studies.validity.goals.score_summary`): str
 monotone share, the largest median change a restyle causes and the smallest median drop a
 physics error causes. Candidates are ranked by
 how many of the four goals they meet, then by the smallest margin to the goals. The pool
-defaults to every metric of the checkpoint with a value on most clips.
+defaults to every metric of the checkpoint with a value on most clips (the penalties aside).
+
+Every candidate carries the headline's penalties (``--penalties``: metric=weight, comma-separated,
+or ``none``; default: the current headline's), subtracted as the headline does. ``--weights``
+also prints the current components' goals with the first penalty at each of these weights: the
+range where the goals hold is where the default weight comes from.
 """
 
 from __future__ import annotations
@@ -74,6 +80,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="each component's 1: the twin's value or the metric's ideal "
                         "(default: the current headline's)")
     parser.add_argument("--json", default=None)
+    parser.add_argument("--penalties", default=None,
+                        help="metric=weight,... subtracted from every candidate, or none "
+                        "(default: the current headline's)")
+    parser.add_argument("--weights", default=None,
+                        help="comma-separated weights of the first penalty to sweep for the "
+                        "current components")
     args = parser.parse_args(argv)
 
     from visphy_core.api.registry import get_registry
@@ -85,21 +97,37 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     registry = get_registry()
     seen = {k for r in results for c in r.clips for k, v in c.scores.items() if v is not None}
+    if args.penalties is None:
+        penalties = Headline().penalties
+    elif args.penalties.strip().lower() == "none":
+        penalties = ()
+    else:
+        penalties = tuple((k.strip(), float(w)) for k, w in
+                          (item.split("=", 1) for item in args.penalties.split(",") if item))
+    held = {n for n, _ in penalties}
     names = args.pool.split(",") if args.pool else sorted(
-        n for n in seen if n in registry.metrics
+        n for n in seen if n in registry.metrics and n not in held
         and all(r.twin.get(n) is not None or not r.twin for r in results[:3]))
     metrics = [registry.get("metrics", n) for n in names if n in registry.metrics]
+    scorers = metrics + [registry.get("metrics", n) for n in held if n in registry.metrics]
     lo, hi = (float(v) for v in args.clip.split(","))
     args.ceiling = args.ceiling or Headline().ceiling
-    base = dataclasses.replace(Headline(), clip=(lo, hi))
+    base = dataclasses.replace(Headline(), clip=(lo, hi), penalties=penalties)
     rows = []
     for size in range(1, args.max_size + 1):
         for combo in itertools.combinations([m.name for m in metrics], size):
-            rows.append(evaluate(results, metrics, combo, base, args.ceiling))
+            rows.append(evaluate(results, scorers, combo, base, args.ceiling))
     rows.sort(key=lambda r: (-r["goals_met"], -r["margin"]))
-    now = Headline()
-    current = evaluate(results, metrics, tuple(c for c in now.components if c in names), now,
+    now = dataclasses.replace(Headline(), penalties=penalties)
+    current = evaluate(results, scorers, tuple(c for c in now.components if c in names), now,
                        now.ceiling)
+    sweep = []
+    if args.weights and penalties:
+        first = penalties[0][0]
+        for w in (float(v) for v in args.weights.split(",")):
+            h = dataclasses.replace(now, penalties=((first, w), *penalties[1:]))
+            sweep.append({"weight": w, **evaluate(results, scorers, now.components, h,
+                                                  now.ceiling)})
 
     def fmt(v, pct=False):
         return "—" if v is None else (f"{100 * v:.0f}%" if pct else f"{v:.3f}")
@@ -109,12 +137,23 @@ def main(argv: list[str] | None = None) -> int:
     print("| components | met | strict | means | monotone | invariance (worst) | drop "
           "(weakest) |\n|---|---|---|---|---|---|---|")
     for r in [current, *rows[:args.top]]:
-        print(f"| {', '.join(r['components'])} | {r['goals_met']}/4 | {fmt(r['strict'], True)} | "
+        label = ", ".join(r["components"]) + (" (current)" if r is current else "")
+        print(f"| {label} | {r['goals_met']}/4 | {fmt(r['strict'], True)} | "
               f"{fmt(r['means'], True)} | {fmt(r['monotone'], True)} | {fmt(r['invariance'])} "
               f"({r['worst_restyle']}) | {fmt(r['physics_drop'])} ({r['weakest']}) |")
+    if sweep:
+        print(f"\n{', '.join(now.components)} with {penalties[0][0]} at each weight:")
+        print("| weight | met | strict | monotone | invariance (worst) | drop (weakest) |\n"
+              "|---|---|---|---|---|---|")
+        for r in sweep:
+            print(f"| {r['weight']:g} | {r['goals_met']}/4 | {fmt(r['strict'], True)} | "
+                  f"{fmt(r['monotone'], True)} | {fmt(r['invariance'])} ({r['worst_restyle']}) "
+                  f"| {fmt(r['physics_drop'])} ({r['weakest']}) |")
     if args.json:
         Path(args.json).write_text(json.dumps({"scenes": len(results), "current": current,
-                                               "candidates": rows}, indent=1) + "\n")
+                                               "penalties": dict(penalties),
+                                               "candidates": rows, "weights": sweep},
+                                              indent=1) + "\n")
     return 0
 
 

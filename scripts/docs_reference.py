@@ -288,6 +288,7 @@ def weights_text(metric: Any) -> str | None:
 
 def metrics_page() -> str:
     from visphy_core.api import weights as weights_api
+    from visphy_core.api.headline import DEFAULT_PENALTIES
     from visphy_core.scoring.headline import DEFAULT_COMPONENTS, DEFAULT_NAME
 
     weights_api.configure(None)
@@ -309,7 +310,9 @@ def metrics_page() -> str:
                      else "↓ lower", f"{lo:g} … {hi:g}".replace("inf", "∞"),
                      ", ".join(m.needs), f"yes {note}" if weights else "—", offline,
                      ", ".join(s for s, names in suites.items() if name in names) or "—",
-                     "✓" if name in DEFAULT_COMPONENTS else "", _validity_cell(m.validity())])
+                     "✓" if name in DEFAULT_COMPONENTS else
+                     (f"penalty ×{DEFAULT_PENALTIES[name]:g}" if name in DEFAULT_PENALTIES
+                      else ""), _validity_cell(m.validity())])
     out = [HEADER, "# Metrics table\n\n",
            "Every metric the built-in plugins register (`visphy metrics` lists those installed "
            "on a machine, and whether each runs there). **better**: the direction of a better "
@@ -324,7 +327,8 @@ def metrics_page() -> str:
            "*unavailable*, with the reason, until the files are in `metrics.weights_dir`, "
            "`$VISPHY_WEIGHTS` or `$TORCH_HOME/hub/checkpoints`); **suites**: the "
            "`metrics=<suite>` options (`conf/metrics/`) that compute it; **headline**: a "
-           f"component of the headline `{DEFAULT_NAME}` by default; **validity**: the "
+           f"component of the headline `{DEFAULT_NAME}` by default (✓), or a penalty it "
+           "subtracts (×weight); **validity**: the "
            "validity study's figures for the metric on its own (strict ordering · monotone in "
            "the physics error · the largest median change a restyle causes, on the headline's "
            "scale; [Validity study](validity.md)), — where the study did not score it.\n\n"
@@ -377,7 +381,8 @@ def validity_page() -> str:
         f"Headline: `{head.get('name', '')}` = mean of "
         f"{', '.join(f'`{c}`' for c in head.get('components', []))}, each between the still "
         f"clip (0) and {'the twin' if head.get('ceiling') == 'twin' else 'its ideal value'} "
-        "(1).\n\n"
+        "(1)" + "".join(f", less {w:g} × `{n}`" for n, w in (head.get("penalties") or {}).items())
+        + ".\n\n"
         "## Goals\n\n"
         f"**strict**: every physics-right redraw above every physics-wrong clip that departs by "
         f"at least {goals.get('min_px', 20):g} px, and every such clip above both baselines "

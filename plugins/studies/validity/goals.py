@@ -328,7 +328,8 @@ def study_summary(results: list[SceneOrder], metrics: list[Metric],
                   "physics_drop": DROP, "monotone_share": MONOTONE_SHARE,
                   "monotone_rho": MONOTONE_RHO},
         "headline": {"name": headline.name, "components": list(headline.components),
-                     "clip": list(headline.clip), "ceiling": headline.ceiling},
+                     "clip": list(headline.clip), "ceiling": headline.ceiling,
+                     "penalties": dict(headline.penalties)},
         "variants": {"right": sorted({c.name for r in results for c in r.clips
                                       if c.kind == RIGHT}),
                      "wrong": sorted({c.name for r in results for c in r.clips
