@@ -69,8 +69,8 @@ def scope(summary: dict | None = None) -> str:
     every = int(summary.get("every") or 1)
     suffix = {1: "st", 2: "nd", 3: "rd"}.get(every % 10 if every % 100 not in (11, 12, 13)
                                            else 0, "th")
-    part = f"every {every}{suffix} scene of" if every > 1 else "the whole"
-    return (f"{part} the {summary.get('split', '?')} split: {summary.get('n_scenes', '?')} "
+    part = f"every {every}{suffix} scene of the" if every > 1 else "the whole"
+    return (f"{part} {summary.get('split', '?')} split: {summary.get('n_scenes', '?')} "
             f"scenes ({dims}), {summary.get('created', '')[:10]}")
 
 
