@@ -81,9 +81,11 @@ def headline_page() -> str:
     summary = load_summary() or {}
     head = summary.get("headline") or {}
     comps = ", ".join(head.get("components") or []) or "its components"
+    less = "".join(f", less {w:g} × {n}" for n, w in (head.get("penalties") or {}).items())
     body = (f'<p class="note">The headline <b>{esc(head.get("name") or "physics_score")}</b> is '
             f"the mean of {esc(comps)}, each placed between the still clip (0) and its ceiling "
-            f"(1). The leaderboard ranks rows by it. Validity study: {esc(scope(summary))}."
+            f"(1){esc(less)}. The leaderboard ranks rows by it. Validity study: "
+            f"{esc(scope(summary))}."
             "</p><h2>Validity</h2>" + validity_table(figures("headline", summary) if summary
                                                      else None)
             + '<p class="note"><a href="index.html">all metrics</a></p>')
