@@ -41,18 +41,9 @@ _BROWSER = ("the browser sandbox's comments name the libraries whose behaviour i
 _PROCESS = "the process sandbox's comments name the programs whose needs its rules admit"
 #: file -> (names it may contain, why).
 ALLOWED: dict[str, tuple[set[str], str]] = {
-    "visphy_core/analysis/params.py": ({"visphybench"}, "the paper's published numbers for "
-                                       "VisPhyBench, quoted as a reference row"),
-    "visphy_core/analysis/retry.py": ({"three.js", "p5", "threejs"}, "the paper's published retry "
-                                      "numbers per engine, a reference to compare with"),
     "visphy_core/api/hookspecs.py": ({"box2d", "cannon-es"}, _SPEC + "; the hook reference "
                                      "page is generated from this docstring"),
     "visphy_core/api/physics.py": ({"box2d", "cannon-es"}, _SPEC),
-    "visphy_core/config/schema.py": ({"visphybench"}, "the comment on dataset.source lists the "
-                                     "built-in sources; the config reference page is generated "
-                                     "from it"),
-    "visphy_core/infra/video.py": ({"visphybench"}, "the published clips' encoding, which the "
-                                   "lossy ground truth reproduces"),
     "visphy_core/sandbox/bwrap.py": ({"blender"}, _PROCESS),
     "visphy_core/sandbox/process.py": ({"blender", "manim"}, _PROCESS),
     "visphy_core/sandbox/syscall_filter.py": ({"blender", "manim"}, _PROCESS),

@@ -75,6 +75,7 @@ class P5Engine(BrowserEngine):
     version = "2"  # 2: flags (library_substituted, no_recording_call, canvas_resized, partial_clip)
     supports_3d = False
     preload = ("p5.min.js", "matter.min.js", "cannon.min.js")
+    paper_retry = (0.853, 0.979)  # the paper's success: first attempt, after one retry
 
     def instructions(self, dim: str) -> str:
         return INSTRUCTIONS_3D if dim == "3d" else INSTRUCTIONS_2D

@@ -50,6 +50,7 @@ class ThreeJsEngine(BrowserEngine):
     version = "3"  # 3: flags (library_substituted, no_recording_call, canvas_resized, partial_clip)
     supports_3d = True
     preload = ("three.min.js", "cannon.min.js")
+    paper_retry = (0.979, 0.990)  # the paper's success: first attempt, after one retry
 
     def instructions(self, dim: str) -> str:
         return INSTRUCTIONS_3D if dim == "3d" else INSTRUCTIONS_2D

@@ -4,7 +4,7 @@ from the ground truth's, as the ``param_*`` metrics scored them (plugins/metrics
 Each ``param_*`` value is one scene's absolute error (a pair parameter: the mean over the pairs
 the clip reveals), so the mean over scenes is the MAE; the count says how many scenes revealed
 the parameter *and* got a usable value from the model. The paper's reference row (GPT-5 MAE on
-VisPhyBench: e 0.17, μ 0.10, mass 0.15, speed 2.07; gravity not reported) sits beside it. Note
+its benchmark: e 0.17, μ 0.10, mass 0.15, speed 2.07; gravity not reported) sits beside it. Note
 that visphy scores mass as the error of log mass *ratios* (scale-free), the paper as kilograms:
 that column of the reference row is not comparable and left empty (`reference_table` shows the
 paper's numbers with that caveat).
@@ -31,7 +31,7 @@ PAPER_MAE = {"param_gravity_err": None, "param_restitution_err": 0.17,
              "param_friction_err": 0.10, "param_mass_ratio_err": 0.15, "param_speed_err": 2.07}
 #: visphy columns on another scale than the paper's (mass: log ratio vs kg).
 NOT_COMPARABLE = ("param_mass_ratio_err",)
-#: The paper's ground-truth means over VisPhyBench (mass in kg).
+#: The paper's ground-truth means over its benchmark (mass in kg).
 PAPER_GT_MEAN = {"param_gravity_err": 9.82, "param_restitution_err": 0.15,
                  "param_friction_err": 0.40, "param_mass_ratio_err": 1.25,
                  "param_speed_err": 2.59}

@@ -1,5 +1,5 @@
 """The retry ablation (docs/studies.md): model success after the first attempt, and after one repair
-call (paper: Three.js 0.979 → 0.990, p5.js 0.853 → 0.979).
+call, beside the paper's published rates for the engines that declare them (`Engine.paper_retry`).
 
 A scene succeeded at the first attempt when the model's own program gave a clip and no first
 failure was recorded (``first_failure_class`` is empty); after the retry, when it succeeded at
@@ -16,8 +16,20 @@ import pandas as pd
 from visphy_core.results.load import RunData
 from visphy_core.results.row import NOT_EVALUABLE
 
-#: The paper's success rates (first attempt, with one retry), per engine.
-PAPER = {"threejs": (0.979, 0.990), "p5": (0.853, 0.979)}
+
+
+def paper_rates() -> dict[str, tuple[float, float]]:
+    """The paper's success rates (first attempt, with one retry) of each installed engine that
+    declares them (`visphy_core.api.engine.Engine.paper_retry`)."""
+    from visphy_core.api.registry import get_registry
+
+    registry = get_registry()
+    out = {}
+    for name in sorted(registry.engines):
+        rates = getattr(registry.get("engines", name), "paper_retry", None)
+        if rates is not None:
+            out[name] = (float(rates[0]), float(rates[1]))
+    return out
 
 
 def retry_table(runs: list[RunData], labels: list[str], reference: bool = True) -> pd.DataFrame:
@@ -41,7 +53,7 @@ def retry_table(runs: list[RunData], labels: list[str], reference: bool = True) 
                      "success (first)": first.mean() if n else np.nan,
                      "success (retry)": ok.mean() if n else np.nan})
     if reference:
-        for engine, (first, after) in PAPER.items():
+        for engine, (first, after) in paper_rates().items():
             rows.append({"run": f"paper: {engine} (reference)", "engine": engine,
                          "retry": "true", "n_evaluable": np.nan, "first attempt": np.nan,
                          "after retry": np.nan, "rescued": np.nan,

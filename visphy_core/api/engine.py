@@ -153,6 +153,10 @@ class Engine(ABC):
     #: The npm packages the engine's pages load (`visphy_core.api.assets`): ``visphy setup``
     #: installs those of every registered engine class. None: the engine vendors nothing.
     js_assets: JsAssets | None = None
+    #: The paper's published success rates for the engine (first attempt, after one retry),
+    #: shown beside a run's in the retry table (`visphy_core.analysis.retry`); None: not
+    #: reported.
+    paper_retry: tuple[float, float] | None = None
 
     def __init__(self, cfg: Any = None):
         self.cfg = cfg

@@ -112,8 +112,8 @@ class RenderConfig:
 @dataclass
 class DatasetConfig:
     name: str = MISSING
-    # a dataset plugin's name (`python -m visphy_core plugins`): generated (VisPhyBench regenerated
-    # from its templates), original (the published layout on disk), tiny (a fixture)
+    # a dataset plugin's name (`python -m visphy_core plugins`): generated (the paper's benchmark
+    # regenerated from its templates), original (the published layout on disk), tiny (a fixture)
     source: str = "generated"
     seed: int = field(default=0, metadata={"min": 0})  # generated: the benchmark's seed
     # generated: the generator version to load (None: this visphy's, built on first use; an

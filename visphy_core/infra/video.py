@@ -61,7 +61,7 @@ def frame_digest(frame: np.ndarray) -> str:
     return h.hexdigest()
 
 
-#: The published VisPhyBench clips' encoding: H.264 yuv420p at crf 23.
+#: The paper's published benchmark clips' encoding: H.264 yuv420p at crf 23.
 PUBLISHED_CRF = 23
 
 
