@@ -145,6 +145,10 @@ def test_the_headline_subtracts_the_penalty_and_a_still_clip_stays_zero():
     value, parts = scene_headline(head, metrics, {"spatiotemporal_iou_tol": 0.6,
                                                   "body_area_drift": float("nan")}, floor, {})
     assert value == pytest.approx(0.6) and "undefined" in parts["penalties"]["body_area_drift"]
+    # a penalty the run does not score subtracts nothing and says so
+    value, parts = scene_headline(head, metrics[:1], {"spatiotemporal_iou_tol": 0.6}, floor, {})
+    assert value == pytest.approx(0.6)
+    assert "not among the run's metrics" in parts["penalties"]["body_area_drift"]["undefined"]
     plain = Headline.from_cfg({"headline": {"penalties": {}}})
     assert plain.penalties == ()
     assert scene_headline(plain, metrics, {"spatiotemporal_iou_tol": 0.6,

@@ -162,6 +162,10 @@ def scene_headline(headline: Headline, metrics: list[Metric], values: dict[str, 
             if value is not None:
                 value -= weight * v
         penalties[m.name] = entry
+    for name, weight in headline.penalties:
+        if weight > 0 and name not in penalties:
+            penalties[name] = {"value": None, "weight": weight,
+                               "undefined": "not among the run's metrics (metrics.names)"}
     if value is not None:
         value = float(min(max(value, headline.clip[0]), headline.clip[1]))
     out = {"metric": headline.name, "value": value, "clip": list(headline.clip),
