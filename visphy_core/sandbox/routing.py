@@ -42,36 +42,37 @@ class PageSlot:
 _BODIES: dict = {}
 
 
-def _asset_body(item: Asset) -> bytes:
-    """The bytes of an asset; vendored files are read once per process (they never change
-    under a lock file's folder) and kept by path, size and modification time."""
-    if not isinstance(item, Path):
-        return item.encode() if isinstance(item, str) else bytes(item)
-    st = item.stat()
-    key = (str(item), st.st_size, st.st_mtime_ns)
-    body = _BODIES.get(key)
-    if body is None:
-        body = item.read_bytes()
+def _vendored(path: Path) -> list:
+    """A vendored file's cache entry, [bytes, text or None]: read once per process (files never
+    change under a lock file's folder), kept by path, size and modification time; its UTF-8
+    text is decoded the first time a page runs it as an init script."""
+    st = path.stat()
+    key = (str(path), st.st_size, st.st_mtime_ns)
+    entry = _BODIES.get(key)
+    if entry is None:
         if len(_BODIES) > 256:
             _BODIES.clear()
-        _BODIES[key] = body
-    return body
+        entry = _BODIES[key] = [path.read_bytes(), None]
+    return entry
 
 
-_TEXTS: dict = {}
+def _asset_body(item: Asset) -> bytes:
+    """The bytes of an asset (a vendored file's from the process cache)."""
+    if not isinstance(item, Path):
+        return item.encode() if isinstance(item, str) else bytes(item)
+    return _vendored(item)[0]
 
 
 def asset_text(item: Asset) -> str:
-    """An asset as UTF-8 text (a library run as an init script), decoded once per body."""
+    """An asset as UTF-8 text (a library run as an init script); a vendored file's is decoded
+    once per process."""
     if isinstance(item, str):
         return item
-    body = _asset_body(item)
-    key = id(body)
-    entry = _TEXTS.get(key)
-    if entry is None or entry[0] is not body:
-        if len(_TEXTS) > 64:
-            _TEXTS.clear()
-        entry = _TEXTS[key] = (body, body.decode("utf-8"))
+    if not isinstance(item, Path):
+        return bytes(item).decode("utf-8")
+    entry = _vendored(item)
+    if entry[1] is None:
+        entry[1] = entry[0].decode("utf-8")
     return entry[1]
 
 
