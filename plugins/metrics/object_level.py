@@ -122,7 +122,8 @@ the 183 physics-wrong clips scored below the still clip (none with K ≤ 1.5). A
 ~1 radius off from the first frame scores about what a still clip does: the cap rates both
 "elsewhere".
 
-Measured (a harness outside the suite: the first 24 2D scenes of the test split, exact clips,
+Measured with version 1 (the hard edge; the ramp's effect: *Why the ramp* above) (a harness
+outside the suite: the first 24 2D scenes of the test split, exact clips,
 unaligned pairing; normalised as the headline does, floor = the still clip, ceiling = the twin,
 clipped to [−1, 1]). Restyles (the validity study's ``restyles.APPEARANCES`` and an H.264
 crf-23 encoding): median over scenes of the drop from the truth's normalised value (the goal:
