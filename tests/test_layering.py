@@ -231,7 +231,7 @@ def test_a_long_module_says_why_it_is_one_module():
 #: Modules outside ``visphy_core/results/`` that may spell a run-file name, with why: the name
 #: there is not a run's file.
 RUN_FILE_NAME_ELSEWHERE = {
-    "visphy_core/cli/help.py": "config.yaml of the Hydra config tree (visphy_conf)",
+    "visphy_core/config/tree.py": "config.yaml of the Hydra config tree (visphy_conf)",
 }
 
 

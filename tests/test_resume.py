@@ -1,6 +1,8 @@
 """A run killed mid-run resumes on rerun: identical rows to an uninterrupted run, no
-duplicate or missing row, zero repeated model calls; SIGTERM/SIGINT close the run with a partial
-summary and exit 143/130."""
+duplicate or missing row, no repeated model call (but the one a SIGKILL may catch between its
+reply and the cache write: the reply is recorded in the ledger, fsynced, first, so a paid call is
+never missing from the costs); SIGTERM/SIGINT close the run with a partial summary and exit
+143/130."""
 
 from __future__ import annotations
 
@@ -149,14 +151,22 @@ def test_sigkill_mid_run_then_rerun_gives_identical_results(
     assert rows_first <= done_at_kill < 4, f"{point}: killed after {done_at_kill} rows"
     run_dir = _the_run(home)
     assert json.loads((run_dir / "manifest.json").read_text())["status"] == "running"
-    calls_before = len(_calls(home))
+    at_kill = _calls(home)
+    calls_before = len(at_kill)
 
     out = _run(home, script).stdout
     assert "resuming" in out
     rows = _comparable(_the_run(home))
     assert rows == ref_rows, point
     calls = _calls(home)
-    assert len(calls) == len(ref_calls), f"{point}: {calls} vs {ref_calls}"
+    # no call is repeated, but for one the kill may catch between the model's reply (counted)
+    # and the cache write a few ms later: then the last call counted before the kill, and only
+    # it, is made again
+    repeated = len(calls) - len(ref_calls)
+    assert repeated in (0, 1), f"{point}: {calls} vs {ref_calls}"
+    if repeated:
+        assert at_kill and calls.count(at_kill[-1]) == 2 and \
+            sorted(calls) == sorted(ref_calls + [at_kill[-1]]), (point, at_kill, calls)
     assert len(calls) >= calls_before
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["status"] == "finished" and summary["resumed_rows"] >= 1

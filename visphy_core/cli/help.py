@@ -88,14 +88,12 @@ def option_config(group: str, option: str, schema: bool = False) -> dict:
     """The keys the option's own YAML file sets (``dataset``, ``mini`` → its ``source``,
     ``split``, …), uncomposed, with its ``defaults`` list where ``schema``; empty where the
     installed config tree has no such file."""
-    from importlib import resources
-
     from omegaconf import OmegaConf
 
-    path = resources.files("visphy_conf").joinpath(group, f"{option}.yaml")
-    if not path.is_file():
-        return {}
-    values = OmegaConf.to_container(OmegaConf.create(path.read_text()))
+    from visphy_core.config.tree import option_node
+
+    node = option_node(group, option)
+    values = OmegaConf.to_container(node) if node is not None else None
     if not isinstance(values, dict):
         return {}
     return {k: v for k, v in values.items() if schema or k != "defaults"}
@@ -103,13 +101,10 @@ def option_config(group: str, option: str, schema: bool = False) -> dict:
 
 def _default_options() -> dict[str, str]:
     """The root config's defaults list: group → default option."""
-    from importlib import resources
+    from visphy_core.config.tree import root_node
 
-    from omegaconf import OmegaConf
-
-    text = resources.files("visphy_conf").joinpath("config.yaml").read_text()
     out = {}
-    for item in OmegaConf.create(text).get("defaults", []):
+    for item in root_node().get("defaults", []):
         if isinstance(item, str) or not hasattr(item, "items"):
             continue
         for key, value in item.items():

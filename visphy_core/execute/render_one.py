@@ -36,12 +36,9 @@ from visphy_core.scoring.score import ScoringProtocol, select_metrics
 def render_defaults() -> dict[str, str]:
     """The root config's ``render`` node (conf/config.yaml): the default dataset config and the
     model that plays a reply back."""
-    from importlib import resources
+    from visphy_core.config.tree import root_node
 
-    from omegaconf import OmegaConf
-
-    node = OmegaConf.create(resources.files("visphy_conf").joinpath("config.yaml").read_text())
-    return {k: str(v) for k, v in (node.get("render") or {}).items()}
+    return {k: str(v) for k, v in (root_node().get("render") or {}).items()}
 
 
 def _installed(kind: str) -> str:
