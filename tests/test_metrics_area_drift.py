@@ -113,6 +113,16 @@ def test_the_drift_reads_each_clip_against_its_own_first_frame():
     assert AD.drift(np.zeros((3, 2))) is None
 
 
+def test_a_frame_a_pairing_repeats_gives_the_same_areas_each_time():
+    from visphy_plugins.metrics.object_level import GenObjects
+
+    objects = GenObjects(frame=np.array([0, 0, 1, 2]), area=np.array([10.0, 5.0, 8.0, 4.0]),
+                         centroid=np.zeros((4, 2)), group=np.array([0, 1, 0, 0]),
+                         group_rgb=np.zeros((2, 3)), group_area=np.zeros(2))
+    got = AD.group_areas(objects, 3, np.array([0, 1, 1, 2, 2]))  # e.g. a time-warped pairing
+    assert got.tolist() == [[10, 5], [8, 0], [8, 0], [4, 0], [4, 0]]
+
+
 def test_registered_in_the_default_suite():
     import yaml
     from pathlib import Path

@@ -46,16 +46,12 @@ from visphy_plugins.metrics import tracks as TR
 CAP = math.log(4.0)  # a group's |ln area ratio| in one frame counts at most this
 
 
-def group_areas(objects: OL.GenObjects, frames: np.ndarray) -> np.ndarray:
+def group_areas(objects: OL.GenObjects, n_frames: int, frames: np.ndarray) -> np.ndarray:
     """K×G: the summed area of each colour group's objects in each of ``frames`` (indices of
-    the clip's frames)."""
-    out = np.zeros((len(frames), objects.n_groups))
-    where = {int(f): k for k, f in enumerate(frames)}
-    for f, g, a in zip(objects.frame.tolist(), objects.group.tolist(), objects.area.tolist()):
-        k = where.get(f)
-        if k is not None:
-            out[k, g] += a
-    return out
+    the clip's ``n_frames`` frames; a frame a pairing repeats gives the same row each time)."""
+    per_frame = np.zeros((n_frames, objects.n_groups))
+    np.add.at(per_frame, (objects.frame, objects.group), objects.area)
+    return per_frame[frames]
 
 
 def drift(areas: np.ndarray) -> float | None:
@@ -86,10 +82,12 @@ def area_drift(inp: MetricInput, alignment) -> float:
     if len(gi) == 0:
         return float("nan")
     background = _background(inp)
-    gen = drift(group_areas(OL.clip_objects(inp, inp.generated, background), gi))
+    gen = drift(group_areas(OL.clip_objects(inp, inp.generated, background),
+                            len(inp.generated), gi))
     if gen is None:
         return float("nan")
-    ref = drift(group_areas(OL.clip_objects(inp, inp.reference, background), ri))
+    ref = drift(group_areas(OL.clip_objects(inp, inp.reference, background),
+                            len(inp.reference), ri))
     return max(0.0, gen - (ref or 0.0))
 
 
