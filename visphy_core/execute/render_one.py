@@ -77,6 +77,7 @@ def _parser() -> argparse.ArgumentParser:
                    help=f"without --scene: WIDTHxHEIGHT (default {DEFAULT_SIZE})")
     p.add_argument("--dim", choices=("2d", "3d"), default="2d",
                    help="without --scene: a 2D or 3D program (default 2d)")
+    p.set_defaults(player=defaults["model"])  # render.model: plays the reply back
     p.add_argument("overrides", nargs="*", default=[],
                    help="more Hydra overrides, e.g. engine.timeout_s=20")
     return p
@@ -103,9 +104,8 @@ def render_reply(argv: list[str]) -> int:
     if not args.scene or any(c in args.scene for c in ",[]* "):
         raise UserError(f"--scene {args.scene!r}: name exactly one scene id, e.g. "
                         "--scene task10001_000")
-    player = render_defaults()["model"]
     overrides = [f"engine={args.engine}", f"dataset={args.dataset}",
-                 f"dataset.scenes=[{args.scene}]", f"model={player}",
+                 f"dataset.scenes=[{args.scene}]", f"model={args.player}",
                  f"model.source={json.dumps(str(reply))}", "tracking=none", "run.retry=false"]
     if reply.suffix.lower() in (".mp4", ".webm", ".mov", ".mkv", ".avi"):
         overrides.append("model.output=video")  # a pixel-space model's video
