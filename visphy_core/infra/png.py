@@ -6,8 +6,8 @@ Frames a sandboxed program could have touched (an engine that writes its frames 
 links (a regular file only, at most `png_size_cap` bytes), its IHDR (width, height, bit depth,
 colour type) is parsed from the first 33 bytes and checked against the size the caller expects
 **before** anything is decompressed, so a 10000×10000 frame costs a 33-byte read, not 300 MB of
-pixels. Only a header
-that matches is decoded, by Pillow's PNG plugin alone, into exactly that many pixels.
+pixels. Only a header that matches is decoded, by Pillow's PNG plugin alone, into exactly that
+many pixels.
 """
 
 from __future__ import annotations
