@@ -5,8 +5,8 @@ The names are taken from what the installed built-in plugins register (and the p
 engine and dataset plugins, and the engines' declared JavaScript assets), so a new built-in is
 checked without editing this file. A name that is also an everyday word (``original``,
 ``static``, ``replay``…) counts only where it selects a plugin (``model=replay``); any other
-counts anywhere in a core file's text, comments included. What remains is in `ALLOWED`, each
-with its reason; an entry that no longer matches fails too, so the list only shrinks.
+counts anywhere in a core file's text, comments included. An exception would go in
+`ALLOWED`, with its reason; an entry that no longer matches fails too. It is empty.
 """
 
 from __future__ import annotations
@@ -34,25 +34,9 @@ COMMON = {"original", "generated", "tiny", "static", "replay", "svg", "hf", "thr
 EXTRA_ASSET_NAMES = {"three.js"}
 GROUPS = r"(?:engine|model|dataset|judge|source|physics)(?:\.name|\.source)?"
 
-_SPEC = ("the scene spec format (`spec/`) names its ground truth's simulator in `world.engine` "
-         "and its library conventions; the physics plugins register under those names")
-_BROWSER = ("the browser sandbox's comments name the libraries whose behaviour it accommodates "
-            "(readiness checks, canvas discovery)")
-_PROCESS = "the process sandbox's comments name the programs whose needs its rules admit"
-#: file -> (names it may contain, why).
-ALLOWED: dict[str, tuple[set[str], str]] = {
-    "visphy_core/api/hookspecs.py": ({"box2d", "cannon-es"}, _SPEC + "; the hook reference "
-                                     "page is generated from this docstring"),
-    "visphy_core/api/physics.py": ({"box2d", "cannon-es"}, _SPEC),
-    "visphy_core/sandbox/bwrap.py": ({"blender"}, _PROCESS),
-    "visphy_core/sandbox/process.py": ({"blender", "manim"}, _PROCESS),
-    "visphy_core/sandbox/syscall_filter.py": ({"blender", "manim"}, _PROCESS),
-    "visphy_core/sandbox/virtual_time.js": ({"three.js", "p5"}, _BROWSER),
-    "visphy_core/scoring/normalisation.py": ({"box2d", "cannon-es"}, _SPEC),
-    "visphy_core/spec/spec2d.py": ({"box2d"}, _SPEC),
-    "visphy_core/spec/spec3d.py": ({"cannon-es", "three.js"}, _SPEC),
-    "visphy_core/spec/spec_track.py": ({"box2d", "cannon-es"}, _SPEC),
-}
+#: file -> (names it may contain, why). Empty: a core file that must name a built-in plugin
+#: says why here, and the check holds it to exactly those names.
+ALLOWED: dict[str, tuple[set[str], str]] = {}
 
 
 def builtin_names() -> set[str]:

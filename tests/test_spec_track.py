@@ -61,6 +61,21 @@ def test_an_unsimulatable_s_is_a_spec_track_error_with_the_reason(mini_scenes, b
         merged_spec(scene.spec, reply)
 
 
+@pytest.mark.parametrize("engine, why", [("cannon-es", "simulates 3d scenes; this spec is 2d"),
+                                         ("havok", "unknown physics engine 'havok'")])
+def test_the_spec_names_its_simulator_and_the_registry_judges_it(mini_scenes, engine, why):
+    """The schema takes any simulator name (a plugin's dataset may name its own); a name no
+    plugin registered, or one registered for the other dimension, fails when simulated."""
+    from visphy_core.spec.spec2d import validate_spec
+
+    spec = copy.deepcopy(mini_scenes[0].spec)
+    spec.pop("splits", None)  # the dataset writer's addition, not part of the spec
+    spec["world"]["engine"] = engine
+    validate_spec(spec)
+    with pytest.raises(SpecTrackError, match=why):
+        simulate(spec)
+
+
 def test_the_clip_contract_stays_the_ground_truths(mini_scenes):
     scene = mini_scenes[0]
     reply = _reply_of(scene.spec)

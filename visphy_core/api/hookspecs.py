@@ -73,8 +73,9 @@ def visphy_register_datasets(register: Callable[..., None]) -> None:
 def visphy_register_physics(register: Callable[..., None]) -> None:
     """Register ground-truth simulators: ``register(world_engine, factory)``.
 
-    :param register: callback taking the ``world.engine`` name a scene spec uses (``box2d``,
-        ``cannon-es``) and a factory ``factory() -> visphy_core.api.physics.Physics``.
+    :param register: callback taking the ``world.engine`` name a scene spec uses (any
+        non-empty string; the built-in simulators are listed in docs/extending/physics.md)
+        and a factory ``factory() -> visphy_core.api.physics.Physics``.
     """
 
 

@@ -1,10 +1,9 @@
 """Ground-truth physics as plugins: the simulator that rolls a scene spec out, by world engine.
 
-A scene spec names its simulator in ``world.engine`` (``box2d`` for the 2D benchmark,
-``cannon-es`` for the 3D one). The spec track and the variance normalisation re-simulate specs
-(the model's S; the ground truth's nudged twin) through whichever plugin registered that name
-(``visphy_register_physics``: ``register("box2d", Box2DPhysics)``), so the core knows no
-simulator.
+A scene spec names its simulator in ``world.engine``. The spec track and the variance
+normalisation re-simulate specs (the model's S; the ground truth's nudged twin) through whichever
+plugin registered that name (``visphy_register_physics``: ``register(name, factory)``) for the
+spec's ``dim``, so the core knows no simulator.
 """
 
 from __future__ import annotations
@@ -70,9 +69,14 @@ class Physics:
 
 def physics_for(spec: dict) -> Physics:
     """The registered simulator of ``spec["world"]["engine"]`` (``KeyError`` naming the
-    installed ones when none is)."""
+    installed ones when none is, or saying so when it simulates another ``dim`` than the
+    spec's)."""
     from visphy_core.api.registry import get_registry
 
     engine = str((spec.get("world") or {}).get("engine", ""))
     factory: Any = get_registry().get("physics", engine)
-    return factory()
+    physics = factory()
+    dim = spec.get("dim", physics.dim)
+    if physics.dim != dim:
+        raise KeyError(f"physics {engine!r} simulates {physics.dim} scenes; this spec is {dim}")
+    return physics

@@ -180,7 +180,7 @@ def _bwrap_argv(bwrap: str, mode: str, workdir: Path, ro_paths: Sequence[Path],
         cmd += parents(p, mounted)
         cmd += ["--ro-bind", p, p]
         mounted.append(p)
-    if os.path.isdir("/etc") and "/etc/mtab" not in mounted:  # Blender asks for the mount list
+    if os.path.isdir("/etc") and "/etc/mtab" not in mounted:  # 3D renderers ask for the mount list
         cmd += parents("/etc/mtab", mounted) + ["--symlink", "/proc/self/mounts", "/etc/mtab"]
     # the work dir itself, read-write at its own path
     cmd += parents(work, mounted)

@@ -1,6 +1,6 @@
 """Run an untrusted program as a sandboxed child process (shared by the Python engines).
 
-`run_sandboxed` is the one isolation primitive the Python engines (Manim, Blender) use for
+`run_sandboxed` is the one isolation primitive the Python engines use for
 model-written code: bubblewrap (``bwrap``) with fresh network, PID, IPC, UTS and mount
 namespaces, uid/gid 65534 without capabilities, a seccomp filter (`syscall_filter`) that closes
 every way into a new namespace, a new read-only root holding only the interpreter, an
@@ -14,7 +14,7 @@ This module holds the probe (`isolation_available`, `isolation_level`) and the r
 bubblewrap command line is in `visphy_core.sandbox.bwrap`, the limits in
 `visphy_core.sandbox.limits`, the output capture in `visphy_core.sandbox.capture` (their names
 are re-exported here). What is and is not isolated, each limit and how it is tested:
-docs/security.md, "Python engines (Manim, Blender): the process sandbox".
+docs/security.md, the section on the process sandbox of the Python engines.
 """
 
 from __future__ import annotations

@@ -6,8 +6,9 @@ The filter is built with **libseccomp** through its official Python binding (Deb
 ``python3-seccomp``, `scripts/setup.sh` installs it), exported as a classic BPF program
 (``seccomp_export_bpf``) and handed to bubblewrap (``bwrap --seccomp FD``), which loads it last,
 right before it executes the sandboxed command (``setpriv`` and then the program), with
-``no_new_privs`` set. Everything not listed is allowed (a deny list: Python, Manim's cairo/pango,
-Blender and Chromium run unchanged); a listed call fails with an errno and nothing else happens:
+``no_new_privs`` set. Everything not listed is allowed (a deny list: Python, the native
+libraries the Python engines render with, and Chromium run unchanged); a listed call fails with
+an errno and nothing else happens:
 
 * ``unshare``, ``setns``: any flags, ``EPERM``. ``clone`` with any ``CLONE_NEW*`` bit
   (``NEWNS``, ``NEWCGROUP``, ``NEWUTS``, ``NEWIPC``, ``NEWUSER``, ``NEWPID``, ``NEWNET``):

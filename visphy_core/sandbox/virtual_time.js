@@ -262,8 +262,8 @@
 
   // Recording helper of the upstream contract: the program names its canvas and clip length.
   let recording = null;
-  // Accepts a canvas, an <svg>, or what libraries hand out for one (p5.Renderer / p5.Graphics:
-  // .elt / .canvas; three.js renderer: .domElement; a 2D context: .canvas).
+  // Accepts a canvas, an <svg>, or what a drawing library hands out for one: a renderer or
+  // buffer object holding its element as .elt, .domElement or .canvas (a 2D context: .canvas).
   function unwrapTarget(x) {
     for (let i = 0; i < 3 && x && !(x instanceof Element); i++) {
       x = x.elt || x.domElement || x.canvas || null;
@@ -277,7 +277,7 @@
 
   function pickCanvas() {
     if (recording && recording.canvas instanceof HTMLCanvasElement) return recording.canvas;
-    // The largest canvas, preferring ones that are displayed (p5.Graphics buffers are hidden).
+    // The largest canvas, preferring ones that are displayed (offscreen buffers are hidden).
     let best = null, score = -1;
     for (const c of document.querySelectorAll('canvas')) {
       const shown = c.getClientRects().length > 0 ? 1 : 0;
@@ -532,7 +532,7 @@
     errors: () => errors.slice(),
     logs: () => logs.slice(),
     recording: () => recording && { durationMs: recording.durationMs },
-    // Trusted templates register predicates (e.g. "p5 finished preload() and setup()"); the
+    // Trusted templates register predicates (e.g. "the library finished loading and set up"); the
     // host waits, in real time and within the page's time limit, until all hold.
     addReadyCheck(fn) { readyChecks.push(fn); },
     isReady() {

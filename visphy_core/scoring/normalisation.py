@@ -1,15 +1,15 @@
 """Variance-normalised scores (after Physics-IQ's "physical variance"): every frame and sequence
 metric re-expressed between two anchors the scene itself sets.
 
-Physics-IQ films each scenario twice and calls the agreement of the two takes the best any
-model can hope for. visphy's takes are simulations, so the second take is made: the **twin** is
-the ground truth re-simulated (Box2D in 2D, cannon-es in 3D) after an imperceptible nudge of its
+Physics-IQ films each scenario twice and calls the agreement of the two takes the best any model can
+hope for. visphy's takes are simulations, so the second take is made: the **twin** is the ground
+truth re-simulated (by the physics plugin its spec names) after an imperceptible nudge of its
 initial state, then replayed by the engine's trusted reference program under the scene's clip
-contract. What the twin scores against the ground truth is the **ceiling** ``c``: the physics
-known only up to what no viewer could see, drawn by the engine being evaluated. The **floor**
-``f`` is what the first key frame held for the whole clip scores (the run's fallback clip,
-"nothing moves" — the clip that beat every real model on PSNR in the paper's published
-results). A model's value ``m`` becomes
+contract. What the twin scores against the ground truth is the **ceiling** ``c``: the physics known
+only up to what no viewer could see, drawn by the engine being evaluated. The **floor** ``f`` is
+what the first key frame held for the whole clip scores (the run's fallback clip, "nothing moves" —
+the clip that beat every real model on PSNR in the paper's published results). A model's value ``m``
+becomes
 
     norm = (m − f) / (c − f)
 

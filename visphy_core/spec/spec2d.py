@@ -5,7 +5,7 @@ the detection context and any engine that re-renders the scene all read the same
 conventions below are fixed here once:
 
 * lengths are pixels, origin bottom-left, y up; angles radians, counter-clockwise;
-  Box2D metres = pixels / `world.units.px_per_m`;
+  simulator metres = pixels / `world.units.px_per_m`;
 * a body's pose is the position of its local origin; shapes are given in local pixel coordinates:
   circle `{radius_px}`, box `{length_px, thickness_px}` (centred, length along local x),
   polygon `{vertices_px}` (convex, counter-clockwise), compound `{parts_px}` (convex CCW parts);
@@ -33,6 +33,7 @@ from visphy_core.spec.validation import (
     NUM,
     POS,
     RGB,
+    SIMULATOR,
     body_schema,
     check_bodies,
     check_contact_pairs,
@@ -45,7 +46,7 @@ from visphy_core.spec.validation import (
     shape_case,
 )
 
-#: Constants of PHYRE's Box2D world; a spec with profile "phyre" must use them.
+#: Constants of PHYRE's world; a spec with profile "phyre" must use them.
 PHYRE_PROFILE: dict[str, Any] = {
     "px_per_m": 6.0,
     "canvas_px": [512, 512],
@@ -61,7 +62,8 @@ PHYRE_PROFILE: dict[str, Any] = {
     "bar_thickness_px": 512 / 50,
 }
 WALL_IDS = ("wall_bottom", "wall_left", "wall_right", "wall_top")
-#: Box2D's b2_maxPolygonVertices: a convex part may not have more vertices than this.
+#: The usual polygon limit of 2D rigid-body simulators: a convex part has at most this many
+#: vertices.
 MAX_POLYGON_VERTICES = 8
 
 _VEC2 = {"type": "array", "items": NUM, "minItems": 2, "maxItems": 2}
@@ -102,7 +104,7 @@ SPEC_JSON_SCHEMA: dict[str, Any] = {
                                 "features": {"type": "object"}}),
             "world": obj(
                 {
-                    "engine": {"const": "box2d"},
+                    "engine": SIMULATOR,
                     "engine_version": {"type": "string"},
                     "profile": {"type": "string"},
                     "units": obj({"px_per_m": POS,

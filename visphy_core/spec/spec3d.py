@@ -1,14 +1,14 @@
 """Scene specification `visphy-scene/1` with ``dim: "3d"``: JSON Schema, validation, geometry.
 
 The 3D spec has the same top-level keys as the 2D one (`visphy_core/spec/spec2d.py`) plus a
-``camera``; it is the single source of ground truth for a generated 3D scene (cannon-es rollout,
-three.js replay, detection context). Conventions, fixed here once:
+``camera``; it is the single source of ground truth for a generated 3D scene (the simulator's
+rollout, the engines' replays, the detection context). Conventions, fixed here once:
 
 * SI units: metres, kilograms, seconds, radians; right-handed world, **y up**, the floor is the
   plane y = ``world.floor.y`` (a static body with the reserved id ``floor``);
 * a pose is ``{position_m: [x, y, z], quat: [x, y, z, w]}`` (unit quaternion, body -> world);
   poses in trajectories are 7-vectors ``(x, y, z, qx, qy, qz, qw)``;
-* the body origin is its centre of mass (cannon-es rotates bodies about their origin), so
+* the body origin is its centre of mass (rigid-body simulators rotate bodies about their origin), so
   templates place compound parts around their common centroid;
 * shapes (local frame): ``sphere {radius_m}``; ``box {size_m: [sx, sy, sz]}`` (full extents,
   centred); ``wedge {length_m, height_m, width_m}``: a right-triangle prism whose triangle lies in
@@ -16,9 +16,9 @@ three.js replay, detection context). Conventions, fixed here once:
   angle (low, high-side corner at -x), extruded over ``width_m`` along z and centred on the
   triangle's centroid, so the slope descends towards +x; ``compound {parts: [{shape: box|sphere,
   offset_m, quat}]}``;
-* cannon-es mixes materials by multiplying them; every pair that can touch gets an explicit
-  contact material (``contacts.pairs``, falling back to ``contacts.default``), so the ground
-  truth never depends on a mixing rule. Per-body ``material.friction/restitution`` are the
+* simulators mix two bodies' materials by rules of their own; every pair that can touch gets an
+  explicit contact material (``contacts.pairs``, falling back to ``contacts.default``), so the
+  ground truth never depends on a mixing rule. Per-body ``material.friction/restitution`` are the
   template's per-body values the pair values were derived from (documentation only).
 * drawing only (no effect on the physics): a body's optional ``opacity`` (0-1, default 1: a
   translucent body, e.g. a U container), ``render.antialias`` (multisampled edges) and
@@ -46,6 +46,7 @@ from visphy_core.spec.validation import (
     NUM,
     POS,
     RGB,
+    SIMULATOR,
     body_schema,
     check_bodies,
     check_contact_pairs,
@@ -61,8 +62,6 @@ from visphy_core.spec.validation import (
 #: Constants of the generated 3D subset: a spec with profile "visphybench-3d" must
 #: use them.
 PROFILE_3D: dict[str, Any] = {
-    "engine": "cannon-es",
-    "engine_version": "0.20.0",
     "gravity_m_s2": [0.0, -9.82, 0.0],
     "dt_s": 1.0 / 60.0,
     "steps_per_frame": 4,
@@ -125,7 +124,7 @@ SCHEMA_3D: dict[str, Any] = {
                                 "score": NUM, "features": {"type": "object"}}),
             "world": obj(
                 {
-                    "engine": {"const": "cannon-es"},
+                    "engine": SIMULATOR,
                     "engine_version": {"type": "string"},
                     "profile": {"type": "string"},
                     "units": obj({"length": {"const": "m"}, "mass": {"const": "kg"},
@@ -229,7 +228,8 @@ IDENTITY_QUAT = [0.0, 0.0, 0.0, 1.0]
 
 # --------------------------------------------------------------------------------- geometry
 #: Faces of the wedge's 6 vertices (`wedge_vertices`), counter-clockwise seen from outside
-#: (cannon-es ConvexPolyhedron convention): front, back, bottom, vertical back face, slope.
+#: (outward normals by the right-hand rule, as convex-polyhedron shapes expect): front, back,
+#: bottom, vertical back face, slope.
 WEDGE_FACES: list[list[int]] = [[3, 4, 5], [0, 2, 1], [0, 1, 4, 3], [0, 3, 5, 2], [1, 2, 5, 4]]
 
 
@@ -405,8 +405,6 @@ def validate_spec_3d(spec: dict) -> None:
     if world["profile"] == PROFILE_NAME:
         check_profile(spec, _WHAT, PROFILE_NAME, [
             (f"$.{where}", value, PROFILE_3D[key]) for where, value, key in (
-                ("world.engine", world["engine"], "engine"),
-                ("world.engine_version", world["engine_version"], "engine_version"),
                 ("world.gravity_m_s2", world["gravity_m_s2"], "gravity_m_s2"),
                 ("world.dt_s", world["dt_s"], "dt_s"),
                 ("world.steps_per_frame", world["steps_per_frame"], "steps_per_frame"),

@@ -1,12 +1,12 @@
 """The spec track: the model's scene specification S, simulated by visphy's own physics and rendered
 by the engine's trusted reference program, scored like the program's own video.
 
-A model can understand the physics and still fail to code it (or code it well from a wrong
-reading of the frames). The spec track separates the two: S is data, never code, so it runs
-through the same simulator as the ground truth (Box2D in 2D, cannon-es in 3D) under the scene's
-clip contract (world step, frame count, fps, canvas, camera, render settings all taken from the
-ground truth), and the engine's reference program replays the result. Its scores carry the
-``spec.`` prefix (``spec.psnr``, ``spec.track_pos_err``…).
+A model can understand the physics and still fail to code it (or code it well from a wrong reading
+of the frames). The spec track separates the two: S is data, never code, so it runs through the same
+simulator as the ground truth (the one its ``world.engine`` names) under the scene's clip contract
+(world step, frame count, fps, canvas, camera, render settings all taken from the ground truth), and
+the engine's reference program replays the result. Its scores carry the ``spec.`` prefix
+(``spec.psnr``, ``spec.track_pos_err``…).
 
 What S may set: gravity (and in 2D the pixels-per-metre scale), the bodies (ids, categories,
 colours, shapes, poses, velocities, materials) and the contact table. Everything else is the
@@ -83,7 +83,7 @@ def _check_speeds(spec: dict) -> None:
 
 def simulate(spec: dict, timeout_s: float = 60.0):
     """The rollout of a merged spec by the simulator registered for its ``world.engine``
-    (`visphy_core.api.physics`: Box2D in 2D, cannon-es in 3D)."""
+    (`visphy_core.api.physics`)."""
     from visphy_core.api.physics import physics_for
 
     try:

@@ -26,6 +26,9 @@ POS = {"type": "number", "exclusiveMinimum": 0}
 RGB = {"type": "array", "items": {"type": "integer", "minimum": 0, "maximum": 255},
        "minItems": 3, "maxItems": 3}
 ID_LIST = {"type": "array", "items": {"type": "string"}}
+#: ``world.engine``: the name a physics plugin registered (`visphy_core.api.physics`); whether
+#: one did, for the spec's ``dim``, is checked when the spec is simulated, not here.
+SIMULATOR = {"type": "string", "minLength": 1}
 PAIR_LIST = {"type": "array", "items": {"type": "array", "items": {"type": "string"},
                                         "minItems": 2, "maxItems": 2}}
 BODY_ID = {"type": "string", "pattern": r"^[a-z][a-z0-9_]*$"}

@@ -54,6 +54,8 @@ LAYOUT_SCALE = 1.7           # templates lay out in metres at 1/1.7 of the drawn
 MAX_LAYOUT_WIDTH_PX = 400.0  # ...or less, so the initial layout spans at most 400 of 512 px
 CONTAINER_OPACITY = 0.5
 FLOOR_MATERIAL = {"friction": 0.4, "restitution": 0.1}
+#: The simulator the 3D subset's specs name, at the version its clips were made with.
+CANNON_VERSION = "0.20.0"
 G = 9.82
 GAP = 0.002          # bodies resting on something start this far above it
 QUAT_Y_PI = [0.0, 1.0, 0.0, 0.0]
@@ -341,7 +343,7 @@ def scene_3d(template_id: int, variant: int, family: str, description: str,
         "seed": 0, "dim": "3d", "family": family, "description": description,
         "difficulty": {"label": "easy", "score": 0.0, "features": {}},
         "world": {
-            "engine": p["engine"], "engine_version": p["engine_version"],
+            "engine": "cannon-es", "engine_version": CANNON_VERSION,
             "profile": PROFILE_NAME,
             "units": {"length": "m", "mass": "kg", "time": "s", "angles": "rad",
                       "up_axis": "y", "quaternion": "xyzw"},
