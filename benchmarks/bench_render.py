@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import re
 import resource
 import statistics
@@ -36,27 +35,9 @@ import tempfile
 import time
 from pathlib import Path
 
+from machine import machine_info
+
 _TICK = os.sysconf("SC_CLK_TCK")
-
-
-def machine_info() -> dict:
-    """Cores, CPU model, load average and memory: the figures a timing needs beside it."""
-    model = platform.processor() or "?"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        mem = Path("/proc/meminfo").read_text().split()[1]
-        mem_gib = round(int(mem) / 2**20, 1)
-    except (OSError, IndexError, ValueError):
-        mem_gib = None
-    return {"cores": os.cpu_count(), "usable_cores": len(os.sched_getaffinity(0)),
-            "cpu": model, "load_avg": [round(x, 2) for x in os.getloadavg()],
-            "memory_gib": mem_gib, "python": platform.python_version()}
 
 
 def pss_bytes(pid: int) -> int:

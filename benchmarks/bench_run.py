@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import resource
 import statistics
 import subprocess
@@ -35,28 +34,10 @@ import threading
 import time
 from pathlib import Path
 
+from machine import machine
+
 REPO = Path(__file__).resolve().parents[1]
 _PAGE = os.sysconf("SC_PAGE_SIZE")
-
-
-def machine_info() -> dict:
-    """Cores, CPU model, load average and memory: the figures a timing needs beside it."""
-    model = platform.processor() or "?"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        mem = Path("/proc/meminfo").read_text().split()[1]
-        mem_gib = round(int(mem) / 2**20, 1)
-    except (OSError, IndexError, ValueError):
-        mem_gib = None
-    return {"cores": os.cpu_count(), "usable_cores": len(os.sched_getaffinity(0)),
-            "cpu": model, "load_avg": [round(x, 2) for x in os.getloadavg()],
-            "memory_gib": mem_gib, "python": platform.python_version()}
 
 
 def _processes() -> tuple[dict[int, list[int]], dict[int, tuple[int, int]]]:
@@ -238,9 +219,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     home = Path(args.home).resolve()
     ids = split_ids(args.dataset, home)[::args.every] if args.every else None
-    from machine import machine
-
-    info = {**machine_info(), **machine()}  # SIMD flags and the calibration figures
+    info = machine()  # with the SIMD flags and the calibration figures
     figures = run_once(dataset=args.dataset, scene_ids=ids, limit=args.scenes,
                        model=args.model, engine=args.engine,
                        metrics=None if args.metric_names else args.metrics,

@@ -26,7 +26,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_run import machine_info, run_once, split_ids  # noqa: E402
+from bench_run import run_once, split_ids  # noqa: E402
+from machine import machine_info  # noqa: E402
 
 
 def evenly(ids: list[str], n: int) -> list[str]:

@@ -24,7 +24,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench_render import TreeCpu, machine_info
+from bench_render import TreeCpu
+from machine import machine_info
 
 UPSTREAM_RECORDER = """
 window.setupRecording = (canvas, durationMs) => {

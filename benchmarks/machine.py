@@ -44,15 +44,25 @@ def _calibration() -> dict | None:
         return None
 
 
-def machine() -> dict:
-    """What the benchmark ran on (`SIMD` flags present, memory in GiB, calibration figures)."""
-    model, simd = _cpuinfo()
+def _memory_gib() -> float:
     try:
-        mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+        return round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30, 1)
     except (ValueError, OSError):
-        mem = float("nan")
-    return {"cpu": model, "simd": simd, "cores": os.cpu_count(), "memory_gib": round(mem, 1),
-            "python": sys.version.split()[0], "calibration": _calibration()}
+        return float("nan")
+
+
+def machine_info() -> dict:
+    """Cheap, for the start and the end of a timing: CPU model, cores (and those this process
+    may use), load average (the machine may be shared), memory in GiB, Python."""
+    return {"cores": os.cpu_count(), "usable_cores": len(os.sched_getaffinity(0)),
+            "cpu": _cpuinfo()[0], "load_avg": [round(x, 2) for x in os.getloadavg()],
+            "memory_gib": _memory_gib(), "python": platform.python_version()}
+
+
+def machine() -> dict:
+    """What the benchmark ran on: `machine_info` with the `SIMD` flags present and the
+    calibration figures (which take a few seconds to measure)."""
+    return {**machine_info(), "simd": _cpuinfo()[1], "calibration": _calibration()}
 
 
 if __name__ == "__main__":
