@@ -105,7 +105,7 @@ def radar_picture(run_dirs: list[Path], out: Path) -> None:
     import shutil
 
     from visphy_core.analysis import figures
-    from visphy_core.analysis.columns import pick_columns
+    from visphy_core.analysis.column_views import pick_columns
     from visphy_core.analysis.load import label_runs, load_runs
 
     runs = load_runs(run_dirs)

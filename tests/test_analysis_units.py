@@ -572,7 +572,7 @@ def test_analyse_prints_one_spearman_table_and_cuts_no_number(tmp_path):
 def test_the_default_columns_start_with_the_runs_headline_score():
     """The analysis' default metrics start with the headline score each run's summary names
     (the number the report and MLflow show first), then the fixed list, then the judges."""
-    from visphy_core.analysis.columns import headline_columns
+    from visphy_core.analysis.column_views import headline_columns
 
     run = make_run(None, "r", scenes({"psnr": [20.0, 22.0], "physics_score": [0.4, 0.6],
                                       "judge_a": [5.0, 6.0]}))

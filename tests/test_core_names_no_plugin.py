@@ -129,7 +129,7 @@ class _Elsewhere(Dataset):
 
 def test_the_report_asks_the_runs_dataset_where_its_ground_truth_is(tmp_path, monkeypatch):
     from visphy_core.api import registry as registry_module
-    from visphy_core.report.ground_truth import locate_ground_truth
+    from visphy_core.report.locate_truth import locate_ground_truth
     from visphy_core.results.load import RunData
 
     (tmp_path / "data").mkdir()

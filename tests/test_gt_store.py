@@ -51,7 +51,7 @@ def _run(home: Path, tmp: Path, name: str, scene_id: str, store: Path) -> tuple[
 @pytest.mark.browser
 def test_anchors_built_ahead_are_the_run_time_anchors_and_a_run_reuses_them(
         tmp_path, mini_root, mini_scenes):
-    from visphy_core.execute.ground_truth import prepare
+    from visphy_core.execute.prepare_truth import prepare
 
     home = tmp_path / "home"
     shutil.copytree(mini_root, home / "data" / mini_root.name)
@@ -95,7 +95,7 @@ def test_without_normalisation_only_the_headline_floors_are_built(tmp_path, mini
                                                                   mini_scenes):
     """The default (metrics.variance_norm=false): `ground-truth` builds what such a run reads,
     the headline component's floor (the still clip's score), no twin and no other anchor."""
-    from visphy_core.execute.ground_truth import prepare
+    from visphy_core.execute.prepare_truth import prepare
 
     home = tmp_path / "home"
     shutil.copytree(mini_root, home / "data" / mini_root.name)
@@ -158,7 +158,7 @@ def test_stored_anchors_are_served_and_keyed_by_what_determines_them(tmp_path, m
     assert frozen_identity(scene, RenderContract.for_scene(scene, timeout_s=5.0)) == ident
 
     # a scene's completion mark: another metric, contract or ceiling is another mark
-    from visphy_core.execute.ground_truth import complete_key
+    from visphy_core.execute.prepare_truth import complete_key
 
     class _Engine:
         def cache_identity(self):

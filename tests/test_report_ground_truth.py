@@ -1,11 +1,11 @@
-"""The report's ground-truth look-up (`visphy_core.report.ground_truth`): a scene whose data
+"""The report's ground-truth look-up (`visphy_core.report.locate_truth`): a scene whose data
 folder is gone says where it looked, including the folder the config names."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from visphy_core.report.ground_truth import locate_ground_truth
+from visphy_core.report.locate_truth import locate_ground_truth
 from visphy_core.results.load import RunData
 
 

@@ -16,7 +16,7 @@ from itertools import combinations
 import numpy as np
 import pandas as pd
 
-from visphy_core.analysis.columns import MODEL_SUCCESS, direction, header, scene_values
+from visphy_core.analysis.column_views import MODEL_SUCCESS, direction, header, scene_values
 from visphy_core.results.load import RunData
 
 RESAMPLES = 10_000

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from visphy_core.analysis.columns import MODEL_SUCCESS, header, view_rows
+from visphy_core.analysis.column_views import MODEL_SUCCESS, header, view_rows
 from visphy_core.api.engine import FailureClass
 from visphy_core.results.load import RunData
 from visphy_core.results.row import NOT_EVALUABLE

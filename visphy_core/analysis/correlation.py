@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from visphy_core.analysis.columns import MODEL_SUCCESS, scene_values
+from visphy_core.analysis.column_views import MODEL_SUCCESS, scene_values
 from visphy_core.results.load import RunData
 
 MIN_N = 3

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from visphy_core.analysis.columns import MODEL_SUCCESS, direction, header, scene_values
+from visphy_core.analysis.column_views import MODEL_SUCCESS, direction, header, scene_values
 from visphy_core.results.load import RunData
 
 FORMATS = ("png", "svg")

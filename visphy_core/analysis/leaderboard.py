@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from visphy_core.analysis.columns import MODEL_SUCCESS, WITH_FALLBACKS, header, scene_values
+from visphy_core.analysis.column_views import MODEL_SUCCESS, WITH_FALLBACKS, header, scene_values
 from visphy_core.analysis.human import summarise_ratings
 from visphy_core.results.load import RunData
 from visphy_core.results.row import NOT_EVALUABLE

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from visphy_core.analysis.columns import MODEL_SUCCESS, scene_values
+from visphy_core.analysis.column_views import MODEL_SUCCESS, scene_values
 from visphy_core.results.load import RunData
 
 #: column -> (short name, unit)

@@ -31,7 +31,7 @@ from visphy_core.analysis import (
     small_sample,
 )
 from visphy_core.analysis.bootstrap import RESAMPLES, SEED, bootstrap_table
-from visphy_core.analysis.columns import (
+from visphy_core.analysis.column_views import (
     MODEL_SUCCESS,
     VIEWS,
     has_values,
@@ -210,7 +210,7 @@ def analyse(runs: list[RunData], out_dir: Path, study: str | None = None,
     """Compute and write the study's tables and figures under ``out_dir``.
 
     ``metrics``: the score columns to compare (default: the headline subset, see
-    `visphy_core.analysis.columns.HEADLINE`; ``leaderboard_all`` always carries every column).
+    `visphy_core.analysis.column_views.HEADLINE`; ``leaderboard_all`` always carries every column).
     ``view``: ``model_success`` (default) or ``with_fallbacks``, the scenes each comparison uses.
     A study name that is not one of `STUDIES` gets everything that applies, with a note.
     """

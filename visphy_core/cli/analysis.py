@@ -11,7 +11,7 @@ from pathlib import Path
 
 def cmd_analyse(argv: list[str]) -> int:
     from visphy_core.analysis.bootstrap import RESAMPLES
-    from visphy_core.analysis.columns import VIEWS
+    from visphy_core.analysis.column_views import VIEWS
     from visphy_core.analysis.study import STUDIES
 
     parser = argparse.ArgumentParser(

@@ -1,5 +1,5 @@
 """``python -m visphy_core ground-truth [--workers N] [overrides]``: the command line of
-`visphy_core.execute.ground_truth.prepare` (a dataset's ground-truth artefacts computed ahead
+`visphy_core.execute.prepare_truth.prepare` (a dataset's ground-truth artefacts computed ahead
 of any run into the ground-truth store)."""
 
 from __future__ import annotations
@@ -18,6 +18,6 @@ def cmd_ground_truth(argv: list[str]) -> int:
                         help="scenes in flight (one renders while the others score)")
     parser.add_argument("overrides", nargs="*", default=[], help="Hydra overrides, as for a run")
     args = parser.parse_args(argv)
-    from visphy_core.execute.ground_truth import prepare
+    from visphy_core.execute.prepare_truth import prepare
 
     return prepare(args.overrides, workers=max(1, args.workers))

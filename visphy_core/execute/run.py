@@ -172,9 +172,9 @@ def _ground_truth_stage(cfg: DictConfig, services: SceneServices, scenes: list[S
     """The run's ``ground truth`` stage, before any scene is scored: the anchors its scoring
     reads (every frame/sequence metric's floor and ceiling with normalisation on, else the
     headline components' floors) filled into the ground-truth store for ``scenes``
-    (`visphy_core.execute.ground_truth.fill_store`), with its cost on one line. None when the
+    (`visphy_core.execute.prepare_truth.fill_store`), with its cost on one line. None when the
     run needs no anchor."""
-    from visphy_core.execute.ground_truth import fill_store
+    from visphy_core.execute.prepare_truth import fill_store
     from visphy_core.scoring.ground_truth import writable
 
     norm = services.protocol.variance_norm

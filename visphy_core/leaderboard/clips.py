@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from visphy_core.leaderboard.entries import Entry
-from visphy_core.report.ground_truth import locate_ground_truth
+from visphy_core.report.locate_truth import locate_ground_truth
 from visphy_core.report.markup import attr, url
 from visphy_core.report.media import MediaStore, Placed
 from visphy_core.report.run_report import write_run_report

@@ -2,7 +2,7 @@
 
 The headline (``summary.json``'s ``headline``: ``physics_score`` by default) is taken in the
 run's own headline view, every scored scene with a fallback clip scoring as the fallback does
-(`visphy_core.analysis.columns.WITH_FALLBACKS`), with the interval the run itself reports; a
+(`visphy_core.analysis.column_views.WITH_FALLBACKS`), with the interval the run itself reports; a
 run whose summary has no headline block gets both recomputed from its rows. The metric
 families are the plain pairing's metrics grouped by their declared family, each metric placed
 on a 0..1-ish scale where higher is better (its variance-normalised mean when the run has one:
@@ -21,8 +21,8 @@ import numpy as np
 import pandas as pd
 
 from visphy_core.analysis.bootstrap import resample_indices
-from visphy_core.analysis.columns import WITH_FALLBACKS, scene_values
-from visphy_core.report.columns import direction_of, group_of
+from visphy_core.analysis.column_views import WITH_FALLBACKS, scene_values
+from visphy_core.report.column_groups import direction_of, group_of
 from visphy_core.results.load import RunData
 
 DEFAULT_HEADLINE = "physics_score"

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from typing import Any, NamedTuple
 
-from visphy_core.report.columns import direction_of, group_of
+from visphy_core.report.column_groups import direction_of, group_of
 from visphy_core.report.markup import attr, esc, fmt
 from visphy_core.report.svg import (GRID, MUTED, SERIES, line, n, nice_ticks,
                                     svg, text)

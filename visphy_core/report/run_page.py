@@ -3,7 +3,7 @@ then one section per scene (`visphy_core.report.scene_section`)."""
 
 from __future__ import annotations
 
-from visphy_core.report.columns import HEADINGS, PRIMARY, direction_of, grouped, label
+from visphy_core.report.column_groups import HEADINGS, PRIMARY, direction_of, grouped, label
 from visphy_core.report.markup import arrow, attr, details, esc, fmt, rate, table
 from visphy_core.report.plots import family_bars, headline_plot
 from visphy_core.report.scene_section import SceneView, anchor, outcome_of

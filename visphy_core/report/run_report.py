@@ -6,7 +6,7 @@ from pathlib import Path
 
 from visphy_core.infra.files import atomic_write
 from visphy_core.report.frame_data import FrameData
-from visphy_core.report.ground_truth import locate_ground_truth
+from visphy_core.report.locate_truth import locate_ground_truth
 from visphy_core.report.markup import esc, page
 from visphy_core.report.media import MediaStore
 from visphy_core.report.run_page import counts, header, leaderboard, scene_list

@@ -14,9 +14,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from visphy_core.report.columns import HEADINGS, PRIMARY, direction_of, grouped, label
+from visphy_core.report.column_groups import HEADINGS, PRIMARY, direction_of, grouped, label
 from visphy_core.report.frame_data import FrameData
-from visphy_core.report.ground_truth import GroundTruth
+from visphy_core.report.locate_truth import GroundTruth
 from visphy_core.report.markup import arrow, attr, details, esc, fmt, pre, table, url
 from visphy_core.report.media import MediaStore, Placed, clip_timing
 from visphy_core.report.scene_plots import scene_plots

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from visphy_core.infra.files import atomic_write
-from visphy_core.report.columns import PRIMARY, direction_of, grouped, label
+from visphy_core.report.column_groups import PRIMARY, direction_of, grouped, label
 from visphy_core.report.markup import arrow, attr, details, esc, fmt, page, rate, table, url
 from visphy_core.report.run_report import write_run_report
 from visphy_core.results.layout import is_run_dir
