@@ -34,13 +34,13 @@ under other headline definitions. ``--checkpoint``: each scored scene is appende
 rerun skips the scenes it holds (those scored with the same metrics, variants and series; the
 last line of a scene wins).
 
-Issue 32 adds restyles (colour ±40 %, swapped colours, line widths, background shade), the truth
-clip itself as the reference, the twin scored with every metric, and the dose series
-(`visphy_plugins.studies.validity.dose`: gravity ×0.9/×0.75/×0.5, restitution −0.1/−0.2/−0.3,
-launch +5°/+10°/+20°, playback ×0.9/×0.8/×0.67), and prints, per score, the goals
-(`visphy_plugins.studies.validity.goals`): strict ordering with the (ii) clips departing
-≥ 20 px, appearance invariance (median |Δ| per restyle), physics drop (median per intervention
-≥ 20 px), monotone share over the dose series; a table per scene; the discriminative power.
+The extended study adds restyles (colour ±40 %, swapped colours, line widths, background shade), the
+truth clip itself as the reference, the twin scored with every metric, and the dose series
+(`visphy_plugins.studies.validity.dose`: gravity ×0.9/×0.75/×0.5, restitution −0.1/−0.2/−0.3, launch
++5°/+10°/+20°, playback ×0.9/×0.8/×0.67), and prints, per score, the goals
+(`visphy_plugins.studies.validity.goals`): strict ordering with the (ii) clips departing ≥ 20 px,
+appearance invariance (median |Δ| per restyle), physics drop (median per intervention ≥ 20 px),
+monotone share over the dose series; a table per scene; the discriminative power.
 ``--summary`` (default ``visphy_core/api/validity_summary.json``: the figures the metric
 registry, the docs' generated pages and the tests read; ``''`` for none) writes all of it as
 JSON with the scenes, wall time, machine (``benchmarks/machine.py``) and command line.
@@ -308,7 +308,7 @@ def _yes(v) -> str:
 
 
 def print_goals(goals: dict) -> None:
-    """The issue-32 tables: per score, per dose series (headline), per scene, and the
+    """The goal tables: per score, per dose series (headline), per scene, and the
     discriminative power."""
     g = goals["goals"]
     print(f"\n### Goals: strict on ≥ {g['strict_share']:.0%} of scenes ((ii) clips "

@@ -1,4 +1,4 @@
-"""Issue 32's validity study: the dose series (`visphy_plugins.studies.validity.dose`), the goals'
+"""The extended validity study: the dose series (`visphy_plugins.studies.validity.dose`), the goals'
 summary and its discriminative power (`goals`), and a small study on the ``mini`` split's 2D scenes
 writing the summary JSON (``benchmarks/validity_study.py --order``'s own function, one cheap
 metric, a few variants, the flow baseline stubbed: seconds)."""

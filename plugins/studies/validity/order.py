@@ -14,7 +14,7 @@ metric) pairs and its shares are the shares of those cases (no mean value: its m
 different units). Also here: where each kind sits on the headline scale
 (`headline_placement`), the headline recomputed under another definition from the stored
 values (`rescored_headline`, `headline_alternatives`), what breaks the strict ordering
-(`strict_breakers`) and the results without some variants (`without_variants`). Issue 32's
+(`strict_breakers`) and the results without some variants (`without_variants`). The study's
 goals (strict with the (ii) clips departing ≥ 20 px, appearance invariance, physics drop,
 monotonicity in the dose, discriminative power) are summarised by `goals`.
 """
