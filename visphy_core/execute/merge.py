@@ -164,12 +164,12 @@ def check_shards(shards: list[Shard], partial: bool = False) -> list[Shard]:
 def study_groups(sweep_dir: Path) -> list[list[Path]]:
     """The run directories of a study's completed jobs that are shards, one list per run they
     are shards of (their config without ``dataset.shard``), in job order."""
-    from visphy_core.results.layout import CONFIG
+    from visphy_core.results.layout import CONFIG, JOB_FILE
     from visphy_core.results.study_records import COMPLETED, read_jobs
 
     jobs = read_jobs(Path(sweep_dir))
     if not jobs:
-        raise UserError(f"merge: {sweep_dir} holds no study jobs (visphy_job.json): name the "
+        raise UserError(f"merge: {sweep_dir} holds no study jobs ({JOB_FILE}): name the "
                         "sweep folder a multirun printed ('study …: FOLDER')")
     groups: dict[str, list[Path]] = {}
     for job in jobs:

@@ -21,6 +21,7 @@ from visphy_core.report.markup import arrow, attr, details, esc, fmt, pre, table
 from visphy_core.report.media import MediaStore, Placed, clip_timing
 from visphy_core.report.scene_plots import scene_plots
 from visphy_core.report.spec_diff import diff_table
+from visphy_core.results.layout import RESULTS_JSONL
 from visphy_core.results.row import NOT_EVALUABLE, SceneResult
 
 #: Untrusted texts longer than this are cut in the page (the file keeps everything).
@@ -105,7 +106,7 @@ def badges(view: SceneView) -> str:
 def _outcome_text(r: SceneResult | None) -> str:
     if r is None:
         return ('<p class="warn">The run stopped before this scene finished: no row in '
-                "results.jsonl (rerun the same command to resume).</p>")
+                f"{RESULTS_JSONL} (rerun the same command to resume).</p>")
     parts = [f"attempts: {r.attempts}"]
     if r.first_failure_class and r.attempts > 1:
         parts.append(f"first attempt failed: {esc(r.first_failure_class)}")

@@ -16,7 +16,8 @@ holds:
 * ``.lock``: held by the process working in the folder.
 
 A study (a multirun, `visphy_core.results.study_records`) adds ``study.json`` to its sweep
-folder and ``visphy_job.json`` to each job's folder.
+folder, ``visphy_job.json`` to each job's folder and, when it ends, ``study_summary.json`` (the
+jobs, their outcomes and where every output is) to the sweep folder.
 
 Every file is written through `visphy_core.infra.files` (atomic, never through a link), and
 read and written through `visphy_core.results.run_dir.RunDir`: no module outside
@@ -38,6 +39,7 @@ RATINGS = "human_ratings.jsonl"
 LOCK = ".lock"
 STUDY_FILE = "study.json"
 JOB_FILE = "visphy_job.json"
+STUDY_SUMMARY = "study_summary.json"
 
 #: A run's own files at its top level (its scenes aside), in the order tracking logs them.
 RUN_FILES = (CONFIG, MANIFEST, SUMMARY, RESULTS_PARQUET, RESULTS_JSONL, CALLS)
@@ -48,7 +50,7 @@ SCORABLE_FILES = (CONFIG, MANIFEST, RESULTS_JSONL)
 #: What a run's config and rows make: the files re-scoring writes anew.
 DERIVED_FILES = (CONFIG, MANIFEST, SUMMARY, RESULTS_JSONL, RESULTS_PARQUET)
 #: Every file name the format owns.
-FILE_NAMES = (*RUN_FILES, RATINGS, STUDY_FILE, JOB_FILE)
+FILE_NAMES = (*RUN_FILES, RATINGS, STUDY_FILE, JOB_FILE, STUDY_SUMMARY)
 
 #: Files only a run writes: a folder holding any of them is a run directory, finished or not
 #: (a killed run may have no summary). ``config.yaml`` alone is not one (Hydra writes one in

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from visphy_core.results import study_records as records
+from visphy_core.results.layout import STUDY_SUMMARY
 from visphy_core.results.run_dir import RunDir
 
 
@@ -47,7 +48,7 @@ def analyse_runs(run_dirs: list[Path], study_dir: Path, study: str) -> dict[str,
         from visphy_core.analysis.study import analyse
     except ImportError as exc:
         out["problems"].append(f"study analysis not available ({exc}): the jobs' runs are "
-                               "listed in study_summary.json")
+                               f"listed in {STUDY_SUMMARY}")
     else:
         from visphy_core.analysis.printing import print_study
 
@@ -164,7 +165,7 @@ def finish_study(sweep_dir: Path, *, ended_early: bool = False) -> dict[str, Any
             rows = comparison_rows(jobs, study.get("sweep"))
         except Exception as exc:  # noqa: BLE001 - the parent run is closed all the same
             summary["problems"].append(f"comparison table failed: {type(exc).__name__}: {exc}")
-    records.write_json(sweep_dir / "study_summary.json", summary)
+    records.write_json(sweep_dir / STUDY_SUMMARY, summary)
     if parent:
         from visphy_core.tracking import end_study_run
 
@@ -175,7 +176,7 @@ def finish_study(sweep_dir: Path, *, ended_early: bool = False) -> dict[str, Any
                                **({"best.headline": best["headline"]} if best else {})},
                       artifacts=[(sweep_dir / "analysis", "analysis"),
                                  (sweep_dir / "report", "report"),
-                                 (sweep_dir / "study_summary.json", None),
+                                 (sweep_dir / STUDY_SUMMARY, None),
                                  (sweep_dir / records.STUDY_FILE, None)],
                       tags={"visphy.study_status": status.lower(),
                             **({"visphy.best_job": str(best["label"])} if best else {})},
