@@ -282,9 +282,9 @@ def cmd_metrics(argv: list[str]) -> int:
 
 
 def cmd_render(argv: list[str]) -> int:
-    from visphy_core.execute.render_one import render_reply
+    from visphy_core.cli.render import render_command
 
-    return render_reply(argv)
+    return render_command(argv)
 
 
 def cmd_intervene(argv: list[str]) -> int:

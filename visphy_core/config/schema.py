@@ -103,7 +103,7 @@ class ReferenceConfig:
 
 @dataclass
 class RenderConfig:
-    """``visphy render``'s defaults (`visphy_core.execute.render_one`)."""
+    """``visphy render``'s defaults (`visphy_core.cli.render`)."""
 
     dataset: str = MISSING   # the dataset config holding --scene when --dataset is not given
     model: str = MISSING     # the model that plays a reply file back (no model call)
