@@ -232,6 +232,9 @@ def test_a_long_module_says_why_it_is_one_module():
 #: there is not a run's file.
 RUN_FILE_NAME_ELSEWHERE = {
     "visphy_core/config/tree.py": "config.yaml of the Hydra config tree (visphy_conf)",
+    "visphy_core/execute/render_cache.py": "video.mp4 of a render cache entry",
+    "visphy_core/calls/generation.py": "video.mp4 of a cached reply's entry",
+    "plugins/models/baselines.py": "video.mp4 of a baseline's clip in a temporary folder",
 }
 
 
@@ -249,9 +252,10 @@ def run_file_literals(source: str, names: tuple[str, ...]) -> list[tuple[int, st
 
 
 def test_no_run_file_name_outside_results():
-    """``results/`` owns the run directory: no other module spells a run file's name (they
-    use `visphy_core.results.run_dir.RunDir` or the names of `visphy_core.results.layout`)."""
-    from visphy_core.results.layout import FILE_NAMES
+    """``results/`` owns the run directory: no other module spells the name of a run's file or
+    of a file in a scene's folder (they use `visphy_core.results.run_dir.RunDir` and the names
+    of `visphy_core.results.layout`)."""
+    from visphy_core.results.layout import FILE_NAMES, SCENE_FILES
 
     offenders = []
     for root in (CORE, REPO / "plugins", REPO / "examples"):
@@ -260,7 +264,8 @@ def test_no_run_file_name_outside_results():
             if rel.startswith("visphy_core/results/") or rel in RUN_FILE_NAME_ELSEWHERE:
                 continue
             offenders += [f"{rel}:{line}: {name}"
-                          for line, name in run_file_literals(path.read_text(), FILE_NAMES)]
+                          for line, name in run_file_literals(
+                              path.read_text(), (*FILE_NAMES, *SCENE_FILES))]
     assert offenders == []
 
 

@@ -39,7 +39,10 @@ from visphy_core.api.extract import fenced_blocks
 from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.model import Model, ModelRequest, ModelResponse
 from visphy_core.api.storage import files
+from visphy_core.results import layout
 from visphy_core.results.layout import MANIFEST, RESULTS_JSONL
+from visphy_core.results.row import SceneResult
+from visphy_core.results.rows import parse_lines
 
 TEXT_SUFFIXES = (".txt", ".md", ".html", ".py")
 FENCE_FOR = {".html": "html", ".py": "python"}
@@ -66,7 +69,7 @@ class ReplayModel(Model):
     def _is_run_dir(self) -> bool:
         if not hasattr(self, "_run_dir"):
             self._run_dir = self.source.is_dir() \
-                and files.entry_kind(self.source / "scenes", self.root) == "dir" \
+                and files.entry_kind(self.source / layout.SCENES, self.root) == "dir" \
                 and files.is_file(self.source / MANIFEST, self.root)
         return self._run_dir
 
@@ -121,47 +124,42 @@ class ReplayModel(Model):
     def _candidates(self, scene_id: str, attempt: int) -> list[Path]:
         if self.source.is_file():
             return [self.source] if attempt == 1 else []
-        tag = "" if attempt == 1 else f".attempt{attempt}"
+        tag = layout.attempt_suffix(attempt)
         if self._is_run_dir():
-            scene = self.source / "scenes" / scene_id
+            scene = self.source / layout.SCENES / scene_id
+            reply = scene / layout.attempt_file(layout.REPLY, attempt, "mp4")
             if self.output_kind == "video":
-                # reply.mp4: the model's own video; video.mp4 of runs before it was kept,
-                # unless that scene's video.mp4 is the fallback clip (see `_recorded_error`)
-                return [scene / f"reply{tag}.mp4", scene / "video.mp4"] if attempt == 1 \
-                    else [scene / f"reply{tag}.mp4"]
-            return [scene / f"response{tag}.txt"]
+                # the model's own video; the scored clip of runs that did not keep it, unless
+                # that clip is the fallback (see `_fallback_video`)
+                return [reply, scene / layout.VIDEO] if attempt == 1 else [reply]
+            return [scene / layout.attempt_file(layout.RESPONSE, attempt, "txt")]
         if self.output_kind == "video":
             return [self.source / f"{scene_id}.mp4"] if attempt == 1 else []
         found = [self.source / f"{scene_id}{tag}{ext}" for ext in TEXT_SUFFIXES]
         folder = self.source / scene_id
         if files.entry_kind(folder, self.root) == "dir":
-            found.append(folder / f"response{tag}.txt")
+            found.append(folder / layout.attempt_file(layout.RESPONSE, attempt, "txt"))
             if attempt == 1:
                 found += [folder / name for name, _ in files.list_dir(folder, self.root)
                           if Path(name).suffix in TEXT_SUFFIXES and ".attempt" not in name]
         return found
 
-    def _run_rows(self) -> dict[str, dict]:
+    def _run_rows(self) -> dict[str, SceneResult]:
         """A run directory's result rows by scene id (empty when unreadable)."""
         if not hasattr(self, "_rows"):
             self._rows = {}
             try:
                 text = files.read_text(self.source / RESULTS_JSONL, self.root, kind="jsonl")
-                for line in text.splitlines():
-                    try:
-                        row = json.loads(line)
-                        self._rows[str(row["scene_id"])] = row
-                    except (ValueError, KeyError, TypeError):
-                        continue
             except (OSError, ValueError):
-                pass
+                return self._rows
+            self._rows = {r.scene_id: r for r in parse_lines(text)[0]}
         return self._rows
 
     def _recorded_error(self, scene_id: str, attempt: int) -> Optional[ModelResponse]:
         """In a run directory, the call that failed at the provider (``response.json`` holds
         its error) is replayed as that failure, not as an empty reply."""
-        tag = "" if attempt == 1 else f".attempt{attempt}"
-        meta = self.source / "scenes" / scene_id / f"response{tag}.json"
+        meta = (self.source / layout.SCENES / scene_id
+                / layout.attempt_file(layout.RESPONSE, attempt, "json"))
         try:
             if not files.is_file(meta, self.root):
                 return None
@@ -180,8 +178,8 @@ class ReplayModel(Model):
 
     def _fallback_video(self, path: Path, scene_id: str) -> bool:
         """An old run directory's ``video.mp4`` that is the fallback clip, not the model's."""
-        return path.name == "video.mp4" and bool(self._run_rows().get(scene_id, {})
-                                                  .get("fallback"))
+        row = self._run_rows().get(scene_id)
+        return path.name == layout.VIDEO and row is not None and row.fallback
 
     # ------------------------------------------------------------------ replies
     def generate(self, request: ModelRequest) -> ModelResponse:

@@ -43,6 +43,7 @@ from visphy_core.analysis.export import to_markdown, write_table
 from visphy_core.analysis.human import summarise_ratings
 from visphy_core.analysis.load import label_runs
 from visphy_core.infra.errors import UserError
+from visphy_core.results.columns import JUDGE_PREFIX
 from visphy_core.results.load import RunData
 
 #: What each study produces (besides the runs table and the leaderboard, always there).
@@ -99,7 +100,7 @@ def _applicable(runs: list[RunData], columns: list[str]) -> tuple[str, ...]:
         parts += ["bootstrap", "spearman", "radar"]
     if any(len(r.ratings) for r in runs):
         parts.append("human")
-    judges = [c for c in score_columns(runs) if c.startswith("judge_") and has_values(runs, c)]
+    judges = [c for c in score_columns(runs) if c.startswith(JUDGE_PREFIX) and has_values(runs, c)]
     if len(judges) >= 2 or (judges and "human" in parts):
         parts.append("judges")
     if params.param_columns([c for c in score_columns(runs) if has_values(runs, c)]):
@@ -193,7 +194,7 @@ def _tables(runs: list[RunData], labels: list[str], parts, columns: list[str],
     if "human" in parts and any(len(r.ratings) for r in runs):
         tables["human"] = _human_table(runs, labels)
     if "judges" in parts:
-        judges = [c for c in all_columns if c.startswith("judge_") and has_values(runs, c)]
+        judges = [c for c in all_columns if c.startswith(JUDGE_PREFIX) and has_values(runs, c)]
         if judges:
             tables["judges"] = correlation.judge_agreement(runs, judges)
     if "params" in parts:

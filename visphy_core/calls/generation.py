@@ -29,6 +29,8 @@ from visphy_core.infra.cache import Cache, CorruptEntry, read_json
 from visphy_core.infra.secrets import redact, redact_obj
 
 T = TypeVar("T")
+#: A cached reply's video, in its cache entry (beside ``response.json``).
+ENTRY_VIDEO = "video.mp4"
 
 
 class GenerationService:
@@ -211,9 +213,9 @@ class ModelCaller:
         data["raw"] = redact_obj(data.get("raw") or {})
         files: dict[str, Any] = {}
         if response.video_path:
-            files["video.mp4"] = Path(response.video_path)
-            data["video_path"] = "video.mp4"
+            files[ENTRY_VIDEO] = Path(response.video_path)
+            data["video_path"] = ENTRY_VIDEO
         files["response.json"] = json.dumps(data, default=str)
         entry = self.cache.put("response", key, files)
         if response.video_path:
-            response.video_path = str(entry / "video.mp4")
+            response.video_path = str(entry / ENTRY_VIDEO)

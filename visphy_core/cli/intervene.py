@@ -154,9 +154,11 @@ def _gt_start(cfg, scene_id: str):
 def _run_start(run_dir: Path, scene_id: str):
     from visphy_core.api.scene import read_json
     from visphy_core.execute.run_scenes import load_run_scenes
+    from visphy_core.results.layout import SPEC, attempt_file
+    from visphy_core.results.run_dir import RunDir
     from visphy_core.spec.spec_track import SpecTrackError, merged_spec
 
-    path = run_dir / "scenes" / scene_id / "spec.json"
+    path = RunDir(run_dir).scene_dir(scene_id) / attempt_file(SPEC, 1, "json")
     if not path.parent.is_dir():
         raise UserError(f"{run_dir} has no scene {scene_id}")
     if not path.is_file():

@@ -31,7 +31,13 @@ from visphy_core.calls.retry import RETRYABLE, kind_of_description
 from visphy_core.infra.events import STAGES, StageEvents
 from visphy_core.infra.numbers import number
 from visphy_core.infra.progress import EVERY, PlainLines, duration, output_columns, rate_and_eta
-from visphy_core.results.columns import ALIGNED_SUFFIX, NORM_PREFIX, PAPER_PREFIX, SPEC_PREFIX
+from visphy_core.results.columns import (
+    ALIGN_PREFIX,
+    ALIGNED_SUFFIX,
+    NORM_PREFIX,
+    PAPER_PREFIX,
+    SPEC_PREFIX,
+)
 
 #: A pipe or a log file has no width: lines and tables are written whole, however wide (rich
 #: would cut them at 80 columns).
@@ -289,7 +295,7 @@ def split_column(name: str) -> tuple[str, str]:
         return name[len(PAPER_PREFIX):], "paper"
     if name.endswith(ALIGNED_SUFFIX):
         return name[:-len(ALIGNED_SUFFIX)], "aligned"
-    if name.startswith("align."):
+    if name.startswith(ALIGN_PREFIX):
         return name, "aligned"
     return name, "visphy"
 
@@ -516,7 +522,7 @@ def _print_family_means(console: Console, summary: dict, rows: dict, headline: s
     info = summary.get("metric_info") or {}
     families: dict[str, list[str]] = {}
     for base, by_view in rows.items():
-        if base == headline or "visphy" not in by_view or base.startswith("align."):
+        if base == headline or "visphy" not in by_view or base.startswith(ALIGN_PREFIX):
             continue
         family = (info.get(base) or {}).get("family") or "other"
         families.setdefault(family, []).append(base)

@@ -11,7 +11,12 @@ import numpy as np
 
 from visphy_core.api.engine import Engine, Program, RenderContract
 from visphy_core.api.scene import Scene
-from visphy_core.execute.render_cache import RenderOutcome, render_cached, render_key
+from visphy_core.execute.render_cache import (
+    ENTRY_VIDEO,
+    RenderOutcome,
+    render_cached,
+    render_key,
+)
 from visphy_core.infra.cache import Cache
 from visphy_core.infra.errors import one_line
 from visphy_core.infra.events import StageEvents
@@ -20,6 +25,7 @@ from visphy_core.scoring.ground_truth import writable
 from visphy_core.scoring.normalisation import twin_scene
 from visphy_core.scoring.reference_clips import ReferenceClipUnavailable
 from visphy_core.spec.spec_track import SpecTrackError, spec_scene
+from visphy_core.results import layout
 
 _write = write_artifact
 
@@ -63,7 +69,7 @@ class EngineReferenceClips:
             raise ReferenceClipUnavailable(one_line(
                 f"the reference program failed to replay S: {outcome.failure.value} "
                 f"{outcome.error or ''}"))
-        _write(scene_dir / "spec_video.mp4", outcome.video_path.read_bytes())
+        _write(scene_dir / layout.SPEC_VIDEO, outcome.video_path.read_bytes())
         return outcome.frames
 
     def _twin_program(self, scene: Scene) -> Program:
@@ -83,8 +89,8 @@ class EngineReferenceClips:
         key = self.twin_identity(scene, contract)
         for store in self.stores:
             entry = store.get("render", key)
-            if entry is not None and (entry / "video.mp4").is_file():
-                _write(scene_dir / "twin_video.mp4", (entry / "video.mp4").read_bytes())
+            if entry is not None and (entry / ENTRY_VIDEO).is_file():
+                _write(scene_dir / layout.TWIN_VIDEO, (entry / ENTRY_VIDEO).read_bytes())
                 return True
         return False
 
@@ -96,5 +102,5 @@ class EngineReferenceClips:
                 f"normalisation: the reference program failed to render the twin: "
                 f"{outcome.failure.value} {one_line(outcome.error or '')}")
         if scene_dir is not None:
-            _write(scene_dir / "twin_video.mp4", outcome.video_path.read_bytes())
+            _write(scene_dir / layout.TWIN_VIDEO, outcome.video_path.read_bytes())
         return outcome.frames

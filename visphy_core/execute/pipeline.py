@@ -65,6 +65,7 @@ from visphy_core.scoring.scene_scores import (
 )
 from visphy_core.scoring.score import ScoringProtocol
 from visphy_core.spec.reply_spec import spec_problems
+from visphy_core.results import layout
 
 def error_summary(outcome_error: str | None, logs: list[str], max_lines: int = 12) -> str:
     """Concise error text for the repair prompt: the error, then the last lines of the log."""
@@ -196,7 +197,7 @@ def process_scene(scene: Scene, services: SceneServices, scene_dir: Path) -> Sce
         mark_not_evaluable(result, FailureClass.INFRA_ERROR, f"{type(exc).__name__}: {exc}")
     try:
         write_scores(scene_dir, result)
-        _write(scene_dir / "frames_meta.json", json.dumps(
+        _write(scene_dir / layout.FRAMES_META, json.dumps(
             {"fps": scene.clip.fps, "n_frames": scene.clip.n_frames, "width": scene.clip.width,
              "height": scene.clip.height, "frame_digests": result.frame_digests}, indent=1))
     except OSError as exc:
@@ -232,14 +233,15 @@ def _reply_failure(response: ModelResponse, exc: ProgramRejected) -> tuple[Failu
 
 
 def _record_spec(result: SceneResult, spec: dict | None, dim: str, scene_dir: Path,
-                 suffix: str) -> None:
+                 attempt: int) -> None:
     if spec is None:
         result.spec_valid, result.spec_problems = None, []
         return
     problems = spec_problems(spec, dim)
     result.spec_valid, result.spec_problems = not problems, problems
-    _write(scene_dir / f"spec{suffix}.json", json.dumps(spec, indent=1))
-    _write(scene_dir / f"spec_validation{suffix}.json",
+    _write(scene_dir / layout.attempt_file(layout.SPEC, attempt, "json"),
+           json.dumps(spec, indent=1))
+    _write(scene_dir / layout.attempt_file(layout.SPEC_VALIDATION, attempt, "json"),
            json.dumps({"valid": not problems, "problems": problems}, indent=1))
 
 
@@ -250,8 +252,9 @@ def _prompt_record(first: FirstCall, engine: Engine, model) -> dict:
 
 
 def _record_response(result: SceneResult, response: ModelResponse, cached: bool,
-                     scene_dir: Path, suffix: str) -> None:
-    """Count one reply's usage into the row and write it (``response{suffix}.txt/.json``)."""
+                     scene_dir: Path, attempt: int) -> None:
+    """Count one reply's usage into the row and write it (``response.txt`` / ``.json`` of the
+    attempt)."""
     result.response_cached = cached
     result.model_calls += 0 if cached else 1
     result.model_latency_s += response.latency_s
@@ -259,8 +262,8 @@ def _record_response(result: SceneResult, response: ModelResponse, cached: bool,
     result.input_tokens += int(response.usage.get("input_tokens", 0) or 0)
     result.output_tokens += int(response.usage.get("output_tokens", 0) or 0)
     result.finish_reason = response.finish_reason
-    _write(scene_dir / f"response{suffix}.txt", response.text)
-    _write(scene_dir / f"response{suffix}.json", json.dumps(
+    _write(scene_dir / layout.attempt_file(layout.RESPONSE, attempt, "txt"), response.text)
+    _write(scene_dir / layout.attempt_file(layout.RESPONSE, attempt, "json"), json.dumps(
         {k: getattr(response, k) for k in ("usage", "cost_usd", "latency_s", "error",
                                             "error_kind", "finish_reason", "refusal",
                                             "transport_attempts", "prompt_version",
@@ -273,7 +276,7 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
     contract = RenderContract.for_scene(scene, timeout_s=settings.timeout_s, seed=settings.seed)
     first = first_call(scene, services)
     result.prompt_version = first.version
-    _write(scene_dir / "prompt.json", json.dumps(_prompt_record(first, engine, model), indent=1))
+    _write(scene_dir / layout.PROMPT, json.dumps(_prompt_record(first, engine, model), indent=1))
     outcome: RenderOutcome | None = None
     clip: np.ndarray | None = None
     decoded: np.ndarray | None = None   # a video reply's frames by index (the paper protocol)
@@ -286,8 +289,7 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
         result.attempts = attempt
         with services.progress.stage("generate", scene.scene_id):
             response, cached = services.caller.call(request)
-        suffix = "" if attempt == 1 else f".attempt{attempt}"
-        _record_response(result, response, cached, scene_dir, suffix)
+        _record_response(result, response, cached, scene_dir, attempt)
         if response.error:
             if response.error_kind == "not_recorded" and attempt > 1:
                 break  # a replay without the repair reply: the first failure stands
@@ -296,11 +298,12 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
         analysis = extract_analysis(response.text)
         spec = extract_spec(response.text)
         if model.output_kind == "program":
-            _record_spec(result, spec, scene.dim, scene_dir, suffix)
+            _record_spec(result, spec, scene.dim, scene_dir, attempt)
         if model.output_kind == "video":
             if response.video_path and Path(response.video_path).is_file():
                 # the model's own video, byte for byte: a replay of this run starts from it
-                _write(scene_dir / f"reply{suffix}.mp4", Path(response.video_path).read_bytes())
+                _write(scene_dir / layout.attempt_file(layout.REPLY, attempt, "mp4"),
+                       Path(response.video_path).read_bytes())
             clip, decoded, failure, detail = _video_reply(response, scene, services.protocol)
             if clip is not None:
                 break
@@ -314,12 +317,12 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
                 failed_source, logs = response.text, []
                 _set_render_flags(result, [])  # this attempt rendered nothing
             else:
-                _write(scene_dir / f"program{suffix}."
-                                   f"{'html' if program.language == 'html' else 'py'}",
+                ext = "html" if program.language == "html" else "py"
+                _write(scene_dir / layout.attempt_file(layout.PROGRAM, attempt, ext),
                        program.source)
                 with services.progress.stage("render", scene.scene_id):
                     outcome = _render_with_infra_retry(engine, program, contract,
-                                                       services.cache, scene_dir, suffix,
+                                                       services.cache, scene_dir, attempt,
                                                        result, services.progress, renders)
                 if outcome.failure is None:
                     break
@@ -333,11 +336,11 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
             break  # no repair call for our own or the provider's failures
         repair = redact(build_repair_prompt(first.prompt, engine.language, failed_source,
                                             failure.value, error_summary(detail, logs)))
-        _write(scene_dir / "repair_prompt.txt", repair)
+        _write(scene_dir / layout.REPAIR_PROMPT, repair)
         request = _request(scene, services, repair, first.images,
                            repair_version(first.version), attempt=2)
     if analysis is not None:
-        _write(scene_dir / "analysis.txt", analysis)
+        _write(scene_dir / layout.ANALYSIS, analysis)
 
     if outcome is not None or clip is not None:
         result.model_success = result.system_success = True
@@ -351,7 +354,7 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
         # Fallback: the first key frame held for the whole clip ("nothing moves"). It uses only
         # what the model was given, keeps every metric defined, and is never a model success.
         result.fallback = result.system_success = True
-        generated = frozen_clip(scene, contract, scene_dir / "video.mp4")
+        generated = frozen_clip(scene, contract, scene_dir / layout.VIDEO)
     else:
         generated = None
     score_outputs(scene, reference, generated, analysis, spec, services.scoring(renders),
@@ -367,10 +370,10 @@ def _write_clip(result: SceneResult, outcome: RenderOutcome | None, clip: np.nda
     if outcome is not None:
         generated = outcome.frames
         result.frame_digests = outcome.frame_digests
-        _write(scene_dir / "video.mp4", outcome.video_path.read_bytes())
+        _write(scene_dir / layout.VIDEO, outcome.video_path.read_bytes())
     else:
-        encode_video(clip, scene_dir / "video.mp4", contract.fps)
-        generated = decode_video(scene_dir / "video.mp4")[0]
+        encode_video(clip, scene_dir / layout.VIDEO, contract.fps)
+        generated = decode_video(scene_dir / layout.VIDEO)[0]
         result.frame_digests = [frame_digest(f) for f in generated]
     flag = classify_frames(generated)
     if flag is FailureClass.STATIC_OUTPUT:
@@ -379,7 +382,7 @@ def _write_clip(result: SceneResult, outcome: RenderOutcome | None, clip: np.nda
 
 
 def _render_with_infra_retry(engine: Engine, program: Program, contract: RenderContract,
-                             cache: Cache, scene_dir: Path, suffix: str,
+                             cache: Cache, scene_dir: Path, attempt: int,
                              result: SceneResult,
                              progress: StageEvents | None = None,
                              renders: dict[str, RenderOutcome] | None = None) -> RenderOutcome:
@@ -394,14 +397,15 @@ def _render_with_infra_retry(engine: Engine, program: Program, contract: RenderC
         log_lines += [f"infra_error (retrying the render once): {outcome.error or ''}",
                       *outcome.logs, "--- retry ---"]
         outcome = render_cached(engine, program, contract, cache, renders)
-    _write(scene_dir / f"render{suffix}.log", "\n".join(
+    partial = layout.attempt_file(layout.PARTIAL, attempt, "mp4")
+    _write(scene_dir / layout.attempt_file(layout.RENDER_LOG, attempt, "log"), "\n".join(
         [*log_lines, f"failure: {outcome.failure.value if outcome.failure else 'none'}",
          f"isolation: {outcome.isolation or 'unknown'}",
          f"flags: {', '.join(outcome.flags) or 'none'}",
-         *([f"partial clip: partial{suffix}.mp4"] if outcome.partial_path else []),
+         *([f"partial clip: {partial}"] if outcome.partial_path else []),
          f"error: {outcome.error or ''}", *outcome.logs]))
     if outcome.partial_path is not None:
-        _write(scene_dir / f"partial{suffix}.mp4", outcome.partial_path.read_bytes())
+        _write(scene_dir / partial, outcome.partial_path.read_bytes())
     result.render_cached = outcome.cached
     result.render_wall_s = outcome.wall_s
     result.isolation = outcome.isolation

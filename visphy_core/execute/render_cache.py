@@ -46,6 +46,8 @@ class RenderOutcome:
 
 #: Row flags that come from a render (`RenderFlag`): the row shows those of its last render.
 RENDER_FLAGS = tuple(f.value for f in RenderFlag)
+#: A render cache entry's files: its record, its clip and the partial clip of a failed render.
+ENTRY_META, ENTRY_VIDEO, ENTRY_PARTIAL = "meta.json", "video.mp4", "partial.mp4"
 
 
 def _safe_render(engine: Engine, program: Program, contract: RenderContract) -> RenderResult:
@@ -82,11 +84,11 @@ def render_cached(engine: Engine, program: Program, contract: RenderContract,
     key = render_key(engine, program, contract)
 
     def parse(entry: Path) -> RenderOutcome:
-        meta = read_json(entry / "meta.json")
+        meta = read_json(entry / ENTRY_META)
         failure = FailureClass(meta["failure"]) if meta["failure"] else None
         if failure in UNCACHED_FAILURES:
             raise CorruptEntry(f"{failure.value} entries are never replayed")
-        video = entry / "video.mp4"
+        video = entry / ENTRY_VIDEO
         frames = None
         if failure is None:
             if not video.is_file():
@@ -95,7 +97,7 @@ def render_cached(engine: Engine, program: Program, contract: RenderContract,
             if len(frames) != len(meta["frame_digests"]) or len(frames) != contract.n_frames:
                 raise CorruptEntry(f"{video} has {len(frames)} frames, expected "
                                    f"{contract.n_frames}")
-        partial = entry / "partial.mp4"
+        partial = entry / ENTRY_PARTIAL
         if meta.get("partial_frames") and not partial.is_file():
             raise CorruptEntry(f"missing {partial}")
         return RenderOutcome(frames=frames, failure=failure, error=meta["error"],
@@ -134,16 +136,16 @@ def render_cached(engine: Engine, program: Program, contract: RenderContract,
                              frame_digests=[], video_path=None, cached=False,
                              wall_s=result.wall_s, isolation=result.isolation,
                              flags=meta["flags"])
-    files: dict = {"meta.json": json.dumps(meta, indent=1)}
+    files: dict = {ENTRY_META: json.dumps(meta, indent=1)}
     here = f"{os.getpid()}-{threading.get_ident()}"  # scenes render on several threads
     tmp_video = cache.root / "tmp" / f"{key}.{here}.mp4"
     tmp_partial = cache.root / "tmp" / f"{key}.{here}.partial.mp4"
     if ok:
         encode_video(result.frames, tmp_video, contract.fps)
-        files["video.mp4"] = tmp_video
+        files[ENTRY_VIDEO] = tmp_video
     if partial is not None:
         encode_video(partial, tmp_partial, contract.fps)
-        files["partial.mp4"] = tmp_partial
+        files[ENTRY_PARTIAL] = tmp_partial
     try:
         entry = cache.put("render", key, files)
     finally:

@@ -19,6 +19,7 @@ from visphy_core.infra.errors import UserError
 from visphy_core.results.layout import CALLS
 from visphy_core.scoring.headline import Headline
 from visphy_core.scoring.score import ScoringProtocol, select_metrics
+from visphy_core.results import layout
 
 
 def render_scene(args: argparse.Namespace, reply: Path) -> int:
@@ -83,7 +84,7 @@ def render_scene(args: argparse.Namespace, reply: Path) -> int:
         result = process_scene(scene, services, out)
     finally:
         engine.close()
-    (out / "result.json").write_text(json.dumps(result.row(), indent=1, default=str))
+    (out / layout.RESULT).write_text(json.dumps(result.row(), indent=1, default=str))
     _report(result, out, scene, services.headline)
     return 0 if result.model_success else 1
 
@@ -96,8 +97,8 @@ def _report(result, out: Path, scene, headline: Headline | None = None) -> None:
           + ("" if ok else f" ({result.failure_class}): {result.failure_detail}"))
     if result.render_wall_s is not None:
         clip = scene.clip
-        video = f"{out / 'video.mp4'} ({clip.n_frames} frames {clip.width}x{clip.height} @ " \
-                f"{clip.fps:g} fps) · " if ok and (out / "video.mp4").is_file() else ""
+        video = f"{out / layout.VIDEO} ({clip.n_frames} frames {clip.width}x{clip.height} @ " \
+                f"{clip.fps:g} fps) · " if ok and (out / layout.VIDEO).is_file() else ""
         print(f"video: {video}render {result.render_wall_s:.2f} s"
               + (" (cached)" if result.render_cached else "")
               + f" · isolation {result.isolation or 'unknown'}")

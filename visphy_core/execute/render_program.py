@@ -19,6 +19,7 @@ from pathlib import Path
 from visphy_core.api.engine import ProgramRejected, RenderContract, classify_frames
 from visphy_core.api.extract import fenced_blocks
 from visphy_core.infra.errors import UserError
+from visphy_core.results import layout
 
 #: the paper's 2D clip shape: 5 fps, 17 frames, 512×512
 DEFAULT_FPS, DEFAULT_FRAMES, DEFAULT_SIZE = 5.0, 17, "512x512"
@@ -100,11 +101,11 @@ def render_alone(args, reply: Path) -> int:
     if outcome is not None:
         result.model_success = result.system_success = True
         result.frame_digests = outcome.frame_digests
-        _write(out / "video.mp4", outcome.video_path.read_bytes())
+        _write(out / layout.VIDEO, outcome.video_path.read_bytes())
         flag = classify_frames(outcome.frames)
         if flag is not None and flag.value not in result.flags:
             result.flags.append(flag.value)
-    (out / "result.json").write_text(json.dumps(result.row(), indent=1, default=str))
+    (out / layout.RESULT).write_text(json.dumps(result.row(), indent=1, default=str))
     _say(result, out, contract)
     return 0 if result.model_success else 1
 
@@ -113,7 +114,7 @@ def _say(result, out: Path, contract: RenderContract) -> None:
     if not result.model_success:
         print(f"{result.scene_id}: FAILED ({result.failure_class}): {result.failure_detail}")
     else:
-        print(f"{result.scene_id}: rendered {out / 'video.mp4'}")
+        print(f"{result.scene_id}: rendered {out / layout.VIDEO}")
         print(f"{contract.n_frames} frames {contract.width}x{contract.height} @ "
               f"{contract.fps:g} fps · render {result.render_wall_s:.2f} s"
               + (" (cached)" if result.render_cached else "")

@@ -67,11 +67,7 @@ from visphy_core.scoring.scene_scores import (
     write_scores,
 )
 from visphy_core.scoring.score import ScoringProtocol, score_columns, select_metrics
-
-#: Per-scene files scoring writes: removed before a row is scored again, so none is stale.
-SCORE_FILES = ("scores.json", "metric_details.json", "verdicts.json", "normalisation.json",
-               "reference.txt")
-
+from visphy_core.results import layout
 
 class RunDirClips:
     """`visphy_core.scoring.scene_scores.ReferenceClips` read back from a scene folder: re-scoring
@@ -83,7 +79,7 @@ class RunDirClips:
 
     def spec_replay(self, scene: Scene, spec: dict, contract: RenderContract,
                     scene_dir: Path) -> np.ndarray:
-        path = scene_dir / "spec_video.mp4"
+        path = scene_dir / layout.SPEC_VIDEO
         if path.is_file():
             return decode_video(path)[0]
         if self.before.spec_track == "failed" and self.before.spec_track_error:
@@ -96,10 +92,10 @@ class RunDirClips:
         return None  # the run dir holds the twin's frames, not what made them
 
     def copy_twin(self, scene: Scene, contract: RenderContract, scene_dir: Path) -> bool:
-        return (scene_dir / "twin_video.mp4").is_file()
+        return (scene_dir / layout.TWIN_VIDEO).is_file()
 
     def twin(self, scene: Scene, contract: RenderContract, scene_dir: Path) -> np.ndarray:
-        path = scene_dir / "twin_video.mp4"
+        path = scene_dir / layout.TWIN_VIDEO
         if path.is_file():
             return decode_video(path)[0]
         for why in self.before.unavailable.values():
@@ -149,11 +145,10 @@ def _final_reply(scene_dir: Path, attempts: int) -> tuple[str | None, dict | Non
     error (`visphy_core.execute.pipeline`'s attempt loop)."""
     analysis, spec = None, None
     for attempt in range(1, max(attempts, 1) + 1):
-        suffix = "" if attempt == 1 else f".attempt{attempt}"
-        text = scene_dir / f"response{suffix}.txt"
+        text = scene_dir / layout.attempt_file(layout.RESPONSE, attempt, "txt")
         if not text.is_file():
             break
-        meta = scene_dir / f"response{suffix}.json"
+        meta = scene_dir / layout.attempt_file(layout.RESPONSE, attempt, "json")
         if meta.is_file() and json.loads(meta.read_text()).get("error"):
             break
         reply = text.read_text()
@@ -167,8 +162,7 @@ def _decoded_reply(scene_dir: Path, result: SceneResult, scene: Scene,
     frames the run scored (`visphy_core.execute.pipeline`), read from ``reply*.mp4``."""
     if not (protocol.paper and result.model_success and result.output_kind == "video"):
         return None
-    suffix = "" if result.attempts <= 1 else f".attempt{result.attempts}"
-    path = scene_dir / f"reply{suffix}.mp4"
+    path = scene_dir / layout.attempt_file(layout.REPLY, result.attempts, "mp4")
     if not path.is_file():
         return None
     keep: list = []
@@ -182,9 +176,8 @@ def _program(scene_dir: Path, result: SceneResult) -> Program | None:
     """The program whose clip the row reports (the model's own, first or repaired)."""
     if not result.model_success or result.output_kind != "program":
         return None
-    suffix = "" if result.attempts <= 1 else f".attempt{result.attempts}"
     for ext, language in (("html", "html"), ("py", "python")):
-        path = scene_dir / f"program{suffix}.{ext}"
+        path = scene_dir / layout.attempt_file(layout.PROGRAM, result.attempts, ext)
         if path.is_file():
             return Program(language=language, source=path.read_text())
     return None
@@ -203,7 +196,7 @@ def rescore_row(before: SceneResult, scene: Scene, scene_dir: Path, services: Sc
                      frame_digests=list(before.frame_digests))
     if not before.evaluable:
         return result
-    for name in SCORE_FILES:
+    for name in layout.SCORE_FILES:
         (scene_dir / name).unlink(missing_ok=True)
     result.spec_track = result.spec_track_error = result.reference_source = None
     frames = cfg.prompt.frames[:1] if cfg.prompt.forecast_only else cfg.prompt.frames
@@ -215,7 +208,7 @@ def rescore_row(before: SceneResult, scene: Scene, scene_dir: Path, services: Sc
         analysis, spec = _final_reply(scene_dir, before.attempts)
         generated = None
         if before.system_success:
-            video = scene_dir / "video.mp4"
+            video = scene_dir / layout.VIDEO
             if not video.is_file():
                 raise UserError(f"score: {video} is missing although the row has a clip; the "
                                 "run directory is damaged")
@@ -280,7 +273,7 @@ def _backup(run_dir: Path) -> Path:
     for path in RunDir(run_dir).present((*DERIVED_FILES, CALLS)):
         shutil.copy2(path, backup / path.name)
     for path in sorted(RunDir(run_dir).scenes.glob("*/*")):
-        if path.name in SCORE_FILES:
+        if path.name in layout.SCORE_FILES:
             target = RunDir(backup).scene_dir(path.parent.name) / path.name
             target.parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(path, target)

@@ -20,6 +20,8 @@ from visphy_core.execute.run_scenes import load_run_scenes
 from visphy_core.infra import files
 from visphy_core.infra.errors import UserError
 from visphy_core.results.layout import CONFIG, is_run_dir
+from visphy_core.results import layout
+from visphy_core.results.run_dir import RunDir
 
 log = logging.getLogger("visphy.human")
 
@@ -73,7 +75,8 @@ def collect_items(run_dirs: list[Path]) -> list[RatingItem]:
     directories with the same name (copies) give the same ids: only the first is kept."""
     items: dict[str, RatingItem] = {}
     for run_dir in run_dirs:
-        scene_ids = sorted(p.parent.name for p in (run_dir / "scenes").glob("*/video.mp4"))
+        scene_ids = sorted(p.parent.name
+                           for p in RunDir(run_dir).scenes.glob(f"*/{layout.VIDEO}"))
         if not scene_ids:
             continue
         scenes = load_run_scenes(run_dir, scene_ids)
@@ -88,7 +91,7 @@ def collect_items(run_dirs: list[Path]) -> list[RatingItem]:
                             run_dir, items[key].run_dir)
                 continue
             items[key] = RatingItem(key, run_dir, scene_id,
-                                    run_dir / "scenes" / scene_id / "video.mp4",
+                                    RunDir(run_dir).scene_dir(scene_id) / layout.VIDEO,
                                     Path(scene.video_path).resolve())
     if not items:
         raise UserError("no generated clip to rate in "

@@ -20,7 +20,8 @@ from visphy_core.report.locate_truth import locate_ground_truth
 from visphy_core.report.markup import attr, url
 from visphy_core.report.media import MediaStore, Placed
 from visphy_core.report.run_report import write_run_report
-from visphy_core.results.layout import SCENES
+from visphy_core.results.layout import VIDEO
+from visphy_core.results.run_dir import RunDir
 
 #: Defaults of the caps (MB): one clip, and one report's media together.
 MAX_CLIP_MB = 20.0
@@ -98,9 +99,9 @@ def best_and_worst(entry: Entry, site: Path, n: int = 2,
     def clips(ids: list[str]) -> list[SceneClips]:
         out = []
         for sid in ids:
-            scene_dir = entry.run.run_dir / SCENES / sid
+            scene_dir = RunDir(entry.run.run_dir).scene_dir(sid)
             out.append(SceneClips(sid, float(ranked[sid]),
-                                  placed(scene_dir / "video.mp4", f"media/{sid}/generated.mp4"),
+                                  placed(scene_dir / VIDEO, f"media/{sid}/generated.mp4"),
                                   placed(truths[sid].video, f"media/{sid}/truth.mp4")))
         return out
 

@@ -22,6 +22,7 @@ from typing import Any, NamedTuple
 
 from visphy_core.report.column_groups import direction_of, group_of
 from visphy_core.report.markup import attr, esc, fmt
+from visphy_core.results.columns import JUDGE_PREFIX, norm_column
 from visphy_core.report.svg import (GRID, MUTED, SERIES, line, n, nice_ticks,
                                     svg, text)
 
@@ -173,14 +174,14 @@ def _bar_rows(summary: dict) -> tuple[str, list[tuple[str, list[tuple]]]]:
     info = summary.get("metric_info") or {}
     headline = (summary.get("headline") or {}).get("metric")
     names = [c for c in metrics if group_of(c) in ("visphy", "judge") and c != headline]
-    normed = any((metrics.get(f"norm.{c}") or {}).get("mean_model_success") is not None
+    normed = any((metrics.get(norm_column(c)) or {}).get("mean_model_success") is not None
                  for c in names)
     scale = "normalised" if normed else "range"
     families: dict[str, list[tuple]] = {}
     for c in names:
         entry = metrics[c]
         meta = info.get(c) if isinstance(info.get(c), dict) else {}
-        family = "judges" if c.startswith("judge_") else str(meta.get("family") or "other")
+        family = "judges" if c.startswith(JUDGE_PREFIX) else str(meta.get("family") or "other")
         mean, count = _finite(entry.get("mean_model_success")), int(
             entry.get("n_model_success") or 0)
         shown = (f"{fmt(mean)} (n={count})" if mean is not None else
@@ -190,11 +191,11 @@ def _bar_rows(summary: dict) -> tuple[str, list[tuple[str, list[tuple]]]]:
         if mean is None:
             why = "no value"
         elif normed:
-            norm = metrics.get(f"norm.{c}") or {}
+            norm = metrics.get(norm_column(c)) or {}
             bar = _finite(norm.get("mean_model_success"))
             why = "" if bar is not None else "not normalised"
         else:
-            rng = meta.get("range") if not c.startswith("judge_") else (0, 10)
+            rng = meta.get("range") if not c.startswith(JUDGE_PREFIX) else (0, 10)
             lo, hi = ((_finite(rng[0]), _finite(rng[1])) if isinstance(rng, (list, tuple))
                       and len(rng) == 2 else (None, None))
             if lo is None or hi is None or hi <= lo:

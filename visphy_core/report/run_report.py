@@ -12,6 +12,7 @@ from visphy_core.report.media import MediaStore
 from visphy_core.report.run_page import counts, header, leaderboard, scene_list
 from visphy_core.report.scene_section import SceneView, scene_section
 from visphy_core.results.load import RunData, load_run
+from visphy_core.results.run_dir import RunDir
 
 #: Up to this many scenes every clip is loaded with the page; longer reports load a clip when
 #: it is played or scrubbed (hundreds of clips loading at once stall the page).
@@ -22,7 +23,7 @@ def _scene_ids(run: RunData) -> list[str]:
     """Scenes with a row, then selected scenes without one, then scene folders neither names
     (the scene in progress when a run without a manifest stopped)."""
     ids = [r.scene_id for r in run.results] + run.pending
-    scenes_dir = run.run_dir / "scenes"
+    scenes_dir = RunDir(run.run_dir).scenes
     if scenes_dir.is_dir():
         ids += sorted(p.name for p in scenes_dir.iterdir() if p.is_dir() and p.name not in ids)
     return ids
@@ -36,7 +37,7 @@ def build_run_page(run: RunData, out_dir: Path) -> str:
     media = MediaStore(out_dir)
     preload = "metadata" if len(ids) > EAGER_SCENES else "auto"
     views = [SceneView(scene_id=sid, result=results.get(sid),
-                       scene_dir=run.run_dir / "scenes" / sid, truth=truths[sid],
+                       scene_dir=RunDir(run.run_dir).scene_dir(sid), truth=truths[sid],
                        summary=run.summary, preload=preload) for sid in ids]
     frames = FrameData(out_dir)
     sections = "".join(scene_section(v, media, frames) for v in views)

@@ -21,8 +21,8 @@ from visphy_core.report.markup import arrow, attr, details, esc, fmt, pre, table
 from visphy_core.report.media import MediaStore, Placed, clip_timing
 from visphy_core.report.scene_plots import scene_plots
 from visphy_core.report.spec_diff import diff_table
-from visphy_core.results.layout import RESULTS_JSONL
 from visphy_core.results.row import NOT_EVALUABLE, SceneResult
+from visphy_core.results import layout
 
 #: Untrusted texts longer than this are cut in the page (the file keeps everything).
 MAX_TEXT = 200_000
@@ -106,7 +106,7 @@ def badges(view: SceneView) -> str:
 def _outcome_text(r: SceneResult | None) -> str:
     if r is None:
         return ('<p class="warn">The run stopped before this scene finished: no row in '
-                f"{RESULTS_JSONL} (rerun the same command to resume).</p>")
+                f"{layout.RESULTS_JSONL} (rerun the same command to resume).</p>")
     parts = [f"attempts: {r.attempts}"]
     if r.first_failure_class and r.attempts > 1:
         parts.append(f"first attempt failed: {esc(r.first_failure_class)}")
@@ -144,7 +144,7 @@ def clip_figure(title: str, placed: Placed, missing: str, preload: str = "metada
 def _clip_contract(view: SceneView) -> tuple[float, int]:
     """fps and frame count the scrubber steps through: the scored clip's, else the ground
     truth's (a scene that never made a clip)."""
-    meta = _json(view.scene_dir / "frames_meta.json") or {}
+    meta = _json(view.scene_dir / layout.FRAMES_META) or {}
     try:
         fps, frames = float(meta.get("fps") or 0), int(meta.get("n_frames") or 0)
     except (TypeError, ValueError):
@@ -162,18 +162,19 @@ def clips(view: SceneView, media: MediaStore) -> str:
                            view.truth.missing or "no ground-truth clip", view.preload)]
     generated_title = "generated (fallback clip)" if r is not None and r.fallback else "generated"
     figures.append(clip_figure(generated_title,
-                               media.video(d / "video.mp4", f"{base}/generated.mp4"),
+                               media.video(d / layout.VIDEO, f"{base}/generated.mp4"),
                                "no generated clip (the program produced none and no fallback "
                                "was rendered)", view.preload))
-    if (d / "spec_video.mp4").is_file():
+    if (d / layout.SPEC_VIDEO).is_file():
         figures.append(clip_figure("spec track (S simulated)",
-                                   media.video(d / "spec_video.mp4", f"{base}/spec_track.mp4"),
+                                   media.video(d / layout.SPEC_VIDEO, f"{base}/spec_track.mp4"),
                                    "", view.preload))
-    if (d / "reply.mp4").is_file():
+    reply = d / layout.attempt_file(layout.REPLY, 1, "mp4")
+    if reply.is_file():
         figures.append(clip_figure("the model's own video (as returned, before normalisation)",
-                                   media.video(d / "reply.mp4", f"{base}/reply.mp4"), "",
+                                   media.video(reply, f"{base}/reply.mp4"), "",
                                    view.preload))
-    for partial in sorted(d.glob("partial*.mp4")):
+    for partial in sorted(d.glob(f"{layout.PARTIAL}*.mp4")):
         figures.append(clip_figure(f"partial clip of the failed attempt {_attempt_of(partial)}",
                                    media.video(partial, f"{base}/{partial.name}"), "",
                                    view.preload))
@@ -194,7 +195,7 @@ def clips(view: SceneView, media: MediaStore) -> str:
 
 
 def keyframes(view: SceneView, media: MediaStore) -> str:
-    prompt = _json(view.scene_dir / "prompt.json") or {}
+    prompt = _json(view.scene_dir / layout.PROMPT) or {}
     names = [str(n) for n in prompt.get("images") or []]
     if not names:
         return ""
@@ -252,7 +253,7 @@ def scores(view: SceneView) -> str:
 
 
 def verdicts(view: SceneView) -> str:
-    data = _json(view.scene_dir / "verdicts.json")
+    data = _json(view.scene_dir / layout.VERDICTS)
     errors = view.result.judge_errors if view.result else {}
     if not isinstance(data, dict) and not errors:
         return ""
@@ -319,11 +320,11 @@ def spec_section(view: SceneView) -> str:
 
 def analysis(view: SceneView) -> str:
     d = view.scene_dir
-    text = _read(d / "analysis.txt")
+    text = _read(d / layout.ANALYSIS)
     out = "<h3>The model's analysis A</h3>" + (
         f'<p class="text analysis">{esc(text)}</p>' if text is not None
         else '<p class="note">no analysis (the reply had none, or no reply)</p>')
-    reference = _read(d / "reference.txt")
+    reference = _read(d / layout.REFERENCE)
     if reference is not None:
         out += details("reference description (what A is scored against)",
                        f'<p class="text">{esc(reference)}</p>')
@@ -333,34 +334,34 @@ def analysis(view: SceneView) -> str:
 def files(view: SceneView) -> str:
     d = view.scene_dir
     folded = []
-    for path in sorted(d.glob("program*"), key=_attempt_of):
+    for path in sorted(d.glob(f"{layout.PROGRAM}*"), key=_attempt_of):
         text = _read(path) or ""
         folded.append(details(f"program, attempt {_attempt_of(path)} ({esc(path.name)}, "
                               f"{text.count(chr(10)) + 1} lines)", pre(text, "program")))
-    for path in sorted(d.glob("response*.txt"), key=_attempt_of):
+    for path in sorted(d.glob(f"{layout.RESPONSE}*.txt"), key=_attempt_of):
         meta = _json(path.with_suffix(".json")) or {}
         extra = "".join(f"<p class=\"note\">{esc(k)}: {esc(meta[k])}</p>"
                         for k in ("error", "error_kind", "finish_reason", "refusal", "model_id")
                         if meta.get(k))
         folded.append(details(f"reply, attempt {_attempt_of(path)} ({esc(path.name)})",
                               extra + pre(_read(path) or "", "reply")))
-    for path in sorted(d.glob("render*.log"), key=_attempt_of):
+    for path in sorted(d.glob(f"{layout.RENDER_LOG}*.log"), key=_attempt_of):
         folded.append(details(f"render log, attempt {_attempt_of(path)}", pre(_read(path) or "")))
-    prompt = _json(d / "prompt.json")
+    prompt = _json(d / layout.PROMPT)
     if isinstance(prompt, dict) and prompt.get("text"):
         folded.append(details(f"prompt ({esc(prompt.get('prompt_version') or '')})",
                               pre(str(prompt["text"]))))
-    repair = _read(d / "repair_prompt.txt")
+    repair = _read(d / layout.REPAIR_PROMPT)
     if repair is not None:
         folded.append(details("repair prompt", pre(repair)))
-    metric_details = _read(d / "metric_details.json")
+    metric_details = _read(d / layout.METRIC_DETAILS)
     if metric_details is not None:
         folded.append(details("metric details", pre(metric_details)))
     return "<h3>Program, replies, logs</h3>" + "".join(folded) if folded else ""
 
 
 def _key_frames(view: SceneView) -> list[int]:
-    prompt = _json(view.scene_dir / "prompt.json") or {}
+    prompt = _json(view.scene_dir / layout.PROMPT) or {}
     found = (re.fullmatch(r"frame_(\d+)", str(name)) for name in prompt.get("images") or [])
     return [int(m.group(1)) for m in found if m]
 
@@ -371,8 +372,8 @@ def plots(view: SceneView, media: MediaStore, frames: FrameData) -> str:
     key_frames = _key_frames(view)
     first = f"media/{safe_name(view.scene_id)}/key_frame_{min(key_frames or [1]):02d}.png"
     return scene_plots(safe_name(view.scene_id), view.truth.video, view.truth.missing,
-                       view.scene_dir / "video.mp4", view.truth.spec,
-                       view.scene_dir / "metric_details.json", frames, key_frames,
+                       view.scene_dir / layout.VIDEO, view.truth.spec,
+                       view.scene_dir / layout.METRIC_DETAILS, frames, key_frames,
                        first if first in media.used else None,
                        bool(r is not None and r.fallback))
 

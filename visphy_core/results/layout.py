@@ -11,7 +11,8 @@ holds:
 * ``results.parquet``: the same rows, written when the run closes;
 * ``summary.json``: counts and means (`visphy_core.results.summary`), written when it closes;
 * ``calls.jsonl``: every model and judge call with its usage and cost;
-* ``scenes/<scene_id>/``: the scene's replies, program, clips and per-scene scores;
+* ``scenes/<scene_id>/``: the scene's replies, program, clips and per-scene scores (their
+  names below: `VIDEO`, `SCORES`…, and per attempt `attempt_file`);
 * ``human_ratings.jsonl``: ratings added later by the rating page (`visphy_core.human`);
 * ``.lock``: held by the process working in the folder.
 
@@ -51,6 +52,46 @@ SCORABLE_FILES = (CONFIG, MANIFEST, RESULTS_JSONL)
 DERIVED_FILES = (CONFIG, MANIFEST, SUMMARY, RESULTS_JSONL, RESULTS_PARQUET)
 #: Every file name the format owns.
 FILE_NAMES = (*RUN_FILES, RATINGS, STUDY_FILE, JOB_FILE, STUDY_SUMMARY)
+
+# ----------------------------------------------------- a scene's folder: ``scenes/<scene_id>/``
+#: The clip scored: the program's render, the model's own video, or the fallback clip.
+VIDEO = "video.mp4"
+SPEC_VIDEO = "spec_video.mp4"          # the spec track: S simulated and replayed
+TWIN_VIDEO = "twin_video.mp4"          # the ground truth's twin (variance normalisation)
+PROMPT = "prompt.json"                 # the first request, as sent
+REPAIR_PROMPT = "repair_prompt.txt"
+ANALYSIS = "analysis.txt"              # the reply's analysis A
+FRAMES_META = "frames_meta.json"       # what the render reported about its frames
+REFERENCE = "reference.txt"            # the reference description the text metrics read
+SCORES = "scores.json"                 # the row's scores and why any is missing
+METRIC_DETAILS = "metric_details.json"
+VERDICTS = "verdicts.json"
+NORMALISATION = "normalisation.json"
+HEADLINE = "headline.json"
+#: What scoring writes into a scene's folder: removed before a row is scored again.
+SCORE_FILES = (SCORES, METRIC_DETAILS, VERDICTS, NORMALISATION, REFERENCE, HEADLINE)
+#: Every fixed name in a scene's folder.
+SCENE_FILES = (VIDEO, SPEC_VIDEO, TWIN_VIDEO, PROMPT, REPAIR_PROMPT, ANALYSIS, FRAMES_META,
+               *SCORE_FILES)
+#: Per attempt (`attempt_file`): the reply's text (``.txt``) and its metadata (``.json``), a
+#: video model's own clip (``.mp4``), the program (``.html`` / ``.py``), the scene spec S and
+#: its validation, the render log and a partial clip.
+RESPONSE, REPLY, PROGRAM, SPEC, SPEC_VALIDATION, RENDER_LOG, PARTIAL = (
+    "response", "reply", "program", "spec", "spec_validation", "render", "partial")
+#: ``visphy render``'s folder holds a scene folder's files and the row, here.
+RESULT = "result.json"
+
+
+def attempt_suffix(attempt: int) -> str:
+    """What tells an attempt's files apart: nothing for the first, ``.attempt2`` for the
+    repair."""
+    return "" if attempt <= 1 else f".attempt{attempt}"
+
+
+def attempt_file(stem: str, attempt: int, ext: str) -> str:
+    """``response.txt`` (attempt 1), ``program.attempt2.html``…: one attempt's file."""
+    return f"{stem}{attempt_suffix(attempt)}.{ext}"
+
 
 #: Files only a run writes: a folder holding any of them is a run directory, finished or not
 #: (a killed run may have no summary). ``config.yaml`` alone is not one (Hydra writes one in

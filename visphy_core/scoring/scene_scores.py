@@ -35,6 +35,7 @@ from visphy_core.scoring.headline import Headline, scene_headline
 from visphy_core.scoring.normalisation import normalised, perturbation
 from visphy_core.scoring.reference_clips import ReferenceClips, ReferenceClipUnavailable
 from visphy_core.scoring.score import ScoringProtocol, clip_digest, score_columns, score_scene
+from visphy_core.results import layout
 
 if TYPE_CHECKING:
     from visphy_core.api.engine import Program
@@ -200,8 +201,8 @@ def _normalise(scene: Scene, reference: np.ndarray, services: ScoringServices, s
         anchors[base] = {"floor": floor.get(base), "ceiling": ceiling.get(base)}
         if reason and not col.startswith(SPEC_PREFIX):
             anchors[base]["undefined"] = reason
-    twin_file = scene_dir / "twin_video.mp4"
-    write_artifact(scene_dir / "normalisation.json", json.dumps(
+    twin_file = scene_dir / layout.TWIN_VIDEO
+    write_artifact(scene_dir / layout.NORMALISATION, json.dumps(
         {"perturbation": perturbation(),
          "twin_video": twin_file.name if twin_file.is_file() else None,
          "twin_key": found.twin_key,
@@ -240,7 +241,7 @@ def _headline(scene: Scene, reference: np.ndarray, generated: np.ndarray | None,
     result.scores[headline.name] = value
     if value is None:
         result.unavailable[headline.name] = "no component is defined on this scene"
-    write_artifact(scene_dir / "headline.json", json.dumps(details, indent=1))
+    write_artifact(scene_dir / layout.HEADLINE, json.dumps(details, indent=1))
 
 
 def _score(scene: Scene, reference: np.ndarray, generated: np.ndarray,
@@ -251,7 +252,7 @@ def _score(scene: Scene, reference: np.ndarray, generated: np.ndarray,
     reference_text = None
     if services.references is not None:
         reference_text, result.reference_source = services.references.describe(scene)
-        write_artifact(scene_dir / "reference.txt", reference_text)
+        write_artifact(scene_dir / layout.REFERENCE, reference_text)
     details: dict = {}
     scores, unavailable = score_scene(scene, reference, generated, services.metrics, analysis,
                                       spec, services.cache, reference_text=reference_text,
@@ -260,7 +261,7 @@ def _score(scene: Scene, reference: np.ndarray, generated: np.ndarray,
                                       language=program.language if program else None,
                                       details=details, as_decoded=as_decoded)
     if details:
-        write_artifact(scene_dir / "metric_details.json",
+        write_artifact(scene_dir / layout.METRIC_DETAILS,
                        json.dumps(details, indent=1, default=str))
     result.scores.update(scores)
     result.unavailable.update(unavailable)
@@ -271,7 +272,7 @@ def _judge(scene: Scene, reference: np.ndarray, generated: np.ndarray,
            services: ScoringServices, scene_dir: Path, result: "SceneResult") -> None:
     """Every judge's verdict on the scene's clip against the ground truth."""
     inp = JudgeInput(scene_id=scene.scene_id, dim=scene.dim, reference_video=scene.video_path,
-                     generated_video=scene_dir / "video.mp4", fps=scene.clip.fps,
+                     generated_video=scene_dir / layout.VIDEO, fps=scene.clip.fps,
                      n_frames=scene.clip.n_frames)
     verdicts = services.judges.judge_scene(inp, content_key(clip_digest(reference),
                                                             clip_digest(generated)))
@@ -281,12 +282,12 @@ def _judge(scene: Scene, reference: np.ndarray, generated: np.ndarray,
         if not verdict.valid:
             result.judge_errors[key] = verdict.error or "invalid verdict"
             result.unavailable[column] = verdict.error or "invalid verdict"
-    write_artifact(scene_dir / "verdicts.json", json.dumps(
+    write_artifact(scene_dir / layout.VERDICTS, json.dumps(
         {k: v.to_json() for k, v in verdicts.items()}, indent=1, default=str))
 
 
 def write_scores(scene_dir: Path, result: "SceneResult") -> None:
     """``scores.json``: the row's scores and why any is missing."""
-    write_artifact(scene_dir / "scores.json", json.dumps(
+    write_artifact(scene_dir / layout.SCORES, json.dumps(
         {"scores": result.scores, "unavailable": result.unavailable,
          "fallback": result.fallback, "failure_class": result.failure_class}, indent=1))

@@ -16,7 +16,7 @@ from typing import Any
 from omegaconf import OmegaConf
 
 from visphy_core.api.hookspecs import hookimpl
-from visphy_core.results.layout import RUN_FILES
+from visphy_core.results.layout import RUN_FILES, VIDEO
 from visphy_core.results.run_dir import RunDir
 from visphy_core.tracking.shards import adopt_shard_runs
 from visphy_core.tracking.store import (
@@ -275,7 +275,7 @@ def _log_run_files(client, run_id: str, run, summary: dict, report: Path | None)
     if report is not None:
         client.log_artifacts(run_id, str(report), "report")
     if run.cfg.tracking.get("log_videos"):
-        for video in sorted(run_files.scenes.glob("*/video.mp4")):
+        for video in sorted(run_files.scenes.glob(f"*/{VIDEO}")):
             client.log_artifact(run_id, str(video), f"videos/{video.parent.name}")
 
 
