@@ -138,10 +138,17 @@ def test_in_place_reuses_the_cache_and_keeps_a_backup(finished, no_chromium, tmp
     run = tmp_path / finished["run"].name
     shutil.copytree(finished["run"], run)
     original = (run / "results.jsonl").read_bytes()
+    # a headline's details from an earlier scoring: these metrics make no headline, so the
+    # file must go (into the backup) rather than stay beside scores it does not describe
+    stale = run / "scenes" / "task10000_000" / "headline.json"
+    stale.write_text('{"value": 0.5}')
     _cli("score", str(run), "--in-place", f"metrics.names=[psnr,ssim,{NEW_METRIC}]",
          "tracking=none", home=finished["home"], env=no_chromium)
     (backup,) = run.glob("rescore-backup-*")
     assert (backup / "results.jsonl").read_bytes() == original
+    assert not stale.exists()
+    assert (backup / "scenes" / "task10000_000" / "headline.json").read_text() == \
+        '{"value": 0.5}'
     assert all(isinstance(r[f"score_{NEW_METRIC}"], float) for r in _rows(run))
     summary = json.loads((run / "summary.json").read_text())
     assert summary["run_dir"] == str(run) and summary["rescored_from"] == str(run)
