@@ -321,9 +321,9 @@ def _evaluate(scene: Scene, reference: np.ndarray, services: SceneServices, scen
                 _write(scene_dir / layout.attempt_file(layout.PROGRAM, attempt, ext),
                        program.source)
                 with services.progress.stage("render", scene.scene_id):
-                    outcome = _render_with_infra_retry(engine, program, contract,
-                                                       services.cache, scene_dir, attempt,
-                                                       result, services.progress, renders)
+                    outcome = render_with_infra_retry(engine, program, contract,
+                                                      services.cache, scene_dir, attempt,
+                                                      result, services.progress, renders)
                 if outcome.failure is None:
                     break
                 failure, detail, failed_source, logs = (outcome.failure, outcome.error or "",
@@ -381,11 +381,11 @@ def _write_clip(result: SceneResult, outcome: RenderOutcome | None, clip: np.nda
     return generated
 
 
-def _render_with_infra_retry(engine: Engine, program: Program, contract: RenderContract,
-                             cache: Cache, scene_dir: Path, attempt: int,
-                             result: SceneResult,
-                             progress: StageEvents | None = None,
-                             renders: dict[str, RenderOutcome] | None = None) -> RenderOutcome:
+def render_with_infra_retry(engine: Engine, program: Program, contract: RenderContract,
+                            cache: Cache, scene_dir: Path, attempt: int,
+                            result: SceneResult,
+                            progress: StageEvents | None = None,
+                            renders: dict[str, RenderOutcome] | None = None) -> RenderOutcome:
     outcome = render_cached(engine, program, contract, cache, renders)
     log_lines = []
     if outcome.failure is FailureClass.INFRA_ERROR:

@@ -56,7 +56,7 @@ def render_alone(args, reply: Path) -> int:
     """Extract, validate and render ``reply`` with ``args.engine``; see the module docstring."""
     from visphy_core.api.registry import get_registry
     from visphy_core.config.check import check_overrides
-    from visphy_core.execute.pipeline import _render_with_infra_retry
+    from visphy_core.execute.pipeline import render_with_infra_retry
     from visphy_core.execute.run_setup import _isolation
     from visphy_core.infra.cache import Cache
     from visphy_core.results.row import SceneResult
@@ -87,11 +87,11 @@ def render_alone(args, reply: Path) -> int:
         outcome = None
     else:
         ext = "html" if program.language == "html" else "py"
-        _write(out / f"program.{ext}", program.source)
+        _write(out / layout.attempt_file(layout.PROGRAM, 1, ext), program.source)
         cache = Cache(Path(cfg.paths.cache_dir).resolve(), enabled=bool(cfg.run.cache))
         try:
-            outcome = _render_with_infra_retry(engine, program, contract, cache, out, "",
-                                               result)
+            outcome = render_with_infra_retry(engine, program, contract, cache, out, 1,
+                                              result)
         finally:
             engine.close()
         if outcome.failure is not None:

@@ -369,7 +369,8 @@ class BrowserPool:
                 except OSError:
                     pass
 
-    async def _restart(self) -> None:
+    async def _shut_down(self) -> None:
+        """Close the browsers, then stop Playwright's driver (waiting at most 10 s)."""
         await self._close_browsers()
         if self._playwright is not None:
             try:
@@ -377,22 +378,16 @@ class BrowserPool:
             except Exception:
                 pass
             self._playwright = None
+
+    async def _restart(self) -> None:
+        await self._shut_down()
         self.restarts += 1
         await self._start()
 
     def close(self) -> None:
-        async def _close():
-            await self._close_browsers()
-            if self._playwright is not None:
-                try:
-                    await asyncio.wait_for(self._playwright.stop(), 10)
-                except Exception:
-                    pass
-                self._playwright = None
-
         if self._thread.is_alive():
             try:
-                self._run(_close(), timeout=30)
+                self._run(self._shut_down(), timeout=30)
             finally:
                 self._loop.call_soon_threadsafe(self._loop.stop)
                 self._thread.join(timeout=5)
