@@ -197,7 +197,8 @@ def test_gravity_and_restitution_3d(mini_root):
 @pytest.mark.browser
 def test_from_a_runs_spec(home, doubled_gravity, monkeypatch):
     """``--run``: the oracle's S is the ground truth, so the intervention on it is the one on
-    the ground truth, trajectory for trajectory; a scene without S is a one-line error."""
+    the ground truth, trajectory for trajectory; after a repair, the repaired reply's S; a
+    scene without S is a one-line error."""
     run_cli("model=oracle", "dataset.limit=1", "tracking=none", home=home)
     (run_dir,) = (home / "runs").iterdir()
     out = home / "from_run"
@@ -209,7 +210,32 @@ def test_from_a_runs_spec(home, doubled_gravity, monkeypatch):
         ours = np.load(out / f"trajectory.{name}.npz")
         gt = np.load(doubled_gravity[0] / f"trajectory.{name}.npz")
         assert np.array_equal(ours["step_poses"], gt["step_poses"])
-    (run_dir / "scenes" / SCENE_2D / "spec.json").unlink()
+    # after a repair, the S of the kept (second) reply is the one the spec track used: here
+    # the ground truth's with gravity doubled, so its trajectory is the doubled ground truth's
+    scene_dir = run_dir / "scenes" / SCENE_2D
+    repaired = json.loads((scene_dir / "spec.json").read_text())
+    repaired["world"]["gravity_m_s2"] = [2 * g for g in repaired["world"]["gravity_m_s2"]]
+    (scene_dir / "spec.attempt2.json").write_text(json.dumps(repaired))
+    (scene_dir / "response.attempt2.txt").write_text(
+        "Repaired.\n```json\n" + json.dumps(repaired) + "\n```\n")
+    (scene_dir / "response.attempt2.json").write_text(json.dumps({"error": None}))
+    rows = (run_dir / "results.jsonl").read_text().splitlines()
+    rows = [json.dumps({**json.loads(r), "attempts": 2}) if SCENE_2D in r else r for r in rows]
+    (run_dir / "results.jsonl").write_text("\n".join(rows) + "\n")
+    out2 = home / "from_repair"
+    run_cli("intervene", "--scene", SCENE_2D, "--run", str(run_dir), "--set", "gravity=x2",
+            "-o", str(out2), home=home)
+    ours = np.load(out2 / "trajectory.original.npz")
+    gt = np.load(doubled_gravity[0] / "trajectory.intervened.npz")
+    assert np.array_equal(ours["step_poses"], gt["step_poses"])
+    # a repair that failed at the provider keeps the first reply's S
+    (scene_dir / "response.attempt2.json").write_text(json.dumps({"error": "HTTP 500"}))
+    out3 = home / "after_failed_repair"
+    run_cli("intervene", "--scene", SCENE_2D, "--run", str(run_dir), "--set", "gravity=x2",
+            "-o", str(out3), home=home)
+    assert np.array_equal(np.load(out3 / "trajectory.original.npz")["step_poses"],
+                          np.load(out / "trajectory.original.npz")["step_poses"])
+    (scene_dir / "spec.json").unlink()
     monkeypatch.setenv("VISPHY_HOME", str(home))
     with pytest.raises(UserError, match="the model wrote no scene spec S"):
         intervene_command(["--scene", SCENE_2D, "--run", str(run_dir), "--set", "gravity=x2"])

@@ -1,8 +1,9 @@
 """``python -m visphy_core intervene``: change named physical parameters of a scene, re-simulate,
 render the original and the intervened scene side by side.
 
-The starting spec is the ground truth's (``--gt``) or a run's S (``--run RUN_DIR``: the model's
-``scenes/<id>/spec.json`` merged into the scene's world exactly as the spec track merges it).
+The starting spec is the ground truth's (``--gt``) or a run's S (``--run RUN_DIR``: the S of the
+reply the scene kept, ``spec.json`` or a repair's ``spec.attempt2.json``, merged into the scene's
+world exactly as the spec track merges it).
 Both specs, original and intervened, go through the same path: simulated by visphy's physics
 (`visphy_core.spec.spec_track`), replayed by the engine's trusted reference program and rendered
 through the content-addressed render cache, like the variance normalisation's twin. The
@@ -155,12 +156,17 @@ def _run_start(run_dir: Path, scene_id: str):
     from visphy_core.api.scene import read_json
     from visphy_core.execute.run_scenes import load_run_scenes
     from visphy_core.results.layout import SPEC, attempt_file
-    from visphy_core.results.run_dir import RunDir
+    from visphy_core.results.run_dir import RunDir, kept_attempt
     from visphy_core.spec.spec_track import SpecTrackError, merged_spec
 
-    path = RunDir(run_dir).scene_dir(scene_id) / attempt_file(SPEC, 1, "json")
-    if not path.parent.is_dir():
+    run = RunDir(run_dir)
+    scene_dir = run.scene_dir(scene_id)
+    if not scene_dir.is_dir():
         raise UserError(f"{run_dir} has no scene {scene_id}")
+    # the S the row's spec track used: that of the reply the scene kept (a repair's, if any)
+    row = next((r for r in run.read_rows()[0] if r.scene_id == scene_id), None)
+    attempt = kept_attempt(scene_dir, row.attempts if row is not None else 1) or 1
+    path = scene_dir / attempt_file(SPEC, attempt, "json")
     if not path.is_file():
         raise UserError(f"{path} does not exist: the model wrote no scene spec S for "
                         f"{scene_id} (use --gt to start from the ground truth)")

@@ -21,7 +21,6 @@ the rest).
 from __future__ import annotations
 
 import datetime as dt
-import json
 import os
 import shutil
 from dataclasses import dataclass, replace
@@ -45,6 +44,7 @@ from visphy_core.infra import files
 from visphy_core.infra.cache import Cache
 from visphy_core.infra.errors import SceneDataError, UserError
 from visphy_core.infra.video import decode_video, load_clip_for
+from visphy_core.results import layout
 from visphy_core.results.layout import CALLS, DERIVED_FILES, LOCK, SCORABLE_FILES
 from visphy_core.results.row import SceneResult
 from visphy_core.results.run_dir import (
@@ -54,6 +54,7 @@ from visphy_core.results.run_dir import (
     RunDir,
     RunLock,
     config_hash,
+    kept_attempt,
 )
 from visphy_core.results.summary import summarise
 from visphy_core.scoring.ground_truth import open_store, store_path
@@ -67,7 +68,6 @@ from visphy_core.scoring.scene_scores import (
     write_scores,
 )
 from visphy_core.scoring.score import ScoringProtocol, score_columns, select_metrics
-from visphy_core.results import layout
 
 class RunDirClips:
     """`visphy_core.scoring.scene_scores.ReferenceClips` read back from a scene folder: re-scoring
@@ -142,18 +142,12 @@ def _data_dir(cfg: DictConfig) -> Path:
 
 def _final_reply(scene_dir: Path, attempts: int) -> tuple[str | None, dict | None]:
     """(analysis A, spec S) as the pipeline kept them: from the last reply that was not an
-    error (`visphy_core.execute.pipeline`'s attempt loop)."""
-    analysis, spec = None, None
-    for attempt in range(1, max(attempts, 1) + 1):
-        text = scene_dir / layout.attempt_file(layout.RESPONSE, attempt, "txt")
-        if not text.is_file():
-            break
-        meta = scene_dir / layout.attempt_file(layout.RESPONSE, attempt, "json")
-        if meta.is_file() and json.loads(meta.read_text()).get("error"):
-            break
-        reply = text.read_text()
-        analysis, spec = extract_analysis(reply), extract_spec(reply)
-    return analysis, spec
+    error (`visphy_core.results.run_dir.kept_attempt`)."""
+    attempt = kept_attempt(scene_dir, attempts)
+    if attempt is None:
+        return None, None
+    reply = (scene_dir / layout.attempt_file(layout.RESPONSE, attempt, "txt")).read_text()
+    return extract_analysis(reply), extract_spec(reply)
 
 
 def _decoded_reply(scene_dir: Path, result: SceneResult, scene: Scene,

@@ -142,6 +142,20 @@ class RunDir:
         return [result for _, result in kept.values()]
 
 
+def kept_attempt(scene_dir: Path, attempts: int) -> int | None:
+    """The attempt whose reply a scene's row kept (its analysis A and spec S): the last of
+    ``attempts`` before the first whose reply is missing or was a provider error, as the
+    pipeline's attempt loop keeps them; None when the first already is."""
+    kept = None
+    for attempt in range(1, max(attempts, 1) + 1):
+        text = scene_dir / layout.attempt_file(layout.RESPONSE, attempt, "txt")
+        meta = scene_dir / layout.attempt_file(layout.RESPONSE, attempt, "json")
+        if not text.is_file() or (meta.is_file() and _read_json(meta).get("error")):
+            break
+        kept = attempt
+    return kept
+
+
 def _read_json(path: Path) -> dict[str, Any]:
     data = json.loads(path.read_bytes().decode("utf-8", errors="replace"))
     if not isinstance(data, dict):
