@@ -1,6 +1,7 @@
 """The docs site (mkdocs.yml, docs/): the generated reference pages match the code, the
 "Extending" pages include the example plugin's modules as they are, and the site builds with
-``mkdocs build --strict`` (a broken link, a missing page or a snippet that does not exist fails)."""
+``mkdocs build --strict`` (a broken link or heading anchor, a missing page or a snippet that
+does not exist fails)."""
 
 from __future__ import annotations
 
