@@ -20,12 +20,12 @@ from visphy_core.execute.render_cache import (
 from visphy_core.infra.cache import Cache
 from visphy_core.infra.errors import one_line
 from visphy_core.infra.events import StageEvents
+from visphy_core.results import layout
 from visphy_core.results.write import write_artifact
 from visphy_core.scoring.ground_truth import writable
 from visphy_core.scoring.normalisation import twin_scene
 from visphy_core.scoring.reference_clips import ReferenceClipUnavailable
 from visphy_core.spec.spec_track import SpecTrackError, spec_scene
-from visphy_core.results import layout
 
 _write = write_artifact
 

@@ -52,6 +52,7 @@ from visphy_core.infra.errors import SceneDataError, UserError, host_fault, one_
 from visphy_core.infra.events import StageEvents
 from visphy_core.infra.secrets import redact
 from visphy_core.infra.video import decode_video, encode_video, frame_digest, load_clip_for
+from visphy_core.results import layout
 from visphy_core.results.row import SceneResult
 from visphy_core.results.write import write_artifact
 from visphy_core.scoring.headline import Headline
@@ -65,7 +66,7 @@ from visphy_core.scoring.scene_scores import (
 )
 from visphy_core.scoring.score import ScoringProtocol
 from visphy_core.spec.reply_spec import spec_problems
-from visphy_core.results import layout
+
 
 def error_summary(outcome_error: str | None, logs: list[str], max_lines: int = 12) -> str:
     """Concise error text for the repair prompt: the error, then the last lines of the log."""

@@ -16,10 +16,10 @@ import sys
 from pathlib import Path
 
 from visphy_core.infra.errors import UserError
+from visphy_core.results import layout
 from visphy_core.results.layout import CALLS
 from visphy_core.scoring.headline import Headline
 from visphy_core.scoring.score import ScoringProtocol, select_metrics
-from visphy_core.results import layout
 
 
 def render_scene(args: argparse.Namespace, reply: Path) -> int:

@@ -69,6 +69,7 @@ from visphy_core.scoring.scene_scores import (
 )
 from visphy_core.scoring.score import ScoringProtocol, score_columns, select_metrics
 
+
 class RunDirClips:
     """`visphy_core.scoring.scene_scores.ReferenceClips` read back from a scene folder: re-scoring
     never renders, so a clip the run did not make is unavailable, with the run's own reason

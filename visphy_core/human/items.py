@@ -19,8 +19,8 @@ from pathlib import Path
 from visphy_core.execute.run_scenes import load_run_scenes
 from visphy_core.infra import files
 from visphy_core.infra.errors import UserError
-from visphy_core.results.layout import CONFIG, is_run_dir
 from visphy_core.results import layout
+from visphy_core.results.layout import CONFIG, is_run_dir
 from visphy_core.results.run_dir import RunDir
 
 log = logging.getLogger("visphy.human")

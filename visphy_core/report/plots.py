@@ -22,9 +22,8 @@ from typing import Any, NamedTuple
 
 from visphy_core.report.column_groups import direction_of, group_of
 from visphy_core.report.markup import attr, esc, fmt
+from visphy_core.report.svg import GRID, MUTED, SERIES, line, n, nice_ticks, svg, text
 from visphy_core.results.columns import JUDGE_PREFIX, norm_column
-from visphy_core.report.svg import (GRID, MUTED, SERIES, line, n, nice_ticks,
-                                    svg, text)
 
 #: The headline's axis always shows at least this range (its default clip).
 HEADLINE_SPAN = (-1.0, 1.0)

@@ -21,8 +21,8 @@ from visphy_core.report.markup import arrow, attr, details, esc, fmt, pre, table
 from visphy_core.report.media import MediaStore, Placed, clip_timing
 from visphy_core.report.scene_plots import scene_plots
 from visphy_core.report.spec_diff import diff_table
-from visphy_core.results.row import NOT_EVALUABLE, SceneResult
 from visphy_core.results import layout
+from visphy_core.results.row import NOT_EVALUABLE, SceneResult
 
 #: Untrusted texts longer than this are cut in the page (the file keeps everything).
 MAX_TEXT = 200_000

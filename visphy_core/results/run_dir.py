@@ -25,6 +25,7 @@ from visphy_core.results.row import SceneResult
 from visphy_core.results.rows import parse_line, read_results, write_results
 from visphy_core.results.write import write_json
 
+
 @dataclass(frozen=True)
 class RunDir:
     """A run directory's files (`visphy_core.results.layout`): where each is, and the one reader

@@ -52,7 +52,6 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator, Mapping, Sequence
 
-
 from visphy_core.sandbox.chromium import (
     CHROMIUM_UID,
     MERGE_FEATURES_SH,
@@ -65,17 +64,17 @@ from visphy_core.sandbox.chromium import (
     rss_bytes,
     sh_quote,
 )
-from visphy_core.sandbox.policy import (
-    ALLOW_UNISOLATED_ENV,
-    set_allow_unisolated,
-    unisolated_allowed,
-)
 from visphy_core.sandbox.page import (  # noqa: F401 - PageCapture and the clock: public here
     VIRTUAL_TIME_JS,
     PageCapture,
     capture_frames,
     load_program,
     page_init,
+)
+from visphy_core.sandbox.policy import (
+    ALLOW_UNISOLATED_ENV,
+    set_allow_unisolated,
+    unisolated_allowed,
 )
 from visphy_core.sandbox.prepared import PageInit, PreparedPage, discard, open_page
 from visphy_core.sandbox.routing import Asset

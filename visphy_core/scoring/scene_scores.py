@@ -28,6 +28,7 @@ from visphy_core.calls.judging import JudgeCaller
 from visphy_core.calls.references import ReferenceWriter
 from visphy_core.infra.cache import Cache, content_key
 from visphy_core.infra.events import StageEvents
+from visphy_core.results import layout
 from visphy_core.results.columns import SPEC_PREFIX, norm_column
 from visphy_core.results.write import write_artifact
 from visphy_core.scoring.ground_truth import scene_anchors
@@ -35,7 +36,6 @@ from visphy_core.scoring.headline import Headline, scene_headline
 from visphy_core.scoring.normalisation import normalised, perturbation
 from visphy_core.scoring.reference_clips import ReferenceClips, ReferenceClipUnavailable
 from visphy_core.scoring.score import ScoringProtocol, clip_digest, score_columns, score_scene
-from visphy_core.results import layout
 
 if TYPE_CHECKING:
     from visphy_core.api.engine import Program
