@@ -40,7 +40,6 @@ from visphy_core.api.hookspecs import hookimpl
 from visphy_core.api.model import Model, ModelRequest, ModelResponse
 from visphy_core.api.storage import files
 from visphy_core.results import layout
-from visphy_core.results.layout import MANIFEST, RESULTS_JSONL
 from visphy_core.results.row import SceneResult
 from visphy_core.results.rows import parse_lines
 
@@ -70,13 +69,13 @@ class ReplayModel(Model):
         if not hasattr(self, "_run_dir"):
             self._run_dir = self.source.is_dir() \
                 and files.entry_kind(self.source / layout.SCENES, self.root) == "dir" \
-                and files.is_file(self.source / MANIFEST, self.root)
+                and files.is_file(self.source / layout.MANIFEST, self.root)
         return self._run_dir
 
     def _detect_output(self) -> str:
         if self._is_run_dir():
             try:
-                manifest = files.read_json(self.source / MANIFEST, self.root)
+                manifest = files.read_json(self.source / layout.MANIFEST, self.root)
                 return ((manifest or {}).get("model") or {}).get("output", "program")
             except (OSError, ValueError, AttributeError):
                 return "program"
@@ -149,7 +148,8 @@ class ReplayModel(Model):
         if not hasattr(self, "_rows"):
             self._rows = {}
             try:
-                text = files.read_text(self.source / RESULTS_JSONL, self.root, kind="jsonl")
+                text = files.read_text(self.source / layout.RESULTS_JSONL, self.root,
+                                      kind="jsonl")
             except (OSError, ValueError):
                 return self._rows
             self._rows = {r.scene_id: r for r in parse_lines(text)[0]}

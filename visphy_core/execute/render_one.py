@@ -17,7 +17,6 @@ from pathlib import Path
 
 from visphy_core.infra.errors import UserError
 from visphy_core.results import layout
-from visphy_core.results.layout import CALLS
 from visphy_core.scoring.headline import Headline
 from visphy_core.scoring.score import ScoringProtocol, select_metrics
 
@@ -65,7 +64,7 @@ def render_scene(args: argparse.Namespace, reply: Path) -> int:
     out = Path(args.out) if args.out else Path(cfg.paths.root) / "render" / (
         f"{scene.scene_id}_{args.engine}_{dt.datetime.now():%Y-%m-%d_%H-%M-%S}")
     out.mkdir(parents=True, exist_ok=True)
-    ledger = UsageLedger(out / CALLS)
+    ledger = UsageLedger(out / layout.CALLS)
     engine = registry.get("engines", cfg.engine.name)(cfg.engine)
     metrics = select_metrics(registry, cfg.metrics)
     services = SceneServices(

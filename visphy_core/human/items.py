@@ -75,8 +75,8 @@ def collect_items(run_dirs: list[Path]) -> list[RatingItem]:
     directories with the same name (copies) give the same ids: only the first is kept."""
     items: dict[str, RatingItem] = {}
     for run_dir in run_dirs:
-        scene_ids = sorted(p.parent.name
-                           for p in RunDir(run_dir).scenes.glob(f"*/{layout.VIDEO}"))
+        run_files = RunDir(run_dir)
+        scene_ids = sorted(p.parent.name for p in run_files.scenes.glob(f"*/{layout.VIDEO}"))
         if not scene_ids:
             continue
         scenes = load_run_scenes(run_dir, scene_ids)
@@ -91,7 +91,7 @@ def collect_items(run_dirs: list[Path]) -> list[RatingItem]:
                             run_dir, items[key].run_dir)
                 continue
             items[key] = RatingItem(key, run_dir, scene_id,
-                                    RunDir(run_dir).scene_dir(scene_id) / layout.VIDEO,
+                                    run_files.scene_dir(scene_id) / layout.VIDEO,
                                     Path(scene.video_path).resolve())
     if not items:
         raise UserError("no generated clip to rate in "

@@ -36,8 +36,9 @@ def build_run_page(run: RunData, out_dir: Path) -> str:
     results = {r.scene_id: r for r in run.results}
     media = MediaStore(out_dir)
     preload = "metadata" if len(ids) > EAGER_SCENES else "auto"
+    run_files = RunDir(run.run_dir)
     views = [SceneView(scene_id=sid, result=results.get(sid),
-                       scene_dir=RunDir(run.run_dir).scene_dir(sid), truth=truths[sid],
+                       scene_dir=run_files.scene_dir(sid), truth=truths[sid],
                        summary=run.summary, preload=preload) for sid in ids]
     frames = FrameData(out_dir)
     sections = "".join(scene_section(v, media, frames) for v in views)
