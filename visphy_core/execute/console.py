@@ -38,6 +38,7 @@ from visphy_core.results.columns import (
     PAPER_PREFIX,
     SPEC_PREFIX,
 )
+from visphy_core.results.layout import RESULTS_JSONL
 
 #: A pipe or a log file has no width: lines and tables are written whole, however wide (rich
 #: would cut them at 80 columns).
@@ -553,7 +554,7 @@ def _print_family_means(console: Console, summary: dict, rows: dict, headline: s
         table.add_row(*cells, ", ".join(means))
     console.print(table)
     console.print("every metric under every pairing: run.summary=full; per scene: "
-                  "results.csv and the report", soft_wrap=False)
+                  f"{RESULTS_JSONL} and the report", soft_wrap=False)
 
 
 def _print_full_means(console: Console, metrics: dict, rows: dict, unavailable: dict) -> None:
